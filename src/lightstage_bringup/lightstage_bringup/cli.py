@@ -1,0 +1,51 @@
+"""The `lightstage` command: one entry point, verbs owned by the packages that implement them.
+
+Each verb maps to a plain function `main(argv: list[str]) -> int` in the package that owns
+the work, imported only when the verb is used so that `lightstage --help` stays fast and a
+verb's heavy dependencies (rclpy, scikit-learn) load only when needed.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# verb -> (module, function, one-line help)
+VERBS: dict[str, tuple[str, str, str]] = {
+    'up': ('lightstage_bringup.launcher', 'main',
+           'start project nodes as separate processes, wait until discoverable, forward logs'),
+    'synth': ('lightstage_camera.synth', 'main',
+              'write the synthetic light-stage dataset (a capture folder)'),
+    'train': ('mux_trainer.cli', 'train_main',
+              'learn illumination patterns and a classifier from a capture folder'),
+    'eval': ('mux_trainer.cli', 'eval_main',
+             'evaluate naive, SNR-optimal and greedy illumination on a capture folder'),
+}
+
+
+def _parser() -> argparse.ArgumentParser:
+    width = max(len(v) for v in VERBS)
+    lines = [f'  {verb:<{width}}  {help_}' for verb, (_, _, help_) in VERBS.items()]
+    return argparse.ArgumentParser(
+        prog='lightstage',
+        description='Multiplexed-illumination light stage: simulate, train, classify.',
+        epilog='verbs:\n' + '\n'.join(lines) + '\n\n`lightstage VERB --help` for the options of a verb.',
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = _parser()
+    if not argv or argv[0] in ('-h', '--help'):
+        parser.print_help()
+        return 0 if argv else 2
+    verb, rest = argv[0], argv[1:]
+    if verb not in VERBS:
+        parser.error(f'unknown verb {verb!r}; choose one of: {", ".join(VERBS)}')
+    module, function, _ = VERBS[verb]
+    entry = getattr(importlib.import_module(module), function)
+    return int(entry(rest) or 0)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

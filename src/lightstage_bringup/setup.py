@@ -1,0 +1,32 @@
+"""ament_python package: installs with pip into a venv and builds unchanged with colcon."""
+from setuptools import find_packages, setup
+
+package_name = 'lightstage_bringup'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    include_package_data=True,
+    package_data={'lightstage_bringup': ['config/*.xml', 'config/*.yaml']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', ['lightstage_bringup/config/fastdds_profile.xml']),
+        # `ros2 run lightstage_bringup EXE` looks for an executable at <prefix>/lib/<pkg>/EXE;
+        # pip puts console_scripts in bin/, so small wrappers are installed there as data.
+        ('lib/' + package_name, ['scripts/recorder_node'])
+    ],
+    install_requires=['setuptools'],
+    zip_safe=False,
+    maintainer='lightstage maintainers',
+    maintainer_email='maintainers@lightstage.invalid',
+    description='Bring-up of the whole graph: the lightstage CLI, ROS environment, launch files, configuration, recording and replay.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'lightstage = lightstage_bringup.cli:main',
+            'lightstage-recorder-node = lightstage_bringup.recorder_node:main'
+        ],
+    },
+)

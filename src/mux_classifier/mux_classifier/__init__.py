@@ -1,0 +1,1 @@
+"""Features (HOG) and the trained multiplexed-illumination classifier; the classify node."""

@@ -1,0 +1,29 @@
+"""ament_python package: installs with pip into a venv and builds unchanged with colcon."""
+from setuptools import find_packages, setup
+
+package_name = 'mux_classifier'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    include_package_data=True,
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        # `ros2 run mux_classifier EXE` looks for an executable at <prefix>/lib/<pkg>/EXE;
+        # pip puts console_scripts in bin/, so small wrappers are installed there as data.
+        ('lib/' + package_name, ['scripts/classifier_node'])
+    ],
+    install_requires=['setuptools'],
+    zip_safe=False,
+    maintainer='lightstage maintainers',
+    maintainer_email='maintainers@lightstage.invalid',
+    description='Features (HOG) and the trained multiplexed-illumination classifier; the classify node.',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'mux-classifier-node = mux_classifier.classifier_node:main'
+        ],
+    },
+)
