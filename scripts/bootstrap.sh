@@ -1,0 +1,114 @@
+#!/usr/bin/env bash
+# Create or reuse .venv and install everything the workspace needs, idempotently.
+#
+# Steps run only when their inputs changed (a hash stamp per step in .venv/.stamps), so a
+# second run finishes in seconds. Details go to .cache/bootstrap.log; the terminal gets one
+# line per step. Set LIGHTSTAGE_PYTHON to choose the interpreter (Python 3.11: the ROS 2
+# Jazzy wheels and the interface build are tied to it).
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+VENV="$ROOT/.venv"
+STAMPS="$VENV/.stamps"
+LOG_DIR="$ROOT/.cache"
+LOG="$LOG_DIR/bootstrap.log"
+mkdir -p "$LOG_DIR"
+: > "$LOG"
+
+# Debian packages: the interface build (cmake, ninja), the AVR firmware build and its
+# simulator (gcc-avr, avr-libc, simavr), and what the simavr harness links against.
+APT_PACKAGES=(cmake ninja-build g++ make pkg-config gcc-avr binutils-avr avr-libc
+              simavr libsimavr-dev libsimavrparts1 libelf-dev)
+PROJECT_PACKAGES=(lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_bringup)
+
+step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }
+fail() {
+  printf '[bootstrap] FAILED: %s\n[bootstrap] last lines of %s:\n' "$1" "$LOG" >&2
+  tail -n 25 "$LOG" >&2
+  exit 1
+}
+# Hash of the given files/dirs (contents and names), ignoring build products.
+tree_hash() {
+  find "$@" -type f -not -path '*/build/*' -not -path '*/__pycache__/*' \
+       -not -name '*.pyc' -not -path '*.egg-info/*' -print0 2>/dev/null \
+    | LC_ALL=C sort -z | xargs -0 sha256sum | sha256sum | cut -c1-16
+}
+stamp_ok() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
+stamp_set() { mkdir -p "$STAMPS"; echo "$2" > "$STAMPS/$1"; }
+
+# 1. Debian packages
+missing=()
+for p in "${APT_PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  step "installing Debian packages: ${missing[*]}"
+  SUDO=""
+  if [ "$(id -u)" != 0 ]; then
+    command -v sudo >/dev/null || fail "need root or sudo to install: ${missing[*]}"
+    SUDO="sudo"
+  fi
+  { $SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}"; } >> "$LOG" 2>&1 \
+    || fail "apt-get install ${missing[*]}"
+fi
+
+# 2. the venv
+if [ ! -x "$VENV/bin/python" ]; then
+  PY="${LIGHTSTAGE_PYTHON:-}"
+  if [ -z "$PY" ]; then
+    for cand in python3.11 python3; do
+      if command -v "$cand" >/dev/null && "$cand" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+        PY="$cand"; break
+      fi
+    done
+  fi
+  [ -n "$PY" ] || fail "Python 3.11 not found (the ROS 2 Jazzy wheels need it); set LIGHTSTAGE_PYTHON"
+  step "creating .venv with $("$PY" --version 2>&1)"
+  "$PY" -m venv "$VENV" >> "$LOG" 2>&1 || fail "python -m venv"
+fi
+PIP=("$VENV/bin/python" -m pip --disable-pip-version-check)
+
+# 3. pinned Python dependencies
+h=$(tree_hash requirements.txt constraints.txt)
+if ! stamp_ok requirements "$h"; then
+  step "installing pinned Python dependencies (ROS 2 Jazzy wheels, numpy, scikit-learn, ...)"
+  "${PIP[@]}" install -q 'pip==26.3' 'setuptools==79.0.1' 'wheel==0.48.0' >> "$LOG" 2>&1 || fail "pip upgrade"
+  "${PIP[@]}" install -q -r requirements.txt -c constraints.txt >> "$LOG" 2>&1 || fail "pip install -r requirements.txt"
+  stamp_set requirements "$h"
+fi
+
+# 4. the interface package (rosidl, built with cmake against the wheels)
+if [ -f src/lightstage_interfaces/pyproject.toml ]; then
+  h=$(tree_hash src/lightstage_interfaces)
+  if ! stamp_ok interfaces "$h"; then
+    step "building lightstage_interfaces (rosidl; about a minute)"
+    "${PIP[@]}" install -q --no-build-isolation --no-deps --force-reinstall ./src/lightstage_interfaces >> "$LOG" 2>&1 \
+      || fail "building src/lightstage_interfaces"
+    stamp_set interfaces "$h"
+  fi
+fi
+
+# 5. the firmware (AVR) and its simavr harness
+if [ -f src/lightstage_driver/firmware/Makefile ]; then
+  h=$(tree_hash src/lightstage_driver/firmware)
+  if ! stamp_ok firmware "$h" || [ ! -d src/lightstage_driver/firmware/build ]; then
+    step "building the AVR firmware and the simavr harness"
+    make -C src/lightstage_driver/firmware >> "$LOG" 2>&1 || fail "make -C src/lightstage_driver/firmware"
+    stamp_set firmware "$h"
+  fi
+fi
+
+# 6. the project's ament_python packages (regular installs: data files such as the
+#    ament index markers and the lib/<pkg>/ executables for `ros2 run` land in the venv)
+for pkg in "${PROJECT_PACKAGES[@]}"; do
+  h=$(tree_hash "src/$pkg")
+  if ! stamp_ok "$pkg" "$h"; then
+    step "installing $pkg"
+    "${PIP[@]}" install -q --no-build-isolation --no-deps --force-reinstall "./src/$pkg" >> "$LOG" 2>&1 \
+      || fail "pip install ./src/$pkg"
+    rm -rf "src/$pkg/build" "src/$pkg/"*.egg-info
+    stamp_set "$pkg" "$h"
+  fi
+done
+step "ready: $VENV"
