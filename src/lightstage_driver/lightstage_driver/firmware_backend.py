@@ -1,0 +1,104 @@
+"""What a firmware under test looks like to the driver's test suite and benchmark.
+
+Two backends implement it: the Python firmware simulator
+(`lightstage_driver.sim_backend.PythonSimBackend`) and the compiled AVR firmware running
+in simavr (`lightstage_driver.simavr_backend.SimavrBackend`). The driver opens `port`
+like a USB serial port; the backend watches the stage's outputs (the LED word latched
+into the shift-register chain, the camera trigger pin) and reports them.
+
+Times reported here are on the backend's own clock: seconds since the backend's firmware
+started (simulated time for simavr, host monotonic time for the Python simulator).
+Pulse widths are in microseconds as measured on the pins (simulated cycles for simavr).
+"""
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class LatchedWord:
+    """One LED word latched to the LEDs (bit i = LED i, site-major)."""
+    time_s: float
+    word: int
+
+
+@dataclass(frozen=True)
+class TriggerPulse:
+    """One camera trigger pulse: rising edge time and width."""
+    start_s: float
+    width_us: float
+
+
+class FirmwareBackend(abc.ABC):
+    """A firmware the driver can talk to over a pseudo-terminal, with its pins observed.
+
+    Lifecycle: `start()` brings the firmware up (power-on: LEDs off, `EVT_READY` sent);
+    `stop()` shuts it down cleanly; `kill()` cuts it off abruptly (like pulling the USB
+    cable: the pty closes, the host's reads fail); `restart()` powers it up again after
+    `stop()` or `kill()`. `port` stays the same path across restarts (a symlink to the
+    current pty slave, like /dev/serial/by-id/...), so a driver that reconnects by path
+    finds the firmware again. Usable as a context manager (start on enter, stop on exit).
+    """
+
+    #: short name used in test ids and benchmark output ("python", "avr")
+    name: str = 'backend'
+    #: True if `set_faults` is implemented (only the Python simulator has fault knobs)
+    supports_faults: bool = False
+    #: how far a measured trigger pulse width may be from the requested exposure [us]
+    pulse_tolerance_us: float = 10.0
+
+    @abc.abstractmethod
+    def start(self) -> None:
+        """Power the firmware up. Returns once `port` can be opened."""
+
+    @abc.abstractmethod
+    def stop(self) -> None:
+        """Shut the firmware down cleanly and release its pty. Idempotent."""
+
+    @abc.abstractmethod
+    def kill(self) -> None:
+        """Cut the firmware off abruptly (process killed, pty closed without warning)."""
+
+    def restart(self) -> None:
+        """Power up again after `stop()` or `kill()` (state lost, as after a reset)."""
+        self.stop()
+        self.start()
+
+    @property
+    @abc.abstractmethod
+    def port(self) -> str:
+        """Path the driver opens (stable across restarts)."""
+
+    @property
+    @abc.abstractmethod
+    def running(self) -> bool:
+        """True while the firmware is up."""
+
+    @abc.abstractmethod
+    def led_words(self) -> list[LatchedWord]:
+        """Every LED word latched since start or the last `reset_observations()`, in order."""
+
+    @abc.abstractmethod
+    def trigger_pulses(self) -> list[TriggerPulse]:
+        """Every complete trigger pulse since start or the last `reset_observations()`."""
+
+    @abc.abstractmethod
+    def reset_observations(self) -> None:
+        """Forget the recorded LED words and trigger pulses."""
+
+    def current_word(self) -> int:
+        """The LED word latched now (0 if none was latched yet)."""
+        words = self.led_words()
+        return words[-1].word if words else 0
+
+    def set_faults(self, **faults) -> None:
+        """Inject faults (Python simulator only; see `firmware_sim.FaultConfig`)."""
+        raise NotImplementedError(f'{type(self).__name__} has no fault injection')
+
+    def __enter__(self) -> 'FirmwareBackend':
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
