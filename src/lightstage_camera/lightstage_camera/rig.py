@@ -1,0 +1,185 @@
+"""The light stage as data: illumination sites, LED channels and the camera of a capture.
+
+LED order is site-major everywhere in the project: ``led = site * 4 + channel``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import yaml
+
+CHANNELS: tuple[str, ...] = ("red", "green", "blue", "nir")
+WAVELENGTHS_NM: dict[str, float] = {"red": 615.0, "green": 515.0, "blue": 460.0, "nir": 850.0}
+N_CHANNELS = len(CHANNELS)
+
+
+def channel_index(channel: str | int) -> int:
+    """Index of a channel given by name (``"nir"``) or by index (``3``)."""
+    if isinstance(channel, str):
+        if channel not in CHANNELS:
+            raise ValueError(f"unknown channel {channel!r}; use one of {', '.join(CHANNELS)}")
+        return CHANNELS.index(channel)
+    index = int(channel)
+    if not 0 <= index < N_CHANNELS:
+        raise ValueError(f"channel index {index} out of range 0..{N_CHANNELS - 1}")
+    return index
+
+
+def led_index(site: int, channel: str | int) -> int:
+    """Site-major LED number: ``site * 4 + channel_index``."""
+    if int(site) < 0:
+        raise ValueError(f"site must be >= 0, got {site}")
+    return int(site) * N_CHANNELS + channel_index(channel)
+
+
+@dataclass(frozen=True)
+class Site:
+    """One illumination site: a diffused cluster of the four LEDs, position in mm.
+
+    The object sits at the origin on the stage floor (z = 0); the camera looks down the z axis.
+    """
+    name: str
+    x_mm: float
+    y_mm: float
+    z_mm: float
+
+    @property
+    def position_mm(self) -> tuple[float, float, float]:
+        return (self.x_mm, self.y_mm, self.z_mm)
+
+
+@dataclass
+class Rig:
+    """Sites, channels and the camera settings a capture was made with."""
+    sites: list[Site]
+    channels: tuple[str, ...] = CHANNELS
+    wavelengths_nm: dict[str, float] = field(default_factory=lambda: dict(WAVELENGTHS_NM))
+    bit_depth: int = 10
+    image_size: tuple[int, int] = (240, 240)  # (height, width) in pixels
+    exposure_us: float = 30000.0
+    gain_db: float = 15.0
+    frames_averaged: int = 16
+    camera_height_mm: float = 240.0
+    field_of_view_mm: float = 160.0  # side of the square working area seen by the camera
+
+    def __post_init__(self) -> None:
+        self.channels = tuple(self.channels)
+        if self.channels != CHANNELS:
+            raise ValueError(f"channels must be {CHANNELS} in that order, got {self.channels}")
+        missing = [c for c in self.channels if c not in self.wavelengths_nm]
+        if missing:
+            raise ValueError(f"wavelengths_nm lacks channels {missing}")
+        if not 8 <= self.bit_depth <= 16:
+            raise ValueError(f"bit_depth must be 8..16, got {self.bit_depth}")
+        self.image_size = (int(self.image_size[0]), int(self.image_size[1]))
+        if min(self.image_size) < 1:
+            raise ValueError(f"image_size must be positive, got {self.image_size}")
+        if not self.sites:
+            raise ValueError("a rig needs at least one illumination site")
+
+    @property
+    def n_sites(self) -> int:
+        return len(self.sites)
+
+    @property
+    def n_leds(self) -> int:
+        return self.n_sites * N_CHANNELS
+
+    @property
+    def max_level(self) -> int:
+        """Largest gray level of the camera (1023 for 10 bits)."""
+        return (1 << self.bit_depth) - 1
+
+    @property
+    def exposure_ms(self) -> float:
+        return self.exposure_us / 1000.0
+
+    def site_positions_mm(self):
+        import numpy as np
+        return np.array([s.position_mm for s in self.sites], dtype=np.float64)
+
+    @classmethod
+    def paper_default(cls, image_size: int | tuple[int, int] = 240) -> "Rig":
+        """The paper's stage: five legs, radius 223 mm, height 240 mm, sites on four legs.
+
+        Sites 0..3 sit on the lower leg segments (low elevation, near-grazing light),
+        sites 4..7 on the upper segments of the same legs; the fifth leg carries no site.
+        The exact mounting heights are not in the paper; these are read off its figure.
+        """
+        radius_mm, height_mm = 223.0, 240.0
+        leg_azimuths_deg = [0.0, 72.0, 144.0, 216.0]  # four of the five legs
+        lower = (radius_mm * 0.95, 0.30 * height_mm)  # (radius, height) on the lower segment
+        upper = (radius_mm * 0.62, 0.78 * height_mm)
+        sites = []
+        for segment, (r, z) in (("lower", lower), ("upper", upper)):
+            for leg, az in enumerate(leg_azimuths_deg):
+                a = math.radians(az)
+                sites.append(Site(f"leg{leg}_{segment}", round(r * math.cos(a), 3),
+                                  round(r * math.sin(a), 3), round(z, 3)))
+        size = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
+        return cls(sites=sites, image_size=size, camera_height_mm=height_mm)
+
+    # ---- YAML -------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        return {
+            "sites": [asdict(s) for s in self.sites],
+            "channels": [{"name": c, "wavelength_nm": float(self.wavelengths_nm[c])}
+                         for c in self.channels],
+            "camera": {
+                "bit_depth": int(self.bit_depth),
+                "image_height": int(self.image_size[0]),
+                "image_width": int(self.image_size[1]),
+                "exposure_us": float(self.exposure_us),
+                "gain_db": float(self.gain_db),
+                "frames_averaged": int(self.frames_averaged),
+                "height_mm": float(self.camera_height_mm),
+                "field_of_view_mm": float(self.field_of_view_mm),
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "rig") -> "Rig":
+        def need(mapping, key, where):
+            if not isinstance(mapping, dict) or key not in mapping:
+                raise ValueError(f"{source}: missing key '{where}{key}'")
+            return mapping[key]
+
+        try:
+            sites = [Site(str(need(s, "name", "sites[].")), float(need(s, "x_mm", "sites[].")),
+                          float(need(s, "y_mm", "sites[].")), float(need(s, "z_mm", "sites[].")))
+                     for s in need(data, "sites", "")]
+            channel_entries = need(data, "channels", "")
+            names = tuple(str(need(c, "name", "channels[].")) for c in channel_entries)
+            unknown = [n for n in names if n not in CHANNELS]
+            if unknown:
+                raise ValueError(f"{source}: unknown channel(s) {unknown}; "
+                                 f"channels must be {list(CHANNELS)}")
+            wavelengths = {str(c["name"]): float(need(c, "wavelength_nm", "channels[]."))
+                           for c in channel_entries}
+            cam = need(data, "camera", "")
+            return cls(
+                sites=sites, channels=names, wavelengths_nm=wavelengths,
+                bit_depth=int(need(cam, "bit_depth", "camera.")),
+                image_size=(int(need(cam, "image_height", "camera.")),
+                            int(need(cam, "image_width", "camera."))),
+                exposure_us=float(need(cam, "exposure_us", "camera.")),
+                gain_db=float(need(cam, "gain_db", "camera.")),
+                frames_averaged=int(cam.get("frames_averaged", 1)),
+                camera_height_mm=float(cam.get("height_mm", 240.0)),
+                field_of_view_mm=float(cam.get("field_of_view_mm", 160.0)),
+            )
+        except (TypeError, AttributeError) as exc:
+            raise ValueError(f"{source}: malformed rig description ({exc})") from exc
+
+    def save_yaml(self, path: str | Path) -> None:
+        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+
+    @classmethod
+    def load_yaml(cls, path: str | Path) -> "Rig":
+        path = Path(path)
+        data = yaml.safe_load(path.read_text())
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: expected a YAML mapping with sites, channels, camera")
+        return cls.from_dict(data, source=str(path))
