@@ -1,0 +1,473 @@
+"""The multiplexed-illumination classifier and the trained-classifier artifact file.
+
+``MuxClassifier`` (scikit-learn estimator style): HOG features of a sample's k images,
+concatenated in image order, then a multi-class linear classifier, either a linear SVM
+(``LinearSVC``, one-vs-rest: the authors' MATLAB code uses one-vs-all error-correcting
+output codes, which is the same decomposition) or a ridge least-squares classifier
+(``RidgeClassifier``, the fast stand-in used inside the pattern search).
+
+``TrainedArtifact``: what training produces and the classify node loads: the LED pattern
+matrix (32, N) in image order, the per-colour site matrix when the paper's mode was used,
+the noise setting, class names, HOG configuration, one linear classifier for each image
+count, and provenance. ``save``/``load`` use a versioned ``.npz`` whose metadata is a
+JSON document stored as a uint8 array; it is read with ``allow_pickle=False``, so opening
+a file never runs code. The file format is documented in docs/CLASSIFIER.md.
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from sklearn.base import BaseEstimator, ClassifierMixin
+from sklearn.utils.validation import check_is_fitted
+
+from .features import check_stacks, stack_features
+from .hog import HogConfig
+from .patterns import N_LEDS, site_to_led_patterns
+
+__all__ = [
+    "ESTIMATORS", "MuxClassifier", "LinearStage", "Prediction", "TrainedArtifact",
+    "ArtifactError", "FORMAT_NAME", "FORMAT_VERSION", "noise_to_dict",
+]
+
+ESTIMATORS = ("linear_svm", "ridge")
+FORMAT_NAME = "lightstage.mux_classifier"
+FORMAT_VERSION = 1
+MODES = ("per_colour", "joint", "naive")
+
+
+class ArtifactError(ValueError):
+    """A trained-classifier file or its input is unusable; the message says why and what to do."""
+
+
+# --------------------------------------------------------------------------- estimator
+
+
+def _linear_arrays(estimator, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
+    """coef (n_classes, F), intercept (n_classes,) from a fitted sklearn linear classifier.
+
+    sklearn stores a two-class problem as one row (positive = classes[1]); it is expanded to
+    two rows [-w, w] so that ``argmax`` always gives the prediction, as with more classes.
+    """
+    coef = np.asarray(estimator.coef_, dtype=np.float64)
+    intercept = np.atleast_1d(np.asarray(estimator.intercept_, dtype=np.float64))
+    if n_classes == 2 and coef.shape[0] == 1:
+        coef = np.vstack([-coef, coef])
+        intercept = np.concatenate([-intercept, intercept])
+    return coef, intercept
+
+
+class MuxClassifier(ClassifierMixin, BaseEstimator):
+    """HOG of each image of a stack, concatenated, then a multi-class linear classifier.
+
+    Parameters
+    ----------
+    estimator : {"linear_svm", "ridge"}
+        ``linear_svm``: sklearn ``LinearSVC`` (one-vs-rest, squared hinge, L2).
+        ``ridge``: sklearn ``RidgeClassifier`` (least squares on +-1 targets).
+    C : float
+        Inverse regularisation of the linear SVM.
+    alpha : float
+        Regularisation of the ridge classifier.
+    max_iter : int
+        Iteration limit of the linear SVM solver.
+    hog_config : HogConfig or None
+        Feature configuration (None: the paper's, 900 values per 120 x 120 image).
+    random_state : int
+        Seed of the SVM solver's coordinate order (makes fits reproducible).
+
+    Fitted attributes: ``classes_``, ``coef_`` (n_classes, n_images_ * 900),
+    ``intercept_`` (n_classes,), ``n_images_``, ``n_features_in_`` (feature length).
+    ``decision_function`` always returns (n, n_classes), also for two classes.
+    """
+
+    def __init__(self, estimator="linear_svm", C=1.0, alpha=1.0, max_iter=10000,
+                 hog_config=None, random_state=0):
+        self.estimator = estimator
+        self.C = C
+        self.alpha = alpha
+        self.max_iter = max_iter
+        self.hog_config = hog_config
+        self.random_state = random_state
+
+    def _config(self) -> HogConfig:
+        return HogConfig() if self.hog_config is None else self.hog_config
+
+    def _make_estimator(self):
+        if self.estimator == "linear_svm":
+            from sklearn.svm import LinearSVC
+
+            return LinearSVC(C=self.C, max_iter=self.max_iter, random_state=self.random_state)
+        if self.estimator == "ridge":
+            from sklearn.linear_model import RidgeClassifier
+
+            return RidgeClassifier(alpha=self.alpha)
+        raise ValueError(f"MuxClassifier: estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
+
+    # --- stacks of images
+    def fit(self, stacks, y):
+        """Fit on stacks (n, k, H, W) of images and labels y (n,); returns self."""
+        X = stack_features(stacks, self._config())
+        return self.fit_features(X, y, n_images=np.asarray(stacks).shape[1])
+
+    def decision_function(self, stacks) -> np.ndarray:
+        """Per-class scores (n, n_classes) for stacks (n, k, H, W)."""
+        check_is_fitted(self, "coef_")
+        arr = check_stacks(stacks, self._config(), n_images=self.n_images_)
+        return self.decision_function_features(stack_features(arr, self._config()))
+
+    def predict(self, stacks) -> np.ndarray:
+        """Predicted class labels for stacks (n, k, H, W)."""
+        scores = self.decision_function(stacks)
+        return self.classes_[np.argmax(scores, axis=1)]
+
+    # --- precomputed features (the search computes them once for many fits)
+    def fit_features(self, X, y, n_images: int | None = None):
+        """Fit on concatenated HOG features X (n, k * 900); returns self."""
+        X = np.asarray(X, dtype=np.float64)
+        y = np.asarray(y)
+        n_per_image = self._config().n_features
+        if X.ndim != 2 or X.shape[1] == 0 or X.shape[1] % n_per_image:
+            raise ValueError(
+                f"features must be (n_samples, k * {n_per_image}), got shape {X.shape}")
+        if y.shape != (X.shape[0],):
+            raise ValueError(f"y must have one label per sample ({X.shape[0]}), got shape {y.shape}")
+        classes = np.unique(y)
+        if classes.size < 2:
+            raise ValueError(f"need samples of at least 2 classes to fit, got {classes.size}")
+        k = X.shape[1] // n_per_image
+        if n_images is not None and n_images != k:
+            raise ValueError(f"features hold {k} images but n_images={n_images}")
+        est = self._make_estimator().fit(X, y)
+        self.classes_ = est.classes_
+        self.coef_, self.intercept_ = _linear_arrays(est, classes.size)
+        self.n_images_ = k
+        self.n_features_in_ = X.shape[1]
+        return self
+
+    def decision_function_features(self, X) -> np.ndarray:
+        check_is_fitted(self, "coef_")
+        X = np.asarray(X)
+        if X.ndim != 2 or X.shape[1] != self.coef_.shape[1]:
+            raise ValueError(
+                f"features must be (n_samples, {self.coef_.shape[1]}) for this classifier "
+                f"({self.n_images_} images), got shape {X.shape}")
+        return X @ self.coef_.T + self.intercept_
+
+    def predict_features(self, X) -> np.ndarray:
+        scores = self.decision_function_features(X)
+        return self.classes_[np.argmax(scores, axis=1)]
+
+    @classmethod
+    def from_linear(cls, coef, intercept, classes, hog_config=None, **params) -> "MuxClassifier":
+        """A fitted classifier from stored arrays (used when loading an artifact)."""
+        clf = cls(hog_config=hog_config, **params)
+        coef = np.asarray(coef, dtype=np.float64)
+        n_per_image = clf._config().n_features
+        if coef.ndim != 2 or coef.shape[1] % n_per_image or coef.shape[1] == 0:
+            raise ValueError(f"coef must be (n_classes, k * {n_per_image}), got shape {coef.shape}")
+        clf.classes_ = np.asarray(classes)
+        clf.coef_ = coef
+        clf.intercept_ = np.asarray(intercept, dtype=np.float64).reshape(-1)
+        if clf.coef_.shape[0] != clf.classes_.size or clf.intercept_.size != clf.classes_.size:
+            raise ValueError(
+                f"coef {coef.shape} / intercept {clf.intercept_.shape} do not match "
+                f"{clf.classes_.size} classes")
+        clf.n_images_ = coef.shape[1] // n_per_image
+        clf.n_features_in_ = coef.shape[1]
+        return clf
+
+
+# --------------------------------------------------------------------------- artifact
+
+
+def noise_to_dict(noise, name: str | None = None) -> dict:
+    """Noise setting as plain JSON: name, sigma_p2, sigma_r2, gain_db, exposure_ms.
+
+    Accepts a dict with those keys, an object with those attributes (a NoiseModel), or
+    None / "none" for noise-free rendering.
+    """
+    keys = ("sigma_p2", "sigma_r2", "gain_db", "exposure_ms")
+    if noise is None or (isinstance(noise, str) and noise.lower() == "none"):
+        return {"name": "none", **{k: None for k in keys}}
+    if isinstance(noise, dict):
+        missing = [k for k in ("name", *keys) if k not in noise]
+        if missing:
+            raise ArtifactError(f"noise setting lacks {missing}; give name and {', '.join(keys)}")
+        values = {k: noise[k] for k in keys}
+        name = noise["name"] if name is None else name
+    else:
+        try:
+            values = {k: getattr(noise, k) for k in keys}
+        except AttributeError as exc:
+            raise ArtifactError(
+                f"noise setting must be a dict or have attributes {keys} (a NoiseModel); "
+                f"got {type(noise).__name__}") from exc
+        name = name or getattr(noise, "name", None) or "custom"
+    return {"name": str(name), **{k: (None if v is None else float(v)) for k, v in values.items()}}
+
+
+@dataclass
+class LinearStage:
+    """The linear classifier that uses the first ``n_images`` images of the artifact."""
+
+    n_images: int
+    coef: np.ndarray       # (n_classes, n_images * n_features)
+    intercept: np.ndarray  # (n_classes,)
+
+
+class Prediction(NamedTuple):
+    label: str             # class name
+    index: int             # class index into class_names
+    scores: np.ndarray     # (n_classes,) decision values, higher = more likely
+    n_images: int          # how many images the prediction used
+
+
+@dataclass
+class TrainedArtifact:
+    """A trained multiplexed-illumination classifier: patterns + one classifier per image count.
+
+    ``led_patterns`` (32, N): column i is the LED pattern of image i (site-major LEDs,
+    values in [0, 1]). ``stages``: classifiers using the first n images, for increasing n
+    (per-colour mode: 4, 8, ..., one per site-pattern column). ``site_patterns`` (8, m)
+    and ``mode == "per_colour"`` when the paper's mode produced them.
+    """
+
+    led_patterns: np.ndarray
+    class_names: list
+    stages: list
+    noise: dict = field(default_factory=lambda: noise_to_dict(None))
+    hog_config: HogConfig = field(default_factory=HogConfig)
+    mode: str = "joint"
+    site_patterns: np.ndarray | None = None
+    provenance: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.led_patterns = np.asarray(self.led_patterns, dtype=np.float32)
+        self.class_names = [str(c) for c in self.class_names]
+        if isinstance(self.hog_config, dict):
+            self.hog_config = HogConfig.from_dict(self.hog_config)
+        self.noise = noise_to_dict(self.noise)
+        if self.site_patterns is not None:
+            self.site_patterns = np.asarray(self.site_patterns, dtype=np.float32)
+        self.stages = [s if isinstance(s, LinearStage) else LinearStage(*s) for s in self.stages]
+        self.stages.sort(key=lambda s: s.n_images)
+        self._validate()
+
+    # --- construction
+    @classmethod
+    def from_classifiers(cls, classifiers, led_patterns=None, *, site_patterns=None,
+                         mode=None, class_names=None, noise=None, provenance=None):
+        """Build from fitted MuxClassifiers (one per image count) and the patterns.
+
+        Give ``site_patterns`` (8, m) for the paper's per-colour mode (the LED patterns are
+        derived from it) or ``led_patterns`` (32, N). ``class_names`` default to the
+        classifiers' ``classes_`` (as strings); the stored labels are their indices.
+        """
+        classifiers = list(classifiers)
+        if not classifiers:
+            raise ArtifactError("no classifiers given; train at least one image count")
+        first = classifiers[0]
+        for clf in classifiers:
+            check_is_fitted(clf, "coef_")
+            if not np.array_equal(clf.classes_, first.classes_):
+                raise ArtifactError("classifiers were trained on different classes")
+        if site_patterns is not None:
+            led_patterns = site_to_led_patterns(site_patterns)
+            mode = mode or "per_colour"
+        if led_patterns is None:
+            raise ArtifactError("give led_patterns (32, N) or site_patterns (8, m)")
+        names = class_names if class_names is not None else [str(c) for c in first.classes_]
+        stages = [LinearStage(int(c.n_images_), c.coef_, c.intercept_) for c in classifiers]
+        return cls(led_patterns=led_patterns, class_names=list(names), stages=stages,
+                   noise=noise, hog_config=first._config(), mode=mode or "joint",
+                   site_patterns=site_patterns, provenance=dict(provenance or {}))
+
+    def _validate(self):
+        P = self.led_patterns
+        if P.ndim != 2 or P.shape[0] != N_LEDS or P.shape[1] < 1:
+            raise ArtifactError(f"led_patterns must be ({N_LEDS}, N >= 1), got shape {P.shape}")
+        if not np.isfinite(P).all() or P.min() < 0 or P.max() > 1:
+            raise ArtifactError("led_patterns must hold values in [0, 1]")
+        if self.mode not in MODES:
+            raise ArtifactError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if self.site_patterns is not None:
+            W = self.site_patterns
+            if W.ndim != 2 or not np.array_equal(site_to_led_patterns(W), P):
+                raise ArtifactError("site_patterns do not give led_patterns (per-colour order R, G, B, NIR)")
+        n_classes = len(self.class_names)
+        if n_classes < 2 or len(set(self.class_names)) != n_classes:
+            raise ArtifactError(f"need at least 2 distinct class names, got {self.class_names}")
+        if not self.stages:
+            raise ArtifactError("the artifact holds no classifier")
+        nf = self.hog_config.n_features
+        seen = set()
+        for s in self.stages:
+            s.n_images = int(s.n_images)
+            s.coef = np.asarray(s.coef, dtype=np.float64)
+            s.intercept = np.asarray(s.intercept, dtype=np.float64).reshape(-1)
+            if not 1 <= s.n_images <= P.shape[1] or s.n_images in seen:
+                raise ArtifactError(
+                    f"classifier for {s.n_images} images: must be 1..{P.shape[1]} and unique")
+            seen.add(s.n_images)
+            if s.coef.shape != (n_classes, s.n_images * nf) or s.intercept.shape != (n_classes,):
+                raise ArtifactError(
+                    f"classifier for {s.n_images} images has coef {s.coef.shape} and intercept "
+                    f"{s.intercept.shape}; expected ({n_classes}, {s.n_images * nf}) and ({n_classes},)")
+            if not (np.isfinite(s.coef).all() and np.isfinite(s.intercept).all()):
+                raise ArtifactError(f"classifier for {s.n_images} images has non-finite weights")
+
+    # --- use
+    @property
+    def n_images(self) -> list[int]:
+        """Image counts that have a classifier, increasing."""
+        return [s.n_images for s in self.stages]
+
+    def stage(self, n_images: int | None = None) -> LinearStage:
+        """The classifier for ``n_images`` (None: the one using the most images)."""
+        if n_images is None:
+            return self.stages[-1]
+        for s in self.stages:
+            if s.n_images == n_images:
+                return s
+        raise ArtifactError(
+            f"this artifact has classifiers for {self.n_images} images, not {n_images}; "
+            f"capture the first k images of its patterns (in order) for one of those k")
+
+    def classifier(self, n_images: int | None = None) -> MuxClassifier:
+        """A fitted MuxClassifier for ``n_images`` (labels are class names)."""
+        s = self.stage(n_images)
+        return MuxClassifier.from_linear(s.coef, s.intercept, np.asarray(self.class_names),
+                                         hog_config=self.hog_config)
+
+    def _check(self, stacks, n_images):
+        try:
+            arr = check_stacks(stacks, self.hog_config)
+        except ValueError as exc:
+            raise ArtifactError(str(exc)) from None
+        k = arr.shape[1]
+        if n_images is None:
+            n_images = k
+        elif k != n_images:
+            raise ArtifactError(f"expected {n_images} images per stack, got {k}")
+        self.stage(n_images)
+        return arr
+
+    def decision_function(self, stacks, n_images: int | None = None) -> np.ndarray:
+        """Scores (n, n_classes) for stacks (n, k, H, W); k selects the classifier."""
+        arr = self._check(stacks, n_images)
+        s = self.stage(arr.shape[1])
+        X = stack_features(arr, self.hog_config)
+        return X.astype(np.float64) @ s.coef.T + s.intercept
+
+    def predict(self, stacks, n_images: int | None = None) -> np.ndarray:
+        """Class names (n,) for stacks (n, k, H, W)."""
+        scores = self.decision_function(stacks, n_images)
+        return np.asarray(self.class_names)[np.argmax(scores, axis=1)]
+
+    def predict_stack(self, images) -> Prediction:
+        """Classify one sample from its images (k, H, W) taken under the first k patterns."""
+        arr = np.asarray(images)
+        if arr.ndim != 3:
+            raise ArtifactError(
+                f"predict_stack expects one sample's images (k, H, W), got shape {arr.shape}")
+        scores = self.decision_function(arr[None])[0]
+        i = int(np.argmax(scores))
+        return Prediction(self.class_names[i], i, scores, arr.shape[0])
+
+    # --- file
+    def _header(self) -> dict:
+        return {
+            "format": FORMAT_NAME,
+            "format_version": FORMAT_VERSION,
+            "mode": self.mode,
+            "class_names": self.class_names,
+            "noise": self.noise,
+            "hog_config": self.hog_config.to_dict(),
+            "n_images": self.n_images,
+            "has_site_patterns": self.site_patterns is not None,
+            "provenance": self.provenance,
+        }
+
+    def save(self, path) -> None:
+        """Write the artifact to ``path`` (``.npz``); written to a temporary file first."""
+        try:
+            header = json.dumps(self._header(), sort_keys=True, allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise ArtifactError(f"provenance/noise must be plain JSON (no NaN): {exc}") from exc
+        arrays = {"header": np.frombuffer(header.encode("utf-8"), dtype=np.uint8),
+                  "led_patterns": self.led_patterns}
+        if self.site_patterns is not None:
+            arrays["site_patterns"] = self.site_patterns
+        for s in self.stages:
+            arrays[f"coef_{s.n_images}"] = s.coef
+            arrays[f"intercept_{s.n_images}"] = s.intercept
+        path = os.fspath(path)
+        directory = os.path.dirname(os.path.abspath(path))
+        fd, tmp = tempfile.mkstemp(prefix=".artifact-", suffix=".npz", dir=directory)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(fh, **arrays)
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    @classmethod
+    def load(cls, path) -> "TrainedArtifact":
+        """Read an artifact written by :meth:`save`; never unpickles, never runs code."""
+        path = os.fspath(path)
+        what = f"{path!r} is not a readable lightstage classifier file"
+        try:
+            with open(path, "rb") as fh:
+                data = fh.read()
+        except OSError as exc:
+            raise ArtifactError(f"cannot read classifier file {path!r}: {exc}") from exc
+        if not zipfile.is_zipfile(io.BytesIO(data)):
+            raise ArtifactError(
+                f"{what}: it is not an .npz archive (truncated, or another kind of file); "
+                "point to the .npz written by `lightstage train`, or retrain")
+        try:
+            with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+                arrays = {name: npz[name] for name in npz.files}
+        except Exception as exc:  # corrupt members, pickled object arrays, bad CRC ...
+            raise ArtifactError(f"{what}: {type(exc).__name__}: {exc}; retrain to get a new file") from exc
+        if "header" not in arrays:
+            raise ArtifactError(f"{what}: it has no header (an .npz from something else?)")
+        try:
+            header = json.loads(arrays["header"].astype(np.uint8).tobytes().decode("utf-8"))
+        except (UnicodeDecodeError, ValueError) as exc:
+            raise ArtifactError(f"{what}: its header is not valid JSON ({exc})") from exc
+        if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
+            raise ArtifactError(f"{what}: header format is {header.get('format') if isinstance(header, dict) else header!r}, "
+                                f"expected {FORMAT_NAME!r}")
+        version = header.get("format_version")
+        if version != FORMAT_VERSION:
+            raise ArtifactError(
+                f"{path!r} is classifier format version {version}; this lightstage reads version "
+                f"{FORMAT_VERSION}. Retrain with this version (`lightstage train`) or use the "
+                "lightstage release that wrote it")
+        try:
+            n_images = [int(k) for k in header["n_images"]]
+            stages = [LinearStage(k, arrays[f"coef_{k}"], arrays[f"intercept_{k}"]) for k in n_images]
+            return cls(
+                led_patterns=arrays["led_patterns"],
+                class_names=list(header["class_names"]),
+                stages=stages,
+                noise=header["noise"],
+                hog_config=HogConfig.from_dict(header["hog_config"]),
+                mode=header["mode"],
+                site_patterns=arrays["site_patterns"] if header.get("has_site_patterns") else None,
+                provenance=dict(header.get("provenance") or {}),
+            )
+        except ArtifactError as exc:
+            raise ArtifactError(f"{what}: {exc}") from None
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ArtifactError(f"{what}: missing or malformed field {exc}; retrain to get a new file") from exc

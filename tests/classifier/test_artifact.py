@@ -1,0 +1,173 @@
+"""Trained-classifier artifact: round trip, file safety and clear errors."""
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from mux_classifier.model import (FORMAT_VERSION, ArtifactError, MuxClassifier,
+                                  TrainedArtifact, noise_to_dict)
+from mux_classifier.patterns import site_to_led_patterns
+
+SIGMA3 = {"name": "sigma3", "sigma_p2": 0.94, "sigma_r2": 117.37, "gain_db": 17.5,
+          "exposure_ms": 22.5}
+
+
+@pytest.fixture(scope="module")
+def artifact(toy_stacks):
+    stacks, y = toy_stacks
+    clfs = [MuxClassifier().fit(stacks[:, :k], y) for k in (1, 2, 3)]
+    rng = np.random.default_rng(1)
+    P = rng.integers(0, 2, (32, 3)).astype(np.float32)
+    return TrainedArtifact.from_classifiers(
+        clfs, P, class_names=["apple_real", "apple_fake", "lime_real", "lime_fake"],
+        noise=SIGMA3, provenance={"method": "greedy", "accuracy_by_images": {"1": 0.5}, "seed": 3})
+
+
+def test_round_trip_predicts_identically(artifact, toy_stacks, tmp_path):
+    stacks, _ = toy_stacks
+    path = tmp_path / "clf.npz"
+    artifact.save(path)
+    loaded = TrainedArtifact.load(path)
+    assert loaded.class_names == artifact.class_names
+    assert loaded.noise == SIGMA3 and loaded.mode == "joint"
+    assert loaded.provenance == {"method": "greedy", "accuracy_by_images": {"1": 0.5}, "seed": 3}
+    assert loaded.hog_config == artifact.hog_config and loaded.n_images == [1, 2, 3]
+    np.testing.assert_array_equal(loaded.led_patterns, artifact.led_patterns)
+    for k in (1, 2, 3):
+        np.testing.assert_array_equal(loaded.decision_function(stacks[:, :k]),
+                                      artifact.decision_function(stacks[:, :k]))
+        np.testing.assert_array_equal(loaded.predict(stacks[:, :k]), artifact.predict(stacks[:, :k]))
+    one = loaded.predict_stack(stacks[5])
+    assert one.label == loaded.predict(stacks[5:6])[0] and one.n_images == 3
+    assert one.label == loaded.class_names[one.index] and one.scores.shape == (4,)
+
+
+def test_artifact_scores_equal_the_trained_classifier(artifact, toy_stacks):
+    stacks, y = toy_stacks
+    clf = MuxClassifier().fit(stacks[:, :2], y)
+    np.testing.assert_allclose(artifact.decision_function(stacks[:, :2]),
+                               clf.decision_function(stacks[:, :2]))
+    restored = artifact.classifier(2)
+    np.testing.assert_array_equal(restored.predict(stacks[:, :2]),
+                                  np.asarray(artifact.class_names)[clf.predict(stacks[:, :2])])
+
+
+def test_per_colour_artifact_keeps_site_patterns(toy_stacks, tmp_path):
+    stacks, y = toy_stacks
+    W = np.zeros((8, 1), np.float32)
+    W[[0, 3], 0] = 1
+    P = site_to_led_patterns(W)
+    assert P.shape == (32, 4)
+    # image c of column 0 lights LED site*4 + c of the lit sites only
+    for c in range(4):
+        assert set(np.flatnonzero(P[:, c])) == {0 * 4 + c, 3 * 4 + c}
+    clf = MuxClassifier(estimator="ridge").fit(np.concatenate([stacks, stacks[:, :1]], axis=1), y)
+    art = TrainedArtifact.from_classifiers([clf], site_patterns=W, noise=None)
+    art.save(tmp_path / "pc.npz")
+    loaded = TrainedArtifact.load(tmp_path / "pc.npz")
+    assert loaded.mode == "per_colour" and loaded.noise["name"] == "none"
+    np.testing.assert_array_equal(loaded.site_patterns, W)
+
+
+def test_file_is_plain_npz_with_json_header(artifact, tmp_path):
+    path = tmp_path / "clf.npz"
+    artifact.save(path)
+    with np.load(path, allow_pickle=False) as npz:
+        header = json.loads(npz["header"].tobytes().decode())
+        assert header["format_version"] == FORMAT_VERSION
+        assert npz["coef_2"].shape == (4, 1800)
+
+
+def _rewrite(src, dst, change_header=None, drop=()):
+    with np.load(src, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files if k not in drop}
+    if change_header:
+        header = json.loads(arrays["header"].tobytes().decode())
+        change_header(header)
+        arrays["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
+    np.savez(dst, **arrays)
+
+
+def test_other_version_is_refused(artifact, tmp_path):
+    artifact.save(tmp_path / "a.npz")
+    _rewrite(tmp_path / "a.npz", tmp_path / "b.npz",
+             change_header=lambda h: h.update(format_version=FORMAT_VERSION + 1))
+    with pytest.raises(ArtifactError, match=rf"version {FORMAT_VERSION + 1}.*reads version {FORMAT_VERSION}.*Retrain"):
+        TrainedArtifact.load(tmp_path / "b.npz")
+
+
+def test_truncated_file_is_refused(artifact, tmp_path):
+    artifact.save(tmp_path / "a.npz")
+    data = (tmp_path / "a.npz").read_bytes()
+    (tmp_path / "t.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ArtifactError, match="truncated"):
+        TrainedArtifact.load(tmp_path / "t.npz")
+
+
+def test_non_npz_and_pickles_are_refused(tmp_path):
+    (tmp_path / "text.npz").write_text("hello")
+    with pytest.raises(ArtifactError, match="not an .npz"):
+        TrainedArtifact.load(tmp_path / "text.npz")
+    np.save(tmp_path / "obj.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with zipfile.ZipFile(tmp_path / "pickled.npz", "w") as zf:
+        zf.write(tmp_path / "obj.npy", "header.npy")
+    with pytest.raises(ArtifactError, match="pickle"):
+        TrainedArtifact.load(tmp_path / "pickled.npz")
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    with pytest.raises(ArtifactError, match="no header"):
+        TrainedArtifact.load(tmp_path / "other.npz")
+    with pytest.raises(ArtifactError, match="cannot read"):
+        TrainedArtifact.load(tmp_path / "missing.npz")
+
+
+def test_missing_and_inconsistent_arrays_are_refused(artifact, tmp_path):
+    artifact.save(tmp_path / "a.npz")
+    _rewrite(tmp_path / "a.npz", tmp_path / "b.npz", drop=("coef_2",))
+    with pytest.raises(ArtifactError, match="coef_2"):
+        TrainedArtifact.load(tmp_path / "b.npz")
+    _rewrite(tmp_path / "a.npz", tmp_path / "c.npz",
+             change_header=lambda h: h.update(class_names=["a", "b", "c"]))
+    with pytest.raises(ArtifactError, match=r"expected \(3, 900\)"):
+        TrainedArtifact.load(tmp_path / "c.npz")
+
+
+def test_wrong_stacks_fail_clearly(artifact, toy_stacks):
+    stacks, _ = toy_stacks
+    with pytest.raises(ArtifactError, match=r"classifiers for \[1, 2, 3\] images, not 4"):
+        artifact.predict(np.concatenate([stacks, stacks[:, :1]], axis=1))
+    with pytest.raises(ArtifactError, match="120 x 120"):
+        artifact.predict_stack(np.zeros((3, 240, 240), np.float32))
+    with pytest.raises(ArtifactError, match=r"\(k, H, W\)"):
+        artifact.predict_stack(np.zeros((120, 120), np.float32))
+    with pytest.raises(ArtifactError, match="expected 2 images per stack, got 3"):
+        artifact.decision_function(stacks, n_images=2)
+
+
+def test_save_does_not_leave_partial_files_on_error(artifact, tmp_path):
+    bad = TrainedArtifact(artifact.led_patterns, artifact.class_names, artifact.stages,
+                          provenance={"x": float("nan")})
+    (tmp_path / "keep.npz").write_bytes(b"old")
+    with pytest.raises(ArtifactError, match="JSON"):
+        bad.save(tmp_path / "keep.npz")
+    assert (tmp_path / "keep.npz").read_bytes() == b"old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.npz"]
+
+
+def test_construction_is_validated(artifact):
+    with pytest.raises(ArtifactError, match=r"led_patterns must be \(32"):
+        TrainedArtifact(np.zeros((8, 3)), artifact.class_names, artifact.stages)
+    with pytest.raises(ArtifactError, match=r"\[0, 1\]"):
+        TrainedArtifact(artifact.led_patterns * 2, artifact.class_names, artifact.stages)
+    with pytest.raises(ArtifactError, match="mode"):
+        TrainedArtifact(artifact.led_patterns, artifact.class_names, artifact.stages, mode="x")
+    with pytest.raises(ArtifactError, match="lacks"):
+        noise_to_dict({"name": "sigma3"})
+
+
+def test_noise_from_object():
+    class Model:
+        sigma_p2, sigma_r2, gain_db, exposure_ms = 0.25, 8.35, 6.0, 84.0
+
+    assert noise_to_dict(Model(), name="sigma1") == {
+        "name": "sigma1", "sigma_p2": 0.25, "sigma_r2": 8.35, "gain_db": 6.0, "exposure_ms": 84.0}
