@@ -1,0 +1,200 @@
+"""Candidate evaluation: how good is the illumination matrix `[columns so far | candidate]`?
+
+For one new column the whole training set is rendered under the earlier columns and each
+candidate with fresh noise, HOG features are extracted, and the mean test accuracy over
+`n_repeats` random pose splits (75 / 25, the same held-out pose indices for every class) is
+the candidate's score. Everything is seeded: the same seed gives the same scores whatever
+`n_jobs` or joblib backend is used.
+
+Random numbers (common random numbers within a column):
+- the splits are drawn once per search from `seed` and shared by every candidate and column;
+- for column j, the earlier columns' images get one fresh noise draw and every candidate's
+  images share one noise draw (`SeedSequence([seed, j, 1])` and `[seed, j, 0]`). Candidates
+  of a column are thus compared on identical noise (a paired comparison, far less variance
+  between them) and the images are still re-rendered with new noise at every column.
+
+Speed: candidates are scored in chunks dispatched with joblib (any backend, e.g.
+`joblib.parallel_backend("dask")`); within a chunk they are visited in Gray-code order so
+each render is the previous one plus or minus one site image; the earlier columns enter only
+through the kernel `K_prev = X_prev X_prev^T`, computed once per column.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from joblib import Parallel, delayed
+
+from .rendering import (SearchData, add_noise, image_features, render_led_patterns,
+                        render_site_patterns, standard_normal)
+from .split_scoring import make_scorer
+from .splits import pose_splits
+
+MODES = ('per_colour', 'joint')
+
+
+def images_per_column(mode: str, n_channels: int = 4) -> int:
+    """Images one pattern column yields: 4 (R, G, B, NIR) per colour, 1 in the joint mode."""
+    if mode == 'per_colour':
+        return n_channels
+    if mode == 'joint':
+        return 1
+    raise ValueError(f'unknown mode {mode!r}; use one of {MODES}')
+
+
+def render(data: SearchData, mode: str, patterns: np.ndarray) -> np.ndarray:
+    """Noise-free images `(n_images, n, pixels)` of a pattern matrix in the given mode."""
+    if mode == 'per_colour':
+        return render_site_patterns(data, patterns)
+    if mode == 'joint':
+        return render_led_patterns(data, patterns)
+    raise ValueError(f'unknown mode {mode!r}; use one of {MODES}')
+
+
+def column_rng(seed: int, column: int, stream: int) -> np.random.Generator:
+    """The generator of one column's noise; stream 0 = candidates, 1 = earlier columns."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(column), int(stream)]))
+
+
+@dataclass
+class ColumnContext:
+    """What a worker needs to score candidates for one new column (picklable)."""
+
+    mode: str
+    column: int
+    z: np.ndarray | None           # (images_per_column, n, pixels) float32 candidate noise
+    X_prev: np.ndarray | None      # (n, features of earlier columns) float32
+    K_prev: np.ndarray             # (n, n) float64 kernel of the earlier columns
+    test_masks: list
+    scorer: object
+    n_classes: int
+
+
+def _score_features(data: SearchData, ctx: ColumnContext, Xc: np.ndarray) -> np.ndarray:
+    if ctx.scorer.needs_features:
+        X = Xc if ctx.X_prev is None else np.hstack([ctx.X_prev, Xc])
+        return ctx.scorer.split_accuracies(data.labels, ctx.test_masks, X=X, n_classes=ctx.n_classes)
+    K = ctx.K_prev + (Xc @ Xc.T).astype(np.float64)
+    return ctx.scorer.split_accuracies(data.labels, ctx.test_masks, K=K, n_classes=ctx.n_classes)
+
+
+def score_candidate_chunk(data: SearchData, ctx: ColumnContext, candidates: np.ndarray) -> np.ndarray:
+    """Split accuracies `(n_candidates, n_splits)` of a chunk of candidate columns.
+
+    Per-colour candidates are rendered incrementally: each is the previous candidate's
+    images plus/minus the site images in which the two differ (one, in Gray-code order).
+    """
+    candidates = np.asarray(candidates, dtype=np.float32)
+    out = np.empty((candidates.shape[1], len(ctx.test_masks)))
+    noisy = None
+    if ctx.mode == 'per_colour':
+        clean = None
+        for j in range(candidates.shape[1]):
+            w = candidates[:, j]
+            if clean is None:
+                clean = render_site_patterns(data, w[:, None])
+            else:
+                diff = w - candidates[:, j - 1]
+                for site in np.flatnonzero(diff):
+                    if diff[site] == 1:
+                        clean += data.basis[site]
+                    else:
+                        clean += np.float32(diff[site]) * data.basis[site]
+            noisy = add_noise(data, clean, ctx.z, out=noisy)
+            out[j] = _score_features(data, ctx, image_features(data, noisy))
+    else:
+        for j in range(candidates.shape[1]):
+            clean = render_led_patterns(data, candidates[:, j:j + 1])
+            noisy = add_noise(data, clean, ctx.z, out=noisy)
+            out[j] = _score_features(data, ctx, image_features(data, noisy))
+    return out
+
+
+class CandidateEvaluator:
+    """Scores candidate columns given the columns chosen so far (see module docstring).
+
+    Parameters
+    ----------
+    data : SearchData
+    mode : 'per_colour' (8-site patterns, 4 images each) or 'joint' (32-LED patterns).
+    n_repeats : random pose splits per candidate (the paper: 400).
+    test_fraction : share of the pose indices held out per split (the paper: 0.25).
+    inner_classifier : 'ridge' (kernel shared by all splits; fast) or 'linear_svm'.
+    alpha, C : ridge penalty / LinearSVC C.
+    seed : seeds splits and noise.
+    n_jobs : joblib workers; chunk_size : candidates per task (fixed, so that results do not
+        depend on n_jobs).
+    """
+
+    def __init__(self, data: SearchData, mode: str = 'per_colour', n_repeats: int = 400,
+                 test_fraction: float = 0.25, inner_classifier: str = 'ridge',
+                 alpha: float = 0.1, C: float = 1.0, seed: int = 0, n_jobs: int = 1,
+                 chunk_size: int = 32):
+        images_per_column(mode)
+        self.data = data
+        self.mode = mode
+        self.n_repeats = n_repeats
+        self.test_fraction = test_fraction
+        self.inner_classifier = inner_classifier
+        self.seed = int(seed)
+        self.n_jobs = n_jobs
+        self.chunk_size = chunk_size
+        params = {'alpha': alpha} if inner_classifier == 'ridge' else {'C': C}
+        self.scorer = make_scorer(inner_classifier, **params)
+        self.test_masks = pose_splits(data.pose_index, n_repeats, test_fraction,
+                                      np.random.default_rng([self.seed, 2 ** 31]))
+        self.n_classes = len(data.class_names)
+
+    @property
+    def images_per_column(self) -> int:
+        return images_per_column(self.mode, self.data.n_channels)
+
+    def noisy_images(self, columns: np.ndarray, column: int) -> np.ndarray:
+        """Noisy images of `columns` as rendered when column index `column` is searched."""
+        clean = render(self.data, self.mode, columns)
+        z = standard_normal(column_rng(self.seed, column, 1), clean.shape)
+        return add_noise(self.data, clean, z)
+
+    def candidate_noise(self, column: int) -> np.ndarray | None:
+        if self.data.noise_a == 0 and self.data.noise_b == 0:
+            return None
+        shape = (self.images_per_column, self.data.n_samples, self.data.basis.shape[3])
+        return standard_normal(column_rng(self.seed, column, 0), shape)
+
+    def prepare_column(self, columns: np.ndarray | None) -> ColumnContext:
+        """Render the earlier columns with this column's fresh noise; their features/kernel."""
+        column = 0 if columns is None else columns.shape[1]
+        n = self.data.n_samples
+        X_prev = None
+        K_prev = np.zeros((n, n))
+        if column > 0:
+            X_prev = image_features(self.data, self.noisy_images(columns, column))
+            X64 = X_prev.astype(np.float64)
+            K_prev = X64 @ X64.T
+        return ColumnContext(mode=self.mode, column=column, z=self.candidate_noise(column),
+                             X_prev=X_prev if self.scorer.needs_features else None,
+                             K_prev=K_prev, test_masks=self.test_masks, scorer=self.scorer,
+                             n_classes=self.n_classes)
+
+    def score(self, ctx: ColumnContext, candidates: np.ndarray,
+              parallel: Parallel | None = None) -> np.ndarray:
+        """Split accuracies `(n_candidates, n_splits)` for candidate columns `(rows, c)`."""
+        candidates = np.asarray(candidates, dtype=np.float32)
+        bounds = range(0, candidates.shape[1], self.chunk_size)
+        chunks = [candidates[:, b:b + self.chunk_size] for b in bounds]
+        if parallel is None:
+            parallel = Parallel(n_jobs=self.n_jobs)
+        parts = parallel(delayed(score_candidate_chunk)(self.data, ctx, chunk) for chunk in chunks)
+        return np.vstack(parts) if parts else np.empty((0, len(self.test_masks)))
+
+    def features(self, columns: np.ndarray, column_noise_of: int | None = None) -> np.ndarray:
+        """Features of all images of `columns` with the noise the search used for its last
+        column (the earlier columns' noise of that step, the candidate noise for the last)."""
+        k = columns.shape[1]
+        last = k - 1 if column_noise_of is None else column_noise_of
+        parts = []
+        if k > 1:
+            parts.append(image_features(self.data, self.noisy_images(columns[:, :-1], last)))
+        clean = render(self.data, self.mode, columns[:, -1:])
+        parts.append(image_features(self.data, add_noise(self.data, clean, self.candidate_noise(last))))
+        return np.hstack(parts)

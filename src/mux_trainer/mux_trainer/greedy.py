@@ -1,0 +1,241 @@
+"""Greedy joint selection of illumination patterns and classifier (the paper's method).
+
+The illumination matrix grows one column at a time; for each new column every candidate is
+scored with the earlier columns fixed (`evaluation.CandidateEvaluator`) and the best one is
+kept. The search stops when the best candidate no longer improves the accuracy (or, with
+`n_patterns` set, continues to that many columns as the paper does for its figures, marking
+the columns that did not improve). A classifier is trained for every column count.
+
+Two modes:
+- 'per_colour' (the paper's): each column is one of the 254 site patterns (1..7 of 8 sites
+  lit), applied to each colour in turn, so it gives 4 images (R, G, B, NIR). Exhaustive.
+- 'joint' (the paper's future work): each column is a 32-LED pattern giving one image.
+  2^32 candidates cannot be enumerated, so a column is built by a beam search over LED
+  additions: start from no LED lit, try adding each unlit LED to each pattern of the beam,
+  keep the `beam_width` best, and stop when adding an LED no longer improves the column's
+  best score (or `max_lit_leds` is reached). Cost per column: about 32 * lit * beam_width
+  candidate evaluations of one image each, instead of 254 of four images.
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+from joblib import Parallel
+from sklearn.base import BaseEstimator
+
+from mux_classifier.model import MuxClassifier, TrainedArtifact
+
+from .data import noise_dict, search_data
+from .evaluation import CandidateEvaluator, images_per_column
+from .patterns import N_CHANNELS, N_LEDS, site_pattern_candidates
+from .rendering import SearchData
+
+
+def _progress(total, desc, enabled):
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+    return tqdm(total=total, desc=desc, file=sys.stderr, leave=False)
+
+
+class GreedyPatternSelector(BaseEstimator):
+    """Greedy illumination-pattern search with a classifier per column count.
+
+    Parameters
+    ----------
+    mode : 'per_colour' | 'joint'
+    n_patterns : None for early termination (stop at the first column that does not improve
+        the accuracy by more than `tol`), or a fixed number of columns to select.
+    max_patterns : upper bound on the columns in early-termination mode.
+    tol : minimum improvement of the mean accuracy that counts as an improvement.
+    n_repeats, test_fraction : random pose splits per candidate (the paper: 400, 0.25).
+    inner_classifier : 'ridge' (fast, shared kernel) or 'linear_svm' (one LinearSVC per split).
+    alpha, C : parameters of the inner classifier.
+    final_classifier : estimator of the kept classifiers ('linear_svm', the paper's, or 'ridge').
+    final_C, final_alpha : their regularisation.
+    noise, dimmer, hog_config : rendering, used when `fit` is given a ModelSet.
+    beam_width, max_lit_leds : joint mode only (see module docstring).
+    seed, n_jobs, chunk_size, progress : reproducibility and execution.
+
+    Fitted attributes
+    -----------------
+    patterns_ : (8, m) site patterns or (32, m) LED patterns, the selected columns.
+    accuracy_by_images_ : {column count: mean split accuracy of the search}.
+    improved_ : bool (m,), whether each column improved on the best accuracy before it.
+    best_n_patterns_ : the column count with the highest accuracy.
+    classifiers_ : {column count: fitted MuxClassifier on that many columns' images}.
+    history_ : one dict per column: 'candidates' (rows, c), 'scores' (c,), 'score_std' (c,),
+        'best' index, 'accuracy', 'improved'.
+    """
+
+    def __init__(self, mode='per_colour', n_patterns=None, max_patterns=8, tol=0.0,
+                 n_repeats=400, test_fraction=0.25, inner_classifier='ridge', alpha=0.1,
+                 C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
+                 noise='sigma3', dimmer=0.45, hog_config=None, beam_width=1,
+                 max_lit_leds=N_LEDS, seed=0, n_jobs=1, chunk_size=32, progress=False):
+        self.mode = mode
+        self.n_patterns = n_patterns
+        self.max_patterns = max_patterns
+        self.tol = tol
+        self.n_repeats = n_repeats
+        self.test_fraction = test_fraction
+        self.inner_classifier = inner_classifier
+        self.alpha = alpha
+        self.C = C
+        self.final_classifier = final_classifier
+        self.final_C = final_C
+        self.final_alpha = final_alpha
+        self.noise = noise
+        self.dimmer = dimmer
+        self.hog_config = hog_config
+        self.beam_width = beam_width
+        self.max_lit_leds = max_lit_leds
+        self.seed = seed
+        self.n_jobs = n_jobs
+        self.chunk_size = chunk_size
+        self.progress = progress
+
+    # ------------------------------------------------------------------ fit
+    def _data(self, X) -> SearchData:
+        if isinstance(X, SearchData):
+            return X
+        return search_data(X, self.noise, hog_config=self.hog_config, dimmer=self.dimmer)
+
+    def fit(self, X, y=None):
+        """Search patterns on a ModelSet (or a prepared SearchData); returns self."""
+        images_per_column(self.mode)
+        target = self.n_patterns if self.n_patterns is not None else self.max_patterns
+        if target is None or int(target) < 1:
+            raise ValueError(f'need at least one pattern column, got n_patterns={self.n_patterns}, '
+                             f'max_patterns={self.max_patterns}')
+        data = self._data(X)
+        self.data_ = data
+        self.class_names_ = list(data.class_names)
+        ev = CandidateEvaluator(data, mode=self.mode, n_repeats=self.n_repeats,
+                                test_fraction=self.test_fraction,
+                                inner_classifier=self.inner_classifier, alpha=self.alpha,
+                                C=self.C, seed=self.seed, n_jobs=self.n_jobs,
+                                chunk_size=self.chunk_size)
+        self.evaluator_ = ev
+        rows = data.n_sites if self.mode == 'per_colour' else data.n_sites * data.n_channels
+        columns = np.zeros((rows, 0), dtype=np.float32)
+        self.history_ = []
+        self.accuracy_by_images_ = {}
+        improved = []
+        best_so_far = -np.inf
+        bar = _progress(int(target), f'greedy {self.mode}', self.progress)
+        with Parallel(n_jobs=self.n_jobs) as parallel:
+            for col in range(int(target)):
+                ctx = ev.prepare_column(columns if col else None)
+                if self.mode == 'per_colour':
+                    record = self._search_site_column(ev, ctx, parallel, data.n_sites)
+                else:
+                    record = self._search_led_column(ev, ctx, parallel)
+                acc = record['accuracy']
+                did_improve = bool(acc > best_so_far + self.tol)
+                record['improved'] = did_improve
+                if not did_improve and self.n_patterns is None:
+                    record['kept'] = False
+                    self.history_.append(record)
+                    break
+                record['kept'] = True
+                self.history_.append(record)
+                improved.append(did_improve)
+                best_so_far = max(best_so_far, acc)
+                columns = np.hstack([columns, record['pattern'][:, None]])
+                self.accuracy_by_images_[columns.shape[1]] = float(acc)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(accuracy=f'{acc:.3f}')
+        if bar is not None:
+            bar.close()
+        self.patterns_ = columns
+        self.improved_ = np.array(improved, dtype=bool)
+        self.best_n_patterns_ = int(max(self.accuracy_by_images_, key=self.accuracy_by_images_.get))
+        self.classifiers_ = self._fit_classifiers(ev, columns)
+        return self
+
+    def _search_site_column(self, ev, ctx, parallel, n_sites):
+        cands = site_pattern_candidates(n_sites)
+        acc = ev.score(ctx, cands, parallel)
+        scores = acc.mean(axis=1)
+        best = int(np.argmax(scores))
+        return {'candidates': cands, 'scores': scores, 'score_std': acc.std(axis=1),
+                'best': best, 'accuracy': float(scores[best]), 'pattern': cands[:, best].copy()}
+
+    def _search_led_column(self, ev, ctx, parallel):
+        n_leds = ev.data.n_sites * ev.data.n_channels
+        beam = [np.zeros(n_leds, dtype=np.float32)]
+        seen = set()
+        all_cands, all_acc = [], []
+        best_pattern, best_score = None, -np.inf
+        for _ in range(min(int(self.max_lit_leds), n_leds)):
+            cands = []
+            for parent in beam:
+                for led in np.flatnonzero(parent == 0):
+                    child = parent.copy()
+                    child[led] = 1
+                    key = child.tobytes()
+                    if key not in seen:
+                        seen.add(key)
+                        cands.append(child)
+            if not cands:
+                break
+            cands = np.stack(cands, axis=1)
+            acc = ev.score(ctx, cands, parallel)
+            scores = acc.mean(axis=1)
+            all_cands.append(cands)
+            all_acc.append(acc)
+            order = np.argsort(-scores, kind='stable')
+            if scores[order[0]] <= best_score + self.tol:
+                break  # lighting one more LED does not help this column
+            best_score = float(scores[order[0]])
+            best_pattern = cands[:, order[0]].copy()
+            beam = [cands[:, i] for i in order[:int(self.beam_width)]]
+        cands = np.hstack(all_cands)
+        acc = np.vstack(all_acc)
+        scores = acc.mean(axis=1)
+        best = int(np.flatnonzero(np.all(cands == best_pattern[:, None], axis=0))[0])
+        return {'candidates': cands, 'scores': scores, 'score_std': acc.std(axis=1),
+                'best': best, 'accuracy': float(scores[best]), 'pattern': best_pattern}
+
+    def _make_classifier(self) -> MuxClassifier:
+        return MuxClassifier(estimator=self.final_classifier, C=self.final_C,
+                             alpha=self.final_alpha, hog_config=self.evaluator_.data.hog_config,
+                             random_state=int(self.seed))
+
+    def _fit_classifiers(self, ev, columns) -> dict:
+        """One classifier per column count, on the images the search rendered for it."""
+        out = {}
+        for k in range(1, columns.shape[1] + 1):
+            X = ev.features(columns[:, :k])
+            out[k] = self._make_classifier().fit_features(X, ev.data.labels)
+        return out
+
+    # ------------------------------------------------------------------ use
+    @property
+    def images_per_pattern(self) -> int:
+        return images_per_column(self.mode, N_CHANNELS)
+
+    def to_artifact(self, n_patterns: int | None = None, provenance: dict | None = None) -> TrainedArtifact:
+        """The trained artifact (patterns + classifier per image count) for the classify node.
+
+        n_patterns: keep the first n columns (default: all selected columns).
+        """
+        k = self.patterns_.shape[1] if n_patterns is None else int(n_patterns)
+        clfs = [self.classifiers_[i] for i in range(1, k + 1)]
+        names = self.class_names_
+        prov = {'method': 'greedy', 'mode': self.mode, 'seed': int(self.seed),
+                'n_repeats': int(self.n_repeats), 'inner_classifier': self.inner_classifier,
+                'accuracy_by_patterns': {str(i): self.accuracy_by_images_[i] for i in range(1, k + 1)},
+                'improved': [bool(v) for v in self.improved_[:k]],
+                'best_n_patterns': self.best_n_patterns_}
+        prov.update(provenance or {})
+        noise = noise_dict(self.evaluator_.data.noise_name)
+        if self.mode == 'per_colour':
+            return TrainedArtifact.from_classifiers(clfs, site_patterns=self.patterns_[:, :k],
+                                                    class_names=names, noise=noise, provenance=prov)
+        return TrainedArtifact.from_classifiers(clfs, led_patterns=self.patterns_[:, :k],
+                                                mode='joint', class_names=names, noise=noise,
+                                                provenance=prov)
