@@ -1,0 +1,24 @@
+/* One exposure: a word on the LEDs and the camera trigger high for exactly exposure_us.
+ *
+ * Both edges are placed on Timer1 tick boundaries (0.5 us at 16 MHz) by the same kind of
+ * polling loop, so the trigger's width equals the exposure to within a few CPU cycles.
+ * The LED latch switches in the same instruction as the trigger when both pins are on
+ * one port (the authors' D11/D8), else one instruction later. */
+#ifndef LIGHTSTAGE_EXPOSURE_H
+#define LIGHTSTAGE_EXPOSURE_H
+
+#include <stdint.h>
+
+void exposure_init(void);
+/* Latch `word` and raise the trigger now; lower the trigger and switch every LED off
+ * exposure_us later.  Short exposures finish before this returns. */
+void exposure_start(uint32_t word, uint32_t exposure_us);
+uint8_t exposure_running(void);
+/* Nonzero when an exposure has ended and exposure_take_finished() has not been called. */
+uint8_t exposure_finished(void);
+/* 1 once after an exposure ended, with its trigger and end times (t_us). */
+uint8_t exposure_take_finished(uint32_t *t_trigger_us, uint32_t *t_end_us);
+/* Trigger low and every LED off at once; a running exposure is cancelled (no finish). */
+void exposure_abort_all_off(void);
+
+#endif

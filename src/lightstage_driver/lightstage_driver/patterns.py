@@ -1,0 +1,72 @@
+"""Checking LED patterns and exposures before anything is sent to the stage.
+
+An LED pattern is a length-32 vector of relative drives in [0, 1], site-major
+(`led = site * 4 + channel`). On an on/off rig a drive above 0.5 is on (as in
+lightstage_interfaces/msg/Pattern.msg); with PWM it is scaled to the firmware's levels.
+Every check raises `PatternError` naming the offending value; nothing is sent on error.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .errors import PatternError
+from .protocol import LED_COUNT
+
+ON_THRESHOLD = 0.5
+
+
+def validate_patterns(patterns, led_count: int = LED_COUNT) -> np.ndarray:
+    """Return the patterns as a float64 `(k, led_count)` array, or raise PatternError.
+
+    Accepts one pattern (length `led_count`) or a sequence/array of them.
+    """
+    try:
+        array = np.asarray(patterns, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise PatternError(f'patterns must be numbers, shape (k, {led_count}): {exc}') from exc
+    if array.ndim == 1:
+        array = array[None, :]
+    if array.ndim != 2 or array.shape[1] != led_count:
+        raise PatternError(f'a pattern needs exactly {led_count} LED values (site-major, '
+                           f'led = site * 4 + channel); got shape {np.shape(patterns)}')
+    if array.shape[0] == 0:
+        raise PatternError('no patterns given: send at least one')
+    for what, bad in (('NaN', np.isnan(array)), ('infinite', np.isinf(array)),
+                      ('negative', array < 0), ('above 1', array > 1)):
+        if bad.any():
+            k, led = map(int, np.argwhere(bad)[0])
+            raise PatternError(f'pattern {k}, LED {led} (site {led // 4}, channel {led % 4}) is {what}: '
+                               f'{array[k, led]!r}; LED drives must be in [0, 1]')
+    return array
+
+
+def pattern_word(pattern: np.ndarray) -> int:
+    """32-bit LED word of one validated pattern (bit i = LED i on)."""
+    bits = np.flatnonzero(np.asarray(pattern) > ON_THRESHOLD)
+    return int(sum(1 << int(i) for i in bits))
+
+
+def word_pattern(word: int, led_count: int = LED_COUNT) -> np.ndarray:
+    """Inverse of `pattern_word`: a 0/1 float vector."""
+    return np.array([(word >> i) & 1 for i in range(led_count)], dtype=np.float64)
+
+
+def pattern_levels(pattern: np.ndarray, pwm_bits: int) -> list[int]:
+    """PWM levels 0..2^pwm_bits - 1 of one validated pattern."""
+    full = (1 << pwm_bits) - 1
+    return [int(v) for v in np.rint(np.asarray(pattern) * full)]
+
+
+def validate_exposure(exposure_us, min_us: int, max_us: int, what: str = 'exposure_us') -> int:
+    """Return the exposure as an int in [min_us, max_us], or raise PatternError."""
+    if isinstance(exposure_us, bool) or not isinstance(exposure_us, (int, float, np.integer, np.floating)):
+        raise PatternError(f'{what} must be a number of microseconds, got {exposure_us!r}')
+    if isinstance(exposure_us, (float, np.floating)):
+        if not math.isfinite(exposure_us) or exposure_us != int(exposure_us):
+            raise PatternError(f'{what} must be a whole number of microseconds, got {exposure_us!r}')
+    value = int(exposure_us)
+    if not min_us <= value <= max_us:
+        raise PatternError(f'{what} {value} us is outside the firmware range {min_us}..{max_us} us')
+    return value

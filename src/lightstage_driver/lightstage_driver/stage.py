@@ -1,0 +1,241 @@
+"""`LightStage`: the typed host API of the stage (what the driver node and notebooks use).
+
+Patterns go in as LED drives (length-32, site-major, in [0, 1]) and exposures in
+microseconds; they are checked against the firmware's identity before anything is sent.
+Trigger times come back on the firmware clock and mapped to the host's monotonic clock.
+"""
+from __future__ import annotations
+
+import struct
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import protocol as p
+from .clock import FirmwareClock
+from .errors import LinkError, PatternError, ProtocolError
+from .link import DEFAULT_BAUD, SerialLink
+from .patterns import pattern_levels, pattern_word, validate_exposure, validate_patterns
+
+
+@dataclass(frozen=True)
+class Trigger:
+    """One camera trigger: what was lit, when, for how long."""
+    index: int                 # position in the applied list
+    word: int                  # LED word lit during the exposure
+    exposure_us: int
+    firmware_us: int           # unwrapped firmware time of the trigger edge
+    host_time_s: float         # the same instant on the host's time.monotonic() clock
+    uncertainty_s: float       # half the best clock-probe round trip
+
+
+class LightStage:
+    """Host side of the stage: connect, identify, set patterns, fire, run sequences."""
+
+    def __init__(self, port: str, baud: int = DEFAULT_BAUD, timeout_s: float = 0.1, retries: int = 3,
+                 connect_timeout_s: float = 3.0, watchdog_ms: int | None = None,
+                 on_watchdog: Callable[[int], None] | None = None):
+        self.clock = FirmwareClock()
+        self.watchdog_ms = watchdog_ms
+        self.on_watchdog = on_watchdog or (lambda t_us: None)
+        self.link = SerialLink(port, baud, timeout_s, retries, connect_timeout_s,
+                               on_event=self._on_event, on_connect=self._on_connect)
+        self.watchdog_trips = 0
+        self._seq_events: list[p.TriggerEvent] = []
+        self._seq_done: p.SequenceDone | None = None
+        self._running_seq = -1
+
+    # ------------------------------------------------------------------ connection
+    def connect(self) -> p.Identity:
+        return self.link.open()
+
+    def close(self, all_off: bool = True) -> None:
+        """Switch the LEDs off (best effort) and close the port."""
+        if all_off and self.link.is_open:
+            try:
+                self.all_off()
+            except LinkError:
+                pass
+        self.link.close()
+
+    def __enter__(self) -> 'LightStage':
+        self.connect()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def identity(self) -> p.Identity:
+        if self.link.identity is None:
+            self.link.ensure_open()
+        return self.link.identity
+
+    def _on_connect(self, identity: p.Identity) -> None:
+        self.clock.reset()
+        # the firmware may have reset: restore our watchdog setting and sync the clock
+        if self.watchdog_ms is not None and identity.watchdog_ms != self.watchdog_ms:
+            self._set_watchdog_raw(self.watchdog_ms)
+        self._probe()
+
+    def _on_event(self, frame: p.Frame, host_s: float) -> None:
+        try:
+            if frame.cmd == p.Event.TRIGGER and frame.seq == self._running_seq:
+                self._seq_events.append(p.TriggerEvent.unpack(frame.payload))
+            elif frame.cmd == p.Event.SEQUENCE_DONE and frame.seq == self._running_seq:
+                self._seq_done = p.SequenceDone.unpack(frame.payload)
+            elif frame.cmd == p.Event.WATCHDOG:
+                self.watchdog_trips += 1
+                self.on_watchdog(struct.unpack('<I', frame.payload)[0] if len(frame.payload) == 4 else 0)
+            elif frame.cmd == p.Event.READY:
+                self.clock.reset()   # the firmware rebooted under us
+        except ProtocolError:
+            self.link.stats.crc_errors += 1
+
+    # ------------------------------------------------------------------ simple commands
+    def _probe(self) -> p.Status:
+        reply = self.link._transact_once(p.Command.HEARTBEAT, b'', self.link.timeout_s, self.link.retries)
+        if reply is None:
+            raise LinkError(f'{self.link.port}: no HEARTBEAT reply while connecting')
+        status = p.Status.unpack(reply.frame.payload)
+        self.clock.add_probe(reply.host_send_s, status.t_us, reply.host_recv_s)
+        return status
+
+    def heartbeat(self) -> p.Status:
+        """Keep the watchdog fed; also a clock-sync probe. Returns the firmware status."""
+        reply = self.link.transact(p.Command.HEARTBEAT)
+        status = p.Status.unpack(reply.frame.payload)
+        self.clock.add_probe(reply.host_send_s, status.t_us, reply.host_recv_s)
+        return status
+
+    def all_off(self) -> None:
+        reply = self.link.transact(p.Command.ALL_OFF)
+        self.clock.add_probe(reply.host_send_s, p.unpack_u32(reply.frame.payload, 'ALL_OFF reply'),
+                             reply.host_recv_s)
+
+    def _set_watchdog_raw(self, timeout_ms: int) -> None:
+        reply = self.link._transact_once(p.Command.SET_WATCHDOG, struct.pack('<H', timeout_ms),
+                                         self.link.timeout_s, self.link.retries)
+        if reply is None:
+            raise LinkError(f'{self.link.port}: no reply to SET_WATCHDOG while connecting')
+
+    def set_watchdog(self, timeout_ms: int) -> None:
+        lo, hi = p.WATCHDOG_RANGE_MS
+        if isinstance(timeout_ms, bool) or not isinstance(timeout_ms, (int, np.integer)) \
+                or not lo <= timeout_ms <= hi:
+            raise PatternError(f'watchdog timeout_ms {timeout_ms!r} must be an integer in {lo}..{hi}')
+        self.link.transact(p.Command.SET_WATCHDOG, struct.pack('<H', int(timeout_ms)))
+        self.watchdog_ms = int(timeout_ms)
+
+    # ------------------------------------------------------------------ patterns
+    def _check(self, patterns, exposures_us) -> tuple[np.ndarray, list[int]]:
+        ident = self.identity
+        array = validate_patterns(patterns, ident.led_count)
+        if np.isscalar(exposures_us) or np.ndim(exposures_us) == 0:
+            exposures_us = [exposures_us] * len(array)
+        exposures_us = list(exposures_us)
+        if len(exposures_us) != len(array):
+            raise PatternError(f'{len(array)} patterns but {len(exposures_us)} exposures: give one '
+                               f'exposure per pattern (or a single one for all)')
+        checked = [validate_exposure(e, ident.min_exposure_us, ident.max_exposure_us,
+                                     f'exposure_us of pattern {k}') for k, e in enumerate(exposures_us)]
+        return array, checked
+
+    def _send_pattern(self, pattern: np.ndarray, show_now: bool) -> p.Reply:
+        ident = self.identity
+        if ident.pwm_bits:
+            payload = p.pack_set_levels(pattern_levels(pattern, ident.pwm_bits), show_now)
+            return self.link.transact(p.Command.SET_LEVELS, payload)
+        return self.link.transact(p.Command.SET_PATTERN, p.pack_set_pattern(pattern_word(pattern), show_now))
+
+    def set_pattern(self, pattern, show_now: bool = True) -> int:
+        """Light (or only arm) one pattern without a trigger. Returns its LED word."""
+        array = validate_patterns(pattern, self.identity.led_count)
+        if len(array) != 1:
+            raise PatternError(f'set_pattern takes one pattern, got {len(array)}')
+        reply = self._send_pattern(array[0], show_now)
+        self.clock.add_probe(reply.host_send_s, p.unpack_u32(reply.frame.payload, 'SET_PATTERN reply'),
+                             reply.host_recv_s)
+        return pattern_word(array[0])
+
+    def fire(self, exposure_us: int, index: int = 0, word: int | None = None) -> Trigger:
+        """Trigger the camera with the armed pattern lit for exposure_us."""
+        ident = self.identity
+        exposure = validate_exposure(exposure_us, ident.min_exposure_us, ident.max_exposure_us)
+        reply = self.link.transact(p.Command.FIRE, p.pack_u32(exposure), extra_timeout_s=exposure / 1e6)
+        t_trigger, _ = p.unpack_u32_pair(reply.frame.payload, 'FIRE reply')
+        return self._trigger(index, word if word is not None else -1, exposure, t_trigger)
+
+    def _trigger(self, index: int, word: int, exposure: int, raw_us: int) -> Trigger:
+        if not self.clock.synced:
+            self.heartbeat()
+        host = self.clock.to_host(raw_us)
+        return Trigger(index, word, exposure, self.clock.unwrap(raw_us), host, self.clock.uncertainty_s)
+
+    def apply(self, patterns, exposures_us, trigger: bool = True, gap_us: int = 0) -> list[Trigger]:
+        """Show patterns in order. trigger=True: one camera trigger each (LEDs dark after);
+        trigger=False: only light them, the last one stays lit. Everything is checked first."""
+        array, exposures = self._check(patterns, exposures_us)
+        if not isinstance(gap_us, (int, np.integer)) or not 0 <= gap_us <= p.MAX_GAP_US:
+            raise PatternError(f'gap_us {gap_us!r} must be an integer in 0..{p.MAX_GAP_US}')
+        if not trigger:
+            for pattern in array:
+                self.set_pattern(pattern, show_now=True)
+            return []
+        if self.identity.pwm_bits:
+            # sequences carry on/off words only: dimmed patterns go one FIRE at a time
+            out = []
+            for k, pattern in enumerate(array):
+                self._send_pattern(pattern, show_now=False)
+                out.append(self.fire(exposures[k], k, pattern_word(pattern)))
+            return out
+        words = [pattern_word(pattern) for pattern in array]
+        if len(words) == 1:
+            self.link.transact(p.Command.SET_PATTERN, p.pack_set_pattern(words[0], False))
+            return [self.fire(exposures[0], 0, words[0])]
+        out: list[Trigger] = []
+        chunk = self.identity.max_sequence
+        for start in range(0, len(words), chunk):
+            out += self.run_sequence(words[start:start + chunk], exposures[start:start + chunk],
+                                     gap_us, first_index=start)
+        return out
+
+    def run_sequence(self, words: Sequence[int], exposures_us: Sequence[int], gap_us: int = 0,
+                     first_index: int = 0) -> list[Trigger]:
+        """Run one firmware sequence (checked words and exposures) and wait for its triggers."""
+        entries = [p.SequenceEntry(int(w), int(e)) for w, e in zip(words, exposures_us)]
+        self._seq_events, self._seq_done = [], None
+        payload = p.pack_sequence(int(gap_us), entries)
+        with self.link.lock:
+            self.link.ensure_open()
+            self._running_seq = self.link._seq % 255 + 1   # the seq transact will use
+            try:
+                self.link.transact(p.Command.RUN_SEQUENCE, payload)
+                budget = sum(exposures_us) / 1e6 + len(entries) * (gap_us / 1e6 + 0.005) \
+                    + self.link.timeout_s * (self.link.retries + 1)
+                if not self.link.wait_until(lambda: self._seq_done is not None, budget):
+                    self._abort_quietly()
+                    raise LinkError(f'{self.link.port}: sequence of {len(entries)} did not finish within '
+                                    f'{budget:.3f} s (got {len(self._seq_events)} triggers); LEDs switched off')
+            finally:
+                self._running_seq = -1
+        done = self._seq_done
+        if done.status != p.SequenceStatus.COMPLETE:
+            why = p.SequenceStatus(done.status).name if done.status in tuple(p.SequenceStatus) else done.status
+            raise LinkError(f'{self.link.port}: sequence stopped after {done.count_done} of {len(entries)} '
+                            f'triggers ({why})')
+        got = {event.index: event for event in self._seq_events}
+        missing = [k for k in range(len(entries)) if k not in got]
+        if missing:
+            raise LinkError(f'{self.link.port}: trigger event(s) {missing} of the sequence were lost on the '
+                            f'line (corrupted); the camera was triggered but their stamps are unknown')
+        return [self._trigger(first_index + k, entries[k].word, entries[k].exposure_us, got[k].t_trigger_us)
+                for k in range(len(entries))]
+
+    def _abort_quietly(self) -> None:
+        try:
+            self.all_off()
+        except LinkError:
+            pass
