@@ -24,11 +24,10 @@ import numpy as np
 from joblib import Parallel
 from sklearn.base import BaseEstimator
 
-from mux_classifier.model import MuxClassifier, TrainedArtifact
-
-from .data import noise_dict, search_data
+from .data import search_data
 from .evaluation import CandidateEvaluator, images_per_column
-from .patterns import N_CHANNELS, N_LEDS, site_pattern_candidates
+from .pattern_model import PatternModelMixin
+from .patterns import N_LEDS, site_pattern_candidates
 from .rendering import SearchData
 
 
@@ -39,7 +38,7 @@ def _progress(total, desc, enabled):
     return tqdm(total=total, desc=desc, file=sys.stderr, leave=False)
 
 
-class GreedyPatternSelector(BaseEstimator):
+class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     """Greedy illumination-pattern search with a classifier per column count.
 
     Parameters
@@ -152,9 +151,11 @@ class GreedyPatternSelector(BaseEstimator):
             bar.close()
         self.patterns_ = columns
         self.improved_ = np.array(improved, dtype=bool)
-        self.best_n_patterns_ = int(max(self.accuracy_by_images_, key=self.accuracy_by_images_.get))
+        self.best_n_patterns_ = self._best_count()
         self.classifiers_ = self._fit_classifiers(ev, columns)
         return self
+
+    method_name = 'greedy'
 
     def _search_site_column(self, ev, ctx, parallel, n_sites):
         cands = site_pattern_candidates(n_sites)
@@ -199,43 +200,3 @@ class GreedyPatternSelector(BaseEstimator):
         best = int(np.flatnonzero(np.all(cands == best_pattern[:, None], axis=0))[0])
         return {'candidates': cands, 'scores': scores, 'score_std': acc.std(axis=1),
                 'best': best, 'accuracy': float(scores[best]), 'pattern': best_pattern}
-
-    def _make_classifier(self) -> MuxClassifier:
-        return MuxClassifier(estimator=self.final_classifier, C=self.final_C,
-                             alpha=self.final_alpha, hog_config=self.evaluator_.data.hog_config,
-                             random_state=int(self.seed))
-
-    def _fit_classifiers(self, ev, columns) -> dict:
-        """One classifier per column count, on the images the search rendered for it."""
-        out = {}
-        for k in range(1, columns.shape[1] + 1):
-            X = ev.features(columns[:, :k])
-            out[k] = self._make_classifier().fit_features(X, ev.data.labels)
-        return out
-
-    # ------------------------------------------------------------------ use
-    @property
-    def images_per_pattern(self) -> int:
-        return images_per_column(self.mode, N_CHANNELS)
-
-    def to_artifact(self, n_patterns: int | None = None, provenance: dict | None = None) -> TrainedArtifact:
-        """The trained artifact (patterns + classifier per image count) for the classify node.
-
-        n_patterns: keep the first n columns (default: all selected columns).
-        """
-        k = self.patterns_.shape[1] if n_patterns is None else int(n_patterns)
-        clfs = [self.classifiers_[i] for i in range(1, k + 1)]
-        names = self.class_names_
-        prov = {'method': 'greedy', 'mode': self.mode, 'seed': int(self.seed),
-                'n_repeats': int(self.n_repeats), 'inner_classifier': self.inner_classifier,
-                'accuracy_by_patterns': {str(i): self.accuracy_by_images_[i] for i in range(1, k + 1)},
-                'improved': [bool(v) for v in self.improved_[:k]],
-                'best_n_patterns': self.best_n_patterns_}
-        prov.update(provenance or {})
-        noise = noise_dict(self.evaluator_.data.noise_name)
-        if self.mode == 'per_colour':
-            return TrainedArtifact.from_classifiers(clfs, site_patterns=self.patterns_[:, :k],
-                                                    class_names=names, noise=noise, provenance=prov)
-        return TrainedArtifact.from_classifiers(clfs, led_patterns=self.patterns_[:, :k],
-                                                mode='joint', class_names=names, noise=noise,
-                                                provenance=prov)

@@ -1,0 +1,101 @@
+"""Held-out evaluation: train on some poses, test on fresh renders of the others.
+
+The outer split holds out a random subset of pose indices (the same for every class, like
+the inner splits); methods are trained (search + classifiers) on the remaining poses only.
+Test images are rendered under each method's patterns with noise drawn independently of
+everything used in training, `n_renders` times, and classified by the method's classifier
+for each column count.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .data import sample_object_types
+from .evaluation import render
+from .rendering import SearchData, add_noise, image_features, standard_normal
+from .splits import pose_splits
+
+HOLDOUT_STREAM = 7919  # seed-sequence tag of the test-noise stream (distinct from the search's)
+
+
+def holdout_split(data: SearchData, test_fraction: float = 0.25, seed: int = 0):
+    """(train indices, test indices): a random subset of pose indices is held out."""
+    mask = pose_splits(data.pose_index, 1, test_fraction,
+                       np.random.default_rng([int(seed), HOLDOUT_STREAM, 1]))[0]
+    return np.flatnonzero(~mask), np.flatnonzero(mask)
+
+
+def test_features(test_data: SearchData, mode: str, patterns: np.ndarray, render_index: int,
+                  seed: int) -> np.ndarray:
+    """Features of freshly rendered noisy test images of all columns, `(n, features)`."""
+    clean = render(test_data, mode, patterns)
+    rng = np.random.default_rng([int(seed), HOLDOUT_STREAM, 2, int(render_index)])
+    noisy = add_noise(test_data, clean, standard_normal(rng, clean.shape))
+    return image_features(test_data, noisy)
+
+
+def evaluate_heldout(model, test_data: SearchData, n_renders: int = 4, seed: int = 0) -> dict:
+    """Held-out accuracy of a fitted pattern model for every column count.
+
+    Returns {'accuracy_by_images': {k: acc}, 'correct': {k: (n,) fraction correct per
+    test sample over the renders}, 'infer_ms_per_sample': {k: ms}} (features + classifier,
+    not the exposures).
+    """
+    counts = sorted(model.classifiers_)
+    correct = {k: np.zeros(test_data.n_samples) for k in counts}
+    infer_s = {k: 0.0 for k in counts}
+    per = model.images_per_pattern
+    for r in range(int(n_renders)):
+        X = test_features(test_data, model.mode, model.patterns_, r, seed)
+        for k in counts:
+            t0 = time.perf_counter()
+            # features of the first k columns are a prefix of all columns' features
+            pred = model.predict_features(X, k)
+            infer_s[k] += time.perf_counter() - t0
+            correct[k] += pred == test_data.labels
+    for k in counts:
+        correct[k] /= n_renders
+    # feature time per sample, measured once for a representative batch
+    H, W = test_data.image_shape
+    t0 = time.perf_counter()
+    image_features(test_data, np.zeros((per, test_data.n_samples, H * W), np.float32))
+    hog_ms_per_image = (time.perf_counter() - t0) * 1e3 / (per * test_data.n_samples)
+    return {
+        'accuracy_by_images': {k: float(correct[k].mean()) for k in counts},
+        'correct': correct,
+        'infer_ms_per_sample': {k: float(infer_s[k] * 1e3 / (n_renders * test_data.n_samples)
+                                         + hog_ms_per_image * per * k) for k in counts},
+    }
+
+
+def accuracy_by_type(test_data: SearchData, correct: np.ndarray) -> dict:
+    """Accuracy per object type (classes sharing the prefix before '-', e.g. real and fake)."""
+    types = sample_object_types(test_data)
+    return {t: float(correct[types == t].mean()) for t in dict.fromkeys(types.tolist())}
+
+
+def method_summary(model, test_data: SearchData, n_renders: int = 4, seed: int = 0,
+                   train_seconds: float | None = None) -> dict:
+    """The JSON-ready result of one method: accuracy at its chosen column count (chosen
+    on training data: the search's best split accuracy), per type, and per column count."""
+    res = evaluate_heldout(model, test_data, n_renders, seed)
+    k = int(model.best_n_patterns_)
+    out = {
+        'accuracy': res['accuracy_by_images'][k],
+        'n_images': k,
+        'images_per_pattern': int(model.images_per_pattern),
+        'n_exposures': int(k * model.images_per_pattern),
+        'accuracy_by_type': accuracy_by_type(test_data, res['correct'][k]),
+        'accuracy_by_images': {str(c): a for c, a in res['accuracy_by_images'].items()},
+        'search_accuracy_by_images': {str(c): float(a) for c, a in model.accuracy_by_images_.items()},
+        'mode': model.mode,
+        'patterns': np.asarray(model.patterns_).astype(int).tolist(),
+        'infer_ms_per_sample': res['infer_ms_per_sample'][k],
+    }
+    if hasattr(model, 'improved_'):
+        out['improved'] = [bool(v) for v in model.improved_]
+    if train_seconds is not None:
+        out['train_seconds'] = float(train_seconds)
+    return out

@@ -1,0 +1,69 @@
+"""What every trained method shares: patterns, a classifier per column count, prediction.
+
+Greedy, SNR-optimal and naive models all end as a pattern matrix plus one fitted
+`MuxClassifier` per number of columns; this mixin holds the code for training those
+classifiers on rendered data, predicting rendered images and writing the artifact.
+"""
+from __future__ import annotations
+
+import numpy as np
+from mux_classifier.model import MuxClassifier, TrainedArtifact
+
+from .data import noise_dict
+from .evaluation import images_per_column
+from .patterns import N_CHANNELS
+
+
+class PatternModelMixin:
+    """Needs `mode`, `seed`, `final_classifier`, `final_C`, `final_alpha`; after fit:
+    `patterns_`, `classifiers_`, `accuracy_by_images_`, `class_names_`, `evaluator_`."""
+
+    method_name = 'patterns'
+
+    @property
+    def images_per_pattern(self) -> int:
+        return images_per_column(self.mode, N_CHANNELS)
+
+    def _make_classifier(self, hog_config) -> MuxClassifier:
+        return MuxClassifier(estimator=self.final_classifier, C=self.final_C,
+                             alpha=self.final_alpha, hog_config=hog_config,
+                             random_state=int(self.seed))
+
+    def _fit_classifiers(self, ev, columns) -> dict:
+        """One classifier per column count, on the images the search rendered for it."""
+        out = {}
+        for k in range(1, columns.shape[1] + 1):
+            X = ev.features(columns[:, :k])
+            out[k] = self._make_classifier(ev.data.hog_config).fit_features(X, ev.data.labels)
+        return out
+
+    def _best_count(self) -> int:
+        acc = self.accuracy_by_images_
+        return int(max(acc, key=lambda k: (acc[k], -k)))
+
+    def predict_features(self, X: np.ndarray, n_patterns: int) -> np.ndarray:
+        """Class indices from features of the first `n_patterns` columns' images."""
+        clf = self.classifiers_[int(n_patterns)]
+        return clf.predict_features(X[:, :clf.n_features_in_])
+
+    def to_artifact(self, n_patterns: int | None = None, provenance: dict | None = None) -> TrainedArtifact:
+        """The trained artifact (patterns + classifier per image count) for the classify node.
+
+        n_patterns: keep the first n columns (default: all).
+        """
+        k = self.patterns_.shape[1] if n_patterns is None else int(n_patterns)
+        clfs = [self.classifiers_[i] for i in range(1, k + 1)]
+        prov = {'method': self.method_name, 'mode': self.mode, 'seed': int(self.seed),
+                'n_repeats': int(self.n_repeats),
+                'accuracy_by_patterns': {str(i): float(self.accuracy_by_images_[i])
+                                         for i in range(1, k + 1)},
+                'best_n_patterns': int(self.best_n_patterns_)}
+        prov.update(provenance or {})
+        noise = noise_dict(self.evaluator_.data.noise_name)
+        if self.mode == 'per_colour':
+            return TrainedArtifact.from_classifiers(
+                clfs, site_patterns=self.patterns_[:, :k], class_names=self.class_names_,
+                noise=noise, provenance=prov)
+        return TrainedArtifact.from_classifiers(
+            clfs, led_patterns=self.patterns_[:, :k], mode='naive' if self.method_name == 'naive' else 'joint',
+            class_names=self.class_names_, noise=noise, provenance=prov)
