@@ -14,6 +14,9 @@
  * counter up to the exact tick, so other interrupts' latency does not move the edge. */
 #define SYNC_MAX_TICKS (100U * TICKS_PER_US)
 #define EARLY_TICKS 64U
+/* The rising edge goes this many ticks after the counter is read (16 us at 16 MHz): time
+ * for the bookkeeping, which must not delay the edge. */
+#define LEAD_TICKS 32U
 
 enum { IDLE, RUNNING, FINISHED };
 
@@ -68,8 +71,19 @@ void exposure_start(uint32_t word, uint32_t exposure_us)
 
     uint8_t sreg = SREG;
     cli();
-    uint8_t lo = TCNT1L;
-    uint8_t start_lo = (uint8_t)(lo + 1);
+    /* All bookkeeping happens before the rising edge, for a start LEAD_TICKS ahead, so
+     * that only the zero shift separates the two edges of the shortest exposure. */
+    uint32_t ovf;
+    uint16_t tcnt;
+    clock_read_wide_unlocked(&ovf, &tcnt);
+    uint16_t start16 = (uint16_t)(tcnt + LEAD_TICKS);
+    if (start16 < tcnt)
+        ovf++;
+    trigger_us = clock_ticks_to_us(ovf, start16);
+    end_us = trigger_us + exposure_us;
+    end_ticks = ((ovf << 16) | start16) + exposure_ticks;
+    end16 = (uint16_t)end_ticks;
+    uint8_t start_lo = (uint8_t)start16;
 #if LATCH_TRIGGER_SAME_PORT
     uint8_t on = (uint8_t)(UNO_PORT_REG(PIN_TRIGGER) | TRIGGER_BIT | LATCH_BIT);
     wait_until_lo(start_lo);
@@ -81,20 +95,6 @@ void exposure_start(uint32_t word, uint32_t exposure_us)
 #endif
     PIN_LOW(PIN_LATCH);
 
-    /* The counter may have moved on since the edge: step back to the edge's tick. */
-    uint32_t ovf;
-    uint16_t tcnt;
-    clock_read_wide_unlocked(&ovf, &tcnt);
-    uint8_t behind = (uint8_t)((uint8_t)tcnt - start_lo);
-    if (tcnt < behind)
-        ovf--;
-    tcnt -= behind;
-    uint32_t start_ticks = (ovf << 16) | tcnt;
-    trigger_us = clock_ticks_to_us(ovf, tcnt);
-    end_us = trigger_us + exposure_us;
-    end_ticks = start_ticks + exposure_ticks;
-    end16 = (uint16_t)end_ticks;
-
     /* The word after the exposure: all off. */
     chain_shift_zeros();
 
@@ -102,7 +102,7 @@ void exposure_start(uint32_t word, uint32_t exposure_us)
         end_edges();
         state = FINISHED;
     } else {
-        OCR1A = (uint16_t)(end_ticks - EARLY_TICKS);
+        OCR1A = (uint16_t)(end16 - EARLY_TICKS);
         TIFR1 = _BV(OCF1A);
         TIMSK1 |= _BV(OCIE1A);
         state = RUNNING;
