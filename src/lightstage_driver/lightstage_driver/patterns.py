@@ -38,7 +38,7 @@ def validate_patterns(patterns, led_count: int = LED_COUNT) -> np.ndarray:
         if bad.any():
             k, led = map(int, np.argwhere(bad)[0])
             raise PatternError(f'pattern {k}, LED {led} (site {led // 4}, channel {led % 4}) is {what}: '
-                               f'{array[k, led]!r}; LED drives must be in [0, 1]')
+                               f'{float(array[k, led])!r}; LED drives must be in [0, 1]')
     return array
 
 

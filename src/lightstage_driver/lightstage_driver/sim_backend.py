@@ -180,3 +180,27 @@ class PythonSimBackend(FirmwareBackend):
         if reconnect_after_s is not None:
             with self._lock:
                 self._lock.wait_for(lambda: self._ready > ready_before, reconnect_after_s + 5.0)
+
+
+SIM_SCHEME = 'sim'
+
+
+def is_sim_url(port: str) -> bool:
+    return port == SIM_SCHEME or port.startswith(SIM_SCHEME + '://')
+
+
+def backend_from_url(port: str) -> PythonSimBackend:
+    """`sim` or `sim://?pwm_bits=8&latency_ms=1&emulate_baud=115200` -> a simulator backend."""
+    from urllib.parse import parse_qsl, urlsplit
+    if not is_sim_url(port):
+        raise ValueError(f'{port!r} is not a simulator URL (use `sim` or `sim://?option=value`)')
+    options = dict(parse_qsl(urlsplit(port).query)) if '://' in port else {}
+    kinds = {'pwm_bits': int, 'latency_ms': float, 'emulate_baud': int, 'clock_offset_us': int,
+             'min_exposure_us': int, 'max_exposure_us': int}
+    unknown = set(options) - set(kinds)
+    if unknown:
+        raise ValueError(f'unknown simulator option(s) {sorted(unknown)} in {port!r}; known: {sorted(kinds)}')
+    try:
+        return PythonSimBackend(**{key: kinds[key](value) for key, value in options.items()})
+    except ValueError as exc:
+        raise ValueError(f'bad simulator option in {port!r}: {exc}') from exc

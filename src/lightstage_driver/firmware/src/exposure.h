@@ -18,7 +18,8 @@ uint8_t exposure_running(void);
 uint8_t exposure_finished(void);
 /* 1 once after an exposure ended, with its trigger and end times (t_us). */
 uint8_t exposure_take_finished(uint32_t *t_trigger_us, uint32_t *t_end_us);
-/* Trigger low and every LED off at once; a running exposure is cancelled (no finish). */
+/* Trigger low and every LED off at once (shift and latch zeros); a running exposure is
+ * cancelled (no finish). */
 void exposure_abort_all_off(void);
 
 #endif

@@ -172,7 +172,8 @@ static void sequence_finish(uint8_t status)
 /* Every LED off, trigger low, armed pattern cleared, a sequence aborted with `status`. */
 static void all_off(uint8_t status)
 {
-    exposure_abort_all_off();
+    if (lit || exposure_running())
+        exposure_abort_all_off();
     lit = 0;
     armed = 0;
     if (sequence.running)
@@ -181,9 +182,9 @@ static void all_off(uint8_t status)
 
 static void do_identify(void)
 {
+    cache_valid = 0;
     if (frame.len != 0)
         return nak(NAK_BAD_LENGTH, frame.len, 0);
-    cache_valid = 0;
     uint8_t p[IDENTITY_FIXED + 16];
     reply(CMD_IDENTIFY | REPLY, p, identity(p), 0);
 }
@@ -368,21 +369,18 @@ static uint8_t service_sequence(void)
 
 static void service_watchdog(void)
 {
-    if (silence_handled || exposure_running())
+    /* Armed only while there is something to switch off: a lit LED, an armed pattern or
+     * a sequence; it trips once per silence, never during an exposure. */
+    if (silence_handled || exposure_running() || !(lit || armed || sequence.running))
         return;
     if (clock_ms() - activity_ms < watchdog_ms)
         return;
     silence_handled = 1;
     tripped_since_heartbeat = 1;
-    uint8_t had_something = lit || armed || sequence.running;
-    if (lit || sequence.running)
-        all_off(SEQ_ABORTED_WATCHDOG);
-    armed = 0;
-    if (had_something) {
-        uint8_t p[4];
-        put_u32(p, clock_us());
-        link_send(0, EVT_WATCHDOG, p, 4);
-    }
+    all_off(SEQ_ABORTED_WATCHDOG);
+    uint8_t p[4];
+    put_u32(p, clock_us());
+    link_send(0, EVT_WATCHDOG, p, 4);
 }
 
 uint8_t stage_poll(void)

@@ -1,0 +1,321 @@
+"""The light stage driver node: a managed (lifecycle) node around `stage.LightStage`.
+
+configure  opens the port (or starts the Python firmware simulator for `port:=sim`) and
+           identifies the firmware;
+activate   arms it: `/lightstage/apply_patterns` is served, `/illumination` is published
+           at every trigger, heartbeats keep the firmware watchdog fed;
+deactivate switches every LED off; cleanup closes the port; shutdown does both.
+With `autostart` (default) the node configures and activates itself, so the graph comes
+up without a lifecycle manager. `/diagnostics` reports the link in every state.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from lightstage_interfaces.msg import IlluminationState
+from lightstage_interfaces.srv import ApplyPatterns
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+from rclpy.lifecycle import Node as LifecycleNode
+from rclpy.lifecycle import State, TransitionCallbackReturn
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from .errors import LightStageError, PatternError
+from .sim_backend import backend_from_url, is_sim_url
+from .stage import LightStage, Trigger
+
+SERVICE_NAME = '/lightstage/apply_patterns'
+ILLUMINATION_TOPIC = '/illumination'
+NODE_NAME = 'lightstage_driver'
+
+
+def _int(description: str, lo: int, hi: int) -> ParameterDescriptor:
+    return ParameterDescriptor(type=ParameterType.PARAMETER_INTEGER, description=description,
+                               integer_range=[IntegerRange(from_value=lo, to_value=hi, step=1)])
+
+
+def _float(description: str, lo: float, hi: float) -> ParameterDescriptor:
+    return ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE, description=description,
+                               floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])
+
+
+def _text(description: str, ptype=ParameterType.PARAMETER_STRING) -> ParameterDescriptor:
+    return ParameterDescriptor(type=ptype, description=description)
+
+
+PARAMETERS = {
+    'port': ('sim', _text('serial port path, usb:SERIAL, or sim / sim://?pwm_bits=8&latency_ms=1 '
+                          'to start the Python firmware simulator')),
+    'baud': (115200, _int('serial baud rate', 1200, 2_000_000)),
+    'timeout_ms': (100, _int('reply timeout per attempt [ms] (FIRE adds its exposure)', 5, 10_000)),
+    'retries': (3, _int('retries after a lost or corrupted reply', 0, 10)),
+    'connect_timeout_s': (3.0, _float('time to wait for the firmware at configure [s]', 0.1, 30.0)),
+    'default_exposure_us': (30_000, _int('exposure for patterns whose exposure_us is 0 [us]',
+                                         1, 10_000_000)),
+    'gap_us': (0, _int('dark time between the triggers of a sequence [us]', 0, 1_000_000)),
+    'heartbeat_period_s': (0.25, _float('heartbeat period while active [s]', 0.02, 10.0)),
+    'watchdog_ms': (1000, _int('firmware watchdog: LEDs off after this much host silence [ms]',
+                               50, 60_000)),
+    'diagnostics_period_s': (1.0, _float('/diagnostics period [s]', 0.1, 60.0)),
+    'frame_id': ('lightstage', _text('frame id of the rig in IlluminationState headers')),
+    'autostart': (True, _text('configure and activate on start-up', ParameterType.PARAMETER_BOOL)),
+}
+
+
+class LightStageDriverNode(LifecycleNode):
+    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+        super().__init__(node_name, **kwargs)
+        for name, (default, descriptor) in PARAMETERS.items():
+            self.declare_parameter(name, default, descriptor)
+        self.stage: LightStage | None = None
+        self.backend = None
+        self.request_id = 0
+        self.sequence = 0
+        self.errors = 0
+        self.faults = 0
+        self.last_error = ''
+        self.link_state = 'unconfigured'
+        self._illumination_pub = None
+        self._heartbeat_timer = None
+        self._active = False
+        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._diag_timer = self.create_timer(self.p('diagnostics_period_s'), self._publish_diagnostics)
+        self._service = self.create_service(ApplyPatterns, SERVICE_NAME, self._on_apply)
+
+    def p(self, name: str):
+        return self.get_parameter(name).value
+
+    # ------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: State) -> TransitionCallbackReturn:
+        port = self.p('port')
+        try:
+            if is_sim_url(port):
+                self.backend = backend_from_url(port)
+                self.backend.start()
+                device = self.backend.port
+                self.get_logger().info(f'started the Python firmware simulator on {device}')
+            else:
+                device = port
+            self.stage = LightStage(device, self.p('baud'), self.p('timeout_ms') / 1000.0, self.p('retries'),
+                                    self.p('connect_timeout_s'), watchdog_ms=self.p('watchdog_ms'),
+                                    on_watchdog=self._on_watchdog)
+            ident = self.stage.connect()
+        except (LightStageError, ValueError, RuntimeError) as exc:
+            self._note_error(f'configure failed: {exc}')
+            self.get_logger().error(self.last_error)
+            self._release()
+            return TransitionCallbackReturn.FAILURE
+        self.link_state = 'connected'
+        self.get_logger().info(
+            f'connected to {ident.name} {ident.version_string} on {device}: {ident.led_count} LEDs '
+            f'({ident.sites} sites x {ident.channels} channels), pwm_bits {ident.pwm_bits}, exposure '
+            f'{ident.min_exposure_us}..{ident.max_exposure_us} us, watchdog {self.p("watchdog_ms")} ms')
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+        self._illumination_pub = self.create_lifecycle_publisher(IlluminationState, ILLUMINATION_TOPIC, qos)
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: State) -> TransitionCallbackReturn:
+        self._heartbeat_timer = self.create_timer(self.p('heartbeat_period_s'), self._heartbeat)
+        self._active = True
+        self.link_state = 'armed'
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: State) -> TransitionCallbackReturn:
+        self._active = False
+        self._stop_heartbeat()
+        self._leds_off('deactivate')
+        self.link_state = 'connected'
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: State) -> TransitionCallbackReturn:
+        self._release()
+        self.link_state = 'unconfigured'
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: State) -> TransitionCallbackReturn:
+        self._active = False
+        self._stop_heartbeat()
+        self._release()
+        self.link_state = 'shut down'
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: State) -> TransitionCallbackReturn:
+        self._active = False
+        self._stop_heartbeat()
+        self._release()
+        self.link_state = 'error'
+        return TransitionCallbackReturn.SUCCESS
+
+    def _stop_heartbeat(self) -> None:
+        if self._heartbeat_timer is not None:
+            self.destroy_timer(self._heartbeat_timer)
+            self._heartbeat_timer = None
+
+    def _release(self) -> None:
+        """LEDs off (best effort), port closed, simulator stopped."""
+        if self.stage is not None:
+            self.stage.close(all_off=True)
+            self.stage = None
+        if self.backend is not None:
+            self.backend.close()
+            self.backend = None
+        if self._illumination_pub is not None:
+            self.destroy_lifecycle_publisher(self._illumination_pub)
+            self._illumination_pub = None
+
+    def _leds_off(self, why: str) -> None:
+        if self.stage is None:
+            return
+        try:
+            self.stage.all_off()
+        except LightStageError as exc:
+            # the firmware watchdog darkens the LEDs anyway once we fall silent
+            self._note_error(f'could not switch LEDs off ({why}): {exc}')
+            self.get_logger().error(self.last_error)
+
+    def _note_error(self, message: str) -> None:
+        self.errors += 1
+        self.last_error = message
+
+    def _on_watchdog(self, t_us: int) -> None:
+        self._note_error(f'firmware watchdog switched the LEDs off at firmware t={t_us} us '
+                         f'(host was silent too long)')
+        self.get_logger().warning(self.last_error)
+
+    # ------------------------------------------------------------------ periodic work
+    def _heartbeat(self) -> None:
+        if self.stage is None:
+            return
+        try:
+            self.stage.heartbeat()
+            self.link_state = 'armed'
+        except LightStageError as exc:
+            self.faults += 1
+            self.link_state = 'fault'
+            self._note_error(f'heartbeat failed: {exc}')
+            self.get_logger().error(self.last_error)
+            self._leds_off('fault')
+
+    def _publish_diagnostics(self) -> None:
+        status = DiagnosticStatus(name=f'{self.get_name()}: light stage link')
+        ident = self.stage.link.identity if self.stage is not None else None
+        stats = self.stage.link.stats.as_dict() if self.stage is not None else {}
+        healthy = self.link_state in ('armed', 'connected')
+        status.level = DiagnosticStatus.OK if healthy else (
+            DiagnosticStatus.WARN if self.link_state == 'unconfigured' else DiagnosticStatus.ERROR)
+        status.message = self.link_state if not self.last_error or healthy else \
+            f'{self.link_state}: {self.last_error}'
+        status.hardware_id = f'{ident.name} {ident.version_string}' if ident else ''
+        values = {'state': self.link_state, 'port': str(self.p('port')),
+                  'device': self.stage.link.device if self.stage else '',
+                  'firmware': ident.name if ident else '', 'firmware_version': ident.version_string if ident else '',
+                  'pwm_bits': ident.pwm_bits if ident else '', 'triggers': self.sequence,
+                  'requests': self.request_id, 'errors': self.errors, 'faults': self.faults,
+                  'watchdog_trips': self.stage.watchdog_trips if self.stage else 0,
+                  'last_error': self.last_error,
+                  'clock_uncertainty_us': (round(self.stage.clock.uncertainty_s * 1e6, 1)
+                                           if self.stage and self.stage.clock.synced else ''),
+                  **stats}
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._diag_pub.publish(msg)
+
+    # ------------------------------------------------------------------ service
+    def _on_apply(self, request: ApplyPatterns.Request, response: ApplyPatterns.Response):
+        response.success = False
+        if not self._active or self.stage is None:
+            response.message = (f'the driver is not active (state {self.link_state}); configure and '
+                                f'activate it (or start it with autostart:=true)')
+            return response
+        if not request.patterns:
+            response.message = 'no patterns in the request: send at least one Pattern'
+            return response
+        intensities = np.array([np.asarray(pt.intensities, dtype=np.float64) for pt in request.patterns])
+        default = self.p('default_exposure_us')
+        exposures = [int(pt.exposure_us) or default for pt in request.patterns]
+        self.request_id += 1
+        response.request_id = self.request_id
+        try:
+            triggers = self.stage.apply(intensities, exposures, trigger=request.trigger, gap_us=self.p('gap_us'))
+        except PatternError as exc:
+            response.message = f'rejected, nothing was sent: {exc}'
+            return response
+        except LightStageError as exc:
+            self.faults += 1
+            self.link_state = 'fault'
+            self._note_error(f'apply failed: {exc}')
+            self.get_logger().error(self.last_error)
+            self._leds_off('fault')
+            response.message = f'{exc} (LEDs switched off)'
+            return response
+        self.link_state = 'armed'
+        for trigger in triggers:
+            pattern = request.patterns[trigger.index]
+            self.sequence += 1
+            stamp = self._ros_stamp(trigger)
+            response.trigger_stamps.append(stamp)
+            response.sequences.append(self.sequence)
+            self._publish_illumination(trigger, pattern, stamp, len(request.patterns))
+        response.success = True
+        response.message = f'{len(request.patterns)} pattern(s) applied' + \
+            (f', {len(triggers)} trigger(s)' if request.trigger else ' (no trigger)')
+        return response
+
+    def _ros_stamp(self, trigger: Trigger) -> Time:
+        # host monotonic -> ROS time: shift "now" back by how long ago the trigger was
+        now_ns = self.get_clock().now().nanoseconds
+        ago_ns = int(round((time.monotonic() - trigger.host_time_s) * 1e9))
+        ns = now_ns - ago_ns
+        return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+    def _publish_illumination(self, trigger: Trigger, pattern, stamp: Time, count: int) -> None:
+        if self._illumination_pub is None:
+            return
+        msg = IlluminationState()
+        msg.header.stamp = stamp
+        msg.header.frame_id = self.p('frame_id')
+        msg.sequence = self.sequence
+        msg.request_id = self.request_id
+        msg.index_in_request = trigger.index
+        msg.count_in_request = count
+        # what was actually lit (on/off rigs threshold the requested drive)
+        if self.stage.identity.pwm_bits:
+            msg.intensities = np.asarray(pattern.intensities, dtype=np.float32)
+        else:
+            msg.intensities = np.array([(trigger.word >> i) & 1 for i in range(32)], dtype=np.float32)
+        msg.exposure_us = trigger.exposure_us
+        msg.gain_db = float(pattern.gain_db) if not math.isnan(pattern.gain_db) else math.nan
+        self._illumination_pub.publish(msg)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from rclpy.executors import ExternalShutdownException
+    rclpy.init(args=sys.argv if argv is None else argv)
+    node = LightStageDriverNode()
+    try:
+        if node.p('autostart'):
+            node.trigger_configure()
+            node.trigger_activate()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node._active = False
+        node._stop_heartbeat()
+        node._release()      # LEDs off, port closed, simulator stopped
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
