@@ -1,0 +1,245 @@
+"""`lightstage up`: start project nodes as separate processes and keep them running.
+
+Each node runs in its own process (`python -c "from MODULE import main; main()" --ros-args
+-r __node:=NAME ...`) with the project's ROS environment (`ros_env.ros_environment`). The
+launcher waits until every node is discoverable in the ROS graph, prints one
+`graph up: ...` line, forwards the children's output prefixed with their names, and stops
+them all in order on Ctrl-C / SIGTERM or as soon as one of them dies.
+
+Exit codes: 0 clean run and shutdown; 1 a node died or did not stop cleanly; 2 bad
+arguments (unknown node, module missing, unreadable params file); 3 a node did not appear
+in the ROS graph within --timeout-s.
+
+Process supervision lives in `supervisor.py` (no rclpy); only the graph check uses rclpy.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
+from lightstage_bringup.supervisor import ProcessSpec, Supervisor, describe_exit
+
+EXIT_OK, EXIT_NODE_FAILED, EXIT_USAGE, EXIT_NOT_DISCOVERED = 0, 1, 2, 3
+
+
+@dataclass(frozen=True)
+class NodeEntry:
+    """A node the launcher can start: the module whose `main()` runs it."""
+    module: str
+    description: str = ''
+
+
+# name -> node; the name is also the ROS node name (remapped with __node:=NAME) and the
+# key of the node's section in the params YAML.
+NODE_REGISTRY: dict[str, NodeEntry] = {
+    'driver': NodeEntry('lightstage_driver.driver_node', 'LED stage driver (serial or simulated firmware)'),
+    'camera': NodeEntry('lightstage_camera.camera_node', 'camera (simulated: renders the sample under each pattern)'),
+    'classifier': NodeEntry('mux_classifier.classifier_node', 'classifier (Classify service, /result topic)'),
+    'trainer': NodeEntry('mux_trainer.trainer_node', 'trainer (Train action)'),
+}
+DEFAULT_NODES = ('driver', 'camera', 'classifier')
+
+
+def node_command(module: str, name: str, params_file: str | None = None,
+                 extra_ros_args: list[str] | None = None) -> list[str]:
+    """The argv that runs `module.main()` as ROS node `name` in a fresh interpreter.
+
+    `-c` instead of `-m`: node modules expose `main()` (their ros2-run wrappers call it)
+    and need no `if __name__ == '__main__'` block for this to work.
+    """
+    code = f'import sys; from {module} import main; sys.exit(main())'
+    argv = [sys.executable, '-c', code, '--ros-args', '-r', f'__node:={name}']
+    if params_file:
+        argv += ['--params-file', str(params_file)]
+    return argv + list(extra_ros_args or [])
+
+
+def _parser() -> argparse.ArgumentParser:
+    known = '\n'.join(f'  {n:<11} {e.module}  ({e.description})' for n, e in NODE_REGISTRY.items())
+    p = argparse.ArgumentParser(
+        prog='lightstage up',
+        description='Start light-stage nodes as separate processes, wait until they are '
+                    'discoverable in the ROS graph, forward their output, and stop them all '
+                    'on Ctrl-C or when one of them dies.',
+        epilog=f'nodes:\n{known}\n\nexit codes: 0 ok, 1 a node died / did not stop cleanly, '
+               '2 bad arguments, 3 a node was not discoverable in time',
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('nodes', nargs='*', metavar='NODE',
+                   help=f'nodes to start (default: {" ".join(DEFAULT_NODES)})')
+    p.add_argument('--domain-id', type=int, default=None,
+                   help='ROS_DOMAIN_ID for the nodes and the graph check (default: $ROS_DOMAIN_ID or 0)')
+    p.add_argument('--params', metavar='FILE.yaml', default=None,
+                   help='ROS parameters file passed to every node (--params-file)')
+    p.add_argument('--log-dir', metavar='DIR', default=None,
+                   help='write each node\'s output to DIR/NAME.log and ROS log files to DIR (ROS_LOG_DIR)')
+    p.add_argument('--timeout-s', type=float, default=20.0,
+                   help='how long to wait for all nodes to appear in the ROS graph [s] (default 20)')
+    p.add_argument('--exit-after-up', action='store_true',
+                   help='stop all nodes as soon as the graph is up (for tests and demos)')
+    p.add_argument('--node', action='append', default=[], metavar='NAME=MODULE',
+                   help='add or replace a registry entry: start MODULE.main() as node NAME')
+    p.add_argument('--sigint-timeout-s', type=float, default=5.0,
+                   help='grace time after SIGINT before SIGTERM at shutdown [s]')
+    p.add_argument('--sigterm-timeout-s', type=float, default=3.0,
+                   help='grace time after SIGTERM before SIGKILL at shutdown [s]')
+    return p
+
+
+def _registry_with_overrides(overrides: list[str]) -> dict[str, NodeEntry]:
+    registry = dict(NODE_REGISTRY)
+    for item in overrides:
+        name, sep, module = item.partition('=')
+        if not sep or not name or not module:
+            raise ValueError(f'--node {item!r}: expected NAME=MODULE, e.g. --node driver=lightstage_driver.driver_node')
+        registry[name] = NodeEntry(module, 'from --node')
+    return registry
+
+
+def _module_exists(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):  # parent package missing, or a bad name
+        return False
+
+
+def wait_for_nodes(names: list[str], domain_id: int, timeout_s: float, supervisor: Supervisor,
+                   stop_event: threading.Event) -> tuple[list[str], str | None]:
+    """Poll the ROS graph until every name in `names` is a node in it.
+
+    Returns (missing names, name of a child that died meanwhile or None). Empty missing
+    list = all up. Uses its own rclpy context so it can run inside other rclpy users.
+    """
+    apply_ros_environment()  # LOCALHOST discovery and the profile for this process's own participant
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+
+    context = Context()
+    # the launcher's own SIGINT/SIGTERM handlers stay in charge of shutdown
+    rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        node = rclpy.create_node(f'_lightstage_up_{os.getpid()}', context=context,
+                                 enable_rosout=False, start_parameter_services=False,
+                                 use_global_arguments=False)
+        missing = list(names)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            present = {n for n, _ns in node.get_node_names_and_namespaces()}
+            missing = [n for n in names if n not in present]
+            dead = supervisor.exited()
+            if not missing or dead or stop_event.is_set() or time.monotonic() >= deadline:
+                return missing, (dead[0].name if dead else None)
+            time.sleep(0.05)
+    finally:
+        rclpy.shutdown(context=context)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
+    err = sys.stderr
+
+    try:
+        registry = _registry_with_overrides(args.node)
+    except ValueError as e:
+        print(f'lightstage up: {e}', file=err)
+        return EXIT_USAGE
+    names = list(dict.fromkeys(args.nodes or DEFAULT_NODES))  # keep order, drop duplicates
+    unknown = [n for n in names if n not in registry]
+    if unknown:
+        print(f'lightstage up: unknown node(s) {", ".join(unknown)}; known: {", ".join(registry)} '
+              f'(or add one with --node NAME=MODULE)', file=err)
+        return EXIT_USAGE
+    missing_modules = [(n, registry[n].module) for n in names if not _module_exists(registry[n].module)]
+    if missing_modules:
+        for n, m in missing_modules:
+            print(f'lightstage up: node {n!r}: module {m} not found; it is not written yet or its '
+                  f'package is not installed (pip install ./src/{m.split(".")[0]})', file=err)
+        return EXIT_USAGE
+    params = None
+    if args.params is not None:
+        params = Path(args.params).resolve()
+        if not params.is_file():
+            print(f'lightstage up: params file {args.params} does not exist; give a ROS parameters '
+                  f'YAML (e.g. src/lightstage_bringup/config/lightstage.yaml)', file=err)
+            return EXIT_USAGE
+    if args.timeout_s <= 0:
+        print('lightstage up: --timeout-s must be > 0', file=err)
+        return EXIT_USAGE
+
+    try:
+        env = ros_environment(args.domain_id)
+    except ValueError as e:
+        print(f'lightstage up: {e}', file=err)
+        return EXIT_USAGE
+    domain_id = int(env.get('ROS_DOMAIN_ID', '0') or 0)
+    if args.log_dir:
+        Path(args.log_dir).mkdir(parents=True, exist_ok=True)
+        env['ROS_LOG_DIR'] = str(Path(args.log_dir).resolve())
+
+    stop = threading.Event()
+    stop_reason: list[str] = []
+
+    def on_signal(signum, _frame):
+        stop_reason.append(signal.Signals(signum).name)
+        stop.set()
+
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    old_handlers = {}
+    if in_main_thread:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old_handlers[sig] = signal.signal(sig, on_signal)
+
+    rc = EXIT_OK
+    supervisor = Supervisor(log_dir=args.log_dir, sigint_timeout_s=args.sigint_timeout_s,
+                            sigterm_timeout_s=args.sigterm_timeout_s)
+    try:
+        t0 = time.monotonic()
+        for n in names:
+            supervisor.start(ProcessSpec(n, node_command(registry[n].module, n, params), env))
+        missing, dead = wait_for_nodes(names, domain_id, args.timeout_s, supervisor, stop)
+        if dead is not None:
+            p = supervisor[dead]
+            print(f'lightstage up: node {dead!r} died during start-up ({describe_exit(p.returncode)}); '
+                  f'see its output above', file=err)
+            rc = EXIT_NODE_FAILED
+        elif stop.is_set():
+            print(f'lightstage up: {stop_reason[0]} received during start-up; stopping', file=err)
+        elif missing:
+            print(f'lightstage up: node(s) {", ".join(missing)} not discoverable in the ROS graph '
+                  f'(ROS_DOMAIN_ID={domain_id}) after {args.timeout_s:g} s; they are running but have '
+                  f'not created a node named so (check their output above)', file=err)
+            rc = EXIT_NOT_DISCOVERED
+        else:
+            up = ', '.join(f'{p.name} (pid {p.pid})' for p in supervisor.processes)
+            print(f'graph up: {up} in {time.monotonic() - t0:.1f} s, ROS_DOMAIN_ID={domain_id}', flush=True)
+            if not args.exit_after_up:
+                dead_proc = supervisor.wait_for_exit(stop_event=stop)
+                if dead_proc is not None:
+                    print(f'lightstage up: node {dead_proc.name!r} died '
+                          f'({describe_exit(dead_proc.returncode)}); stopping the others', file=err)
+                    rc = EXIT_NODE_FAILED
+                else:
+                    print(f'lightstage up: {stop_reason[0]} received; stopping', file=err, flush=True)
+    finally:
+        reports = supervisor.shutdown()
+        if in_main_thread:
+            for sig, handler in old_handlers.items():
+                signal.signal(sig, handler)
+    for r in reports:
+        if r.expected and not r.clean:
+            print(f'lightstage up: {r.name} did not stop cleanly: {r}', file=err)
+            rc = rc or EXIT_NODE_FAILED
+    print('stopped: ' + '; '.join(str(r) for r in reports), file=err, flush=True)
+    return rc
+
+
+if __name__ == '__main__':
+    sys.exit(main())

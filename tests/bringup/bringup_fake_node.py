@@ -1,0 +1,39 @@
+"""A tiny rclpy node standing in for a project node in the launcher tests.
+
+Parameters (settable from a params YAML): `greeting` (printed on stdout at start),
+`die_after_s` (> 0: exit with `exit_code` after that long), `ignore_sigint` (stay up after
+SIGINT, so the launcher has to escalate to SIGTERM).
+"""
+import signal
+import sys
+import time
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+
+
+def main() -> int:
+    rclpy.init()
+    node = rclpy.create_node('bringup_fake_node')
+    greeting = node.declare_parameter('greeting', 'hello').value
+    die_after_s = node.declare_parameter('die_after_s', 0.0).value
+    exit_code = node.declare_parameter('exit_code', 0).value
+    if node.declare_parameter('ignore_sigint', False).value:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    print(f'greeting={greeting} name={node.get_name()}', flush=True)
+    node.get_logger().info('fake node up')
+    t0 = time.monotonic()
+    try:
+        while rclpy.ok():
+            rclpy.spin_once(node, timeout_sec=0.05)
+            if die_after_s > 0 and time.monotonic() - t0 > die_after_s:
+                print(f'exiting with {exit_code} as asked', flush=True)
+                return exit_code
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    print('fake node stopped', flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,152 @@
+"""The process supervisor: output forwarding, death detection, ordered shutdown (no ROS)."""
+import io
+import os
+import signal
+import sys
+import time
+
+import pytest
+
+from lightstage_bringup.supervisor import ExitReport, ProcessSpec, Supervisor, describe_exit
+
+PY = sys.executable
+
+
+def py(code: str) -> list[str]:
+    return [PY, '-c', code]
+
+
+# a child that says it is ready, then sleeps; optional signal handling set up before "ready"
+def sleeper(setup: str = '') -> list[str]:
+    return py('import signal, sys, time\n' + setup + '\nprint("ready", flush=True)\ntime.sleep(60)')
+
+
+def wait_for_line(stream: io.StringIO, text: str, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while text not in stream.getvalue():
+        assert time.monotonic() < deadline, f'{text!r} not seen; output so far:\n{stream.getvalue()}'
+        time.sleep(0.02)
+
+
+def pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # a zombie still answers kill(0); check its state
+    with open(f'/proc/{pid}/stat') as f:
+        return f.read().split(')')[-1].split()[0] != 'Z'
+
+
+def test_output_is_forwarded_line_by_line_with_the_name_and_logged(tmp_path):
+    out, err = io.StringIO(), io.StringIO()
+    with Supervisor(stdout=out, stderr=err, log_dir=tmp_path) as sup:
+        sup.start(ProcessSpec('talker', py(
+            'import sys; print("one"); print("two"); print("oops", file=sys.stderr)')))
+        assert sup.wait_for_exit(timeout_s=10).name == 'talker'
+        reports = sup.shutdown()
+    assert out.getvalue().splitlines() == ['[talker] one', '[talker] two']
+    assert err.getvalue().splitlines() == ['[talker] oops']
+    # both streams go to one file; their relative order is up to the scheduler
+    logged = (tmp_path / 'talker.log').read_text().splitlines()
+    assert sorted(logged) == ['one', 'oops', 'two'] and logged.index('one') < logged.index('two')
+    (r,) = reports
+    assert r.returncode == 0 and r.signal_sent is None and r.clean
+    assert r.expected is False  # exited by itself, nobody asked it to stop
+
+
+def test_a_dying_child_is_reported_with_its_exit_code():
+    out = io.StringIO()
+    with Supervisor(stdout=out, stderr=io.StringIO()) as sup:
+        sup.start(ProcessSpec('steady', sleeper()))
+        sup.start(ProcessSpec('crasher', py('import sys, time; time.sleep(0.3); sys.exit(3)')))
+        dead = sup.wait_for_exit(timeout_s=10)
+        assert dead is not None and dead.name == 'crasher' and dead.returncode == 3
+        assert sup['steady'].returncode is None
+        reports = {r.name: r for r in sup.shutdown()}
+    assert reports['crasher'].returncode == 3 and not reports['crasher'].expected
+    assert reports['steady'].signal_sent == 'SIGINT' and reports['steady'].clean
+    assert 'exit code 3' in str(reports['crasher'])
+
+
+def test_shutdown_escalates_sigint_sigterm_sigkill():
+    out = io.StringIO()
+    sup = Supervisor(stdout=out, stderr=io.StringIO(), sigint_timeout_s=0.5, sigterm_timeout_s=0.5)
+    sup.start(ProcessSpec('polite', sleeper()))
+    sup.start(ProcessSpec('deaf_to_int', sleeper('signal.signal(signal.SIGINT, signal.SIG_IGN)')))
+    sup.start(ProcessSpec('stubborn', sleeper(
+        'signal.signal(signal.SIGINT, signal.SIG_IGN); signal.signal(signal.SIGTERM, signal.SIG_IGN)')))
+    for name in ('polite', 'deaf_to_int', 'stubborn'):
+        wait_for_line(out, f'[{name}] ready')
+    pids = [p.pid for p in sup.processes]
+    t0 = time.monotonic()
+    reports = {r.name: r for r in sup.shutdown()}
+    elapsed = time.monotonic() - t0
+    assert reports['polite'].signal_sent == 'SIGINT' and reports['polite'].clean
+    assert reports['deaf_to_int'].signal_sent == 'SIGTERM'
+    assert reports['deaf_to_int'].returncode == -signal.SIGTERM and reports['deaf_to_int'].clean
+    assert reports['stubborn'].signal_sent == 'SIGKILL'
+    assert reports['stubborn'].returncode == -signal.SIGKILL and not reports['stubborn'].clean
+    assert 0.9 < elapsed < 5.0  # waited out both grace periods, no more
+    assert not any(pid_alive(pid) for pid in pids)
+
+
+def test_grandchildren_are_stopped_with_their_parent():
+    out = io.StringIO()
+    with Supervisor(stdout=out, stderr=io.StringIO(), sigint_timeout_s=2) as sup:
+        sup.start(ProcessSpec('parent', py(
+            'import subprocess, sys, time\n'
+            'c = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])\n'
+            'print("grandchild", c.pid, flush=True)\n'
+            'time.sleep(60)')))
+        wait_for_line(out, '[parent] grandchild ')
+        grandchild = int(out.getvalue().split('grandchild ')[1].split()[0])
+        assert pid_alive(grandchild)
+    deadline = time.monotonic() + 5
+    while pid_alive(grandchild) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not pid_alive(grandchild)
+
+
+def test_child_gets_sigterm_when_the_supervisor_process_dies(tmp_path):
+    # A supervisor process that starts a child and is then SIGKILLed: no orphan survives.
+    import subprocess
+    code = (
+        'import io, sys, time\n'
+        'from lightstage_bringup.supervisor import ProcessSpec, Supervisor\n'
+        'sup = Supervisor()\n'
+        'p = sup.start(ProcessSpec("orphan", [sys.executable, "-c", "import time; time.sleep(60)"]))\n'
+        'print(p.pid, flush=True)\n'
+        'time.sleep(60)\n')
+    boss = subprocess.Popen([PY, '-c', code], stdout=subprocess.PIPE, text=True)
+    try:
+        child_pid = int(boss.stdout.readline())
+        assert pid_alive(child_pid)
+        boss.kill()
+        boss.wait(timeout=5)
+        deadline = time.monotonic() + 5
+        while pid_alive(child_pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not pid_alive(child_pid)
+    finally:
+        boss.kill()
+        boss.stdout.close()
+
+
+def test_bad_specs_are_rejected_clearly():
+    with pytest.raises(ValueError, match='argv is empty'):
+        ProcessSpec('x', [])
+    with pytest.raises(ValueError, match='without spaces'):
+        ProcessSpec('two words', ['true'])
+    with Supervisor(stdout=io.StringIO(), stderr=io.StringIO()) as sup:
+        sup.start(ProcessSpec('same', ['true']))
+        with pytest.raises(ValueError, match='already started'):
+            sup.start(ProcessSpec('same', ['true']))
+
+
+def test_describe_exit():
+    assert describe_exit(None) == 'still running'
+    assert describe_exit(0) == 'exit code 0'
+    assert describe_exit(-9) == 'killed by SIGKILL'
+    assert ExitReport('n', 1, 130, 'SIGINT').clean
+    assert not ExitReport('n', 1, 1, 'SIGINT').clean
