@@ -2,7 +2,8 @@
 
 Parameters (settable from a params YAML): `greeting` (printed on stdout at start),
 `die_after_s` (> 0: exit with `exit_code` after that long), `ignore_sigint` (stay up after
-SIGINT, so the launcher has to escalate to SIGTERM).
+SIGINT, so the launcher has to escalate to SIGTERM), `exit_code_on_stop` (exit status when
+stopped by a signal, to play a node that fails its shutdown).
 """
 import signal
 import sys
@@ -18,6 +19,7 @@ def main() -> int:
     greeting = node.declare_parameter('greeting', 'hello').value
     die_after_s = node.declare_parameter('die_after_s', 0.0).value
     exit_code = node.declare_parameter('exit_code', 0).value
+    exit_code_on_stop = node.declare_parameter('exit_code_on_stop', 0).value
     if node.declare_parameter('ignore_sigint', False).value:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     print(f'greeting={greeting} name={node.get_name()}', flush=True)
@@ -32,7 +34,7 @@ def main() -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     print('fake node stopped', flush=True)
-    return 0
+    return exit_code_on_stop
 
 
 if __name__ == '__main__':

@@ -2,7 +2,7 @@
 
 Each node runs in its own process (`python -c "from MODULE import main; main()" --ros-args
 -r __node:=NAME ...`) with the project's ROS environment (`ros_env.ros_environment`). The
-launcher waits until every node is discoverable in the ROS graph, prints one
+launcher waits until every node is discoverable in the ROS graph and spinning, prints one
 `graph up: ...` line, forwards the children's output prefixed with their names, and stops
 them all in order on Ctrl-C / SIGTERM or as soon as one of them dies.
 
@@ -112,14 +112,19 @@ def _module_exists(module: str) -> bool:
 
 def wait_for_nodes(names: list[str], domain_id: int, timeout_s: float, supervisor: Supervisor,
                    stop_event: threading.Event) -> tuple[list[str], str | None]:
-    """Poll the ROS graph until every name in `names` is a node in it.
+    """Poll the ROS graph until every name in `names` is a node in it and is spinning.
 
-    Returns (missing names, name of a child that died meanwhile or None). Empty missing
-    list = all up. Uses its own rclpy context so it can run inside other rclpy users.
+    "Spinning" = its parameter service answers a `list_parameters` call, which an rclpy
+    node does only once its executor runs, i.e. after its set-up code; a node without
+    parameter services counts as up once discoverable. Returns (names not up, name of a
+    child that died meanwhile or None); an empty first list means all are up. Uses its own
+    rclpy context, so it can run inside a process that uses rclpy otherwise.
     """
     apply_ros_environment()  # LOCALHOST discovery and the profile for this process's own participant
     import rclpy
+    from rcl_interfaces.srv import ListParameters
     from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
     context = Context()
@@ -129,17 +134,36 @@ def wait_for_nodes(names: list[str], domain_id: int, timeout_s: float, superviso
         node = rclpy.create_node(f'_lightstage_up_{os.getpid()}', context=context,
                                  enable_rosout=False, start_parameter_services=False,
                                  use_global_arguments=False)
-        missing = list(names)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
         deadline = time.monotonic() + timeout_s
+        discovered_at: dict[str, float] = {}
+        pending: dict[str, object] = {}  # name -> in-flight list_parameters future
+        up: set[str] = set()
         while True:
-            present = {n for n, _ns in node.get_node_names_and_namespaces()}
-            missing = [n for n in names if n not in present]
+            now = time.monotonic()
+            for n, ns in node.get_node_names_and_namespaces():
+                if n not in names or n in up:
+                    continue
+                discovered_at.setdefault(n, now)
+                if n in pending:
+                    if pending[n].done():
+                        up.add(n)
+                    continue
+                services = {s for s, _t in node.get_service_names_and_types_by_node(n, ns)}
+                service = f'{ns.rstrip("/")}/{n}/list_parameters'
+                if service in services:
+                    client = node.create_client(ListParameters, service)
+                    pending[n] = client.call_async(ListParameters.Request(depth=1))
+                elif now - discovered_at[n] > 2.0:  # no parameter services: discoverable is all we get
+                    up.add(n)
+            missing = [n for n in names if n not in up]
             dead = supervisor.exited()
             if not missing or dead or stop_event.is_set() or time.monotonic() >= deadline:
                 return missing, (dead[0].name if dead else None)
-            time.sleep(0.05)
+            executor.spin_once(timeout_sec=0.05)
     finally:
-        rclpy.shutdown(context=context)
+        rclpy.shutdown(context=context)  # also ends the executor and the node
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -214,8 +238,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f'lightstage up: {stop_reason[0]} received during start-up; stopping', file=err)
         elif missing:
             print(f'lightstage up: node(s) {", ".join(missing)} not discoverable in the ROS graph '
-                  f'(ROS_DOMAIN_ID={domain_id}) after {args.timeout_s:g} s; they are running but have '
-                  f'not created a node named so (check their output above)', file=err)
+                  f'(ROS_DOMAIN_ID={domain_id}) after {args.timeout_s:g} s, or not answering their '
+                  f'parameter service; their processes run but have not created and spun a node '
+                  f'named so (check their output above)', file=err)
             rc = EXIT_NOT_DISCOVERED
         else:
             up = ', '.join(f'{p.name} (pid {p.pid})' for p in supervisor.processes)

@@ -1,0 +1,144 @@
+"""`lightstage up`: real child processes with tiny rclpy nodes, a graph check, shutdown paths.
+
+The project's nodes are written by others; `--node NAME=MODULE` points the launcher at the
+fake nodes in this directory (bringup_fake_node.py, bringup_no_graph_node.py) instead.
+"""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from bringup_helpers import child_environment, fresh_domain_id, launcher_argv
+from lightstage_bringup import launcher
+
+pytestmark = pytest.mark.ros
+
+FAKE = 'bringup_fake_node'
+
+
+def run_up(*args, timeout_s=40, domain_id=None):
+    domain_id = fresh_domain_id() if domain_id is None else domain_id
+    proc = subprocess.run(launcher_argv(*args, '--domain-id', str(domain_id)),
+                          env=child_environment(domain_id), capture_output=True, text=True,
+                          timeout=timeout_s)
+    return proc
+
+
+def test_up_starts_nodes_reports_graph_up_and_stops_cleanly_with_params_and_logs(tmp_path):
+    params = tmp_path / 'params.yaml'
+    params.write_text('alpha:\n  ros__parameters:\n    greeting: bonjour\n'
+                      'beta:\n  ros__parameters:\n    greeting: hallo\n')
+    logs = tmp_path / 'logs'
+    p = run_up('alpha', 'beta', '--node', f'alpha={FAKE}', '--node', f'beta={FAKE}',
+               '--params', str(params), '--log-dir', str(logs), '--exit-after-up')
+    assert p.returncode == 0, p.stderr
+    (up_line,) = [ln for ln in p.stdout.splitlines() if ln.startswith('graph up: ')]
+    assert 'alpha (pid ' in up_line and 'beta (pid ' in up_line
+    # each node got its own section of the params file and its registry name as node name
+    assert '[alpha] greeting=bonjour name=alpha' in p.stdout
+    assert '[beta] greeting=hallo name=beta' in p.stdout
+    assert 'stopped: alpha' in p.stderr and 'after SIGINT' in p.stderr
+    assert 'greeting=bonjour' in (logs / 'alpha.log').read_text()
+    assert 'greeting=hallo' in (logs / 'beta.log').read_text()
+
+
+def test_sigint_to_the_launcher_stops_every_node(tmp_path):
+    domain_id = fresh_domain_id()
+    proc = subprocess.Popen(launcher_argv('a', 'b', '--node', f'a={FAKE}', '--node', f'b={FAKE}',
+                                          '--domain-id', str(domain_id)),
+                            env=child_environment(domain_id), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = []
+        deadline = time.monotonic() + 30
+        while not any(ln.startswith('graph up: ') for ln in lines):
+            assert time.monotonic() < deadline and proc.poll() is None, lines
+            lines.append(proc.stdout.readline())
+        up = next(ln for ln in lines if ln.startswith('graph up: '))
+        pids = [int(part.split(')')[0]) for part in up.split('(pid ')[1:]]
+        assert len(pids) == 2 and all(_alive(pid) for pid in pids)
+        time.sleep(0.5)  # running, not exiting by itself
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert 'SIGINT received; stopping' in err
+    assert not any(_alive(pid) for pid in pids)
+
+
+def test_a_node_dying_stops_the_rest_and_fails_naming_it(tmp_path):
+    params = tmp_path / 'params.yaml'
+    params.write_text('crasher:\n  ros__parameters:\n    die_after_s: 1.0\n    exit_code: 7\n')
+    p = run_up('steady', 'crasher', '--node', f'steady={FAKE}', '--node', f'crasher={FAKE}',
+               '--params', str(params))
+    assert p.returncode == launcher.EXIT_NODE_FAILED
+    assert 'graph up: ' in p.stdout
+    assert "node 'crasher' died (exit code 7); stopping the others" in p.stderr
+    assert 'steady (pid ' in p.stderr.split('stopped: ')[1]
+
+
+def test_a_node_that_never_joins_the_graph_times_out_naming_it():
+    t0 = time.monotonic()
+    p = run_up('ok', 'ghost', '--node', f'ok={FAKE}', '--node', 'ghost=bringup_no_graph_node',
+               '--timeout-s', '3')
+    assert p.returncode == launcher.EXIT_NOT_DISCOVERED
+    assert 'node(s) ghost not discoverable in the ROS graph' in p.stderr
+    assert 'graph up' not in p.stdout
+    assert '[ghost] starting, but never creating a ROS node' in p.stdout
+    assert time.monotonic() - t0 < 20
+
+
+def test_a_node_that_does_not_stop_on_sigint_is_escalated_and_reported(tmp_path):
+    params = tmp_path / 'params.yaml'
+    params.write_text('deaf:\n  ros__parameters:\n    ignore_sigint: true\n')
+    p = run_up('deaf', '--node', f'deaf={FAKE}', '--params', str(params), '--exit-after-up',
+               '--sigint-timeout-s', '1')
+    # rclpy stops the node on SIGTERM, a normal way to stop a node: still a clean run
+    assert 'deaf (pid ' in p.stderr and 'exit code 0 after SIGTERM' in p.stderr
+    assert p.returncode == 0, p.stderr
+
+
+def test_a_node_that_crashes_on_shutdown_fails_the_run(tmp_path):
+    # a node whose SIGINT handling ends in an error exit: the run is not clean
+    params = tmp_path / 'params.yaml'
+    params.write_text('messy:\n  ros__parameters:\n    exit_code_on_stop: 5\n')
+    p = run_up('messy', '--node', f'messy={FAKE}', '--params', str(params), '--exit-after-up')
+    assert p.returncode == launcher.EXIT_NODE_FAILED
+    assert 'messy did not stop cleanly: messy (pid ' in p.stderr and 'exit code 5 after SIGINT' in p.stderr
+
+
+@pytest.mark.parametrize('args, message', [
+    (['nosuchnode'], "unknown node(s) nosuchnode; known: driver, camera, classifier, trainer"),
+    (['ghost', '--node', 'ghost=no_such_package.ghost_node'],
+     "node 'ghost': module no_such_package.ghost_node not found"),
+    (['x', '--node', 'x'], 'expected NAME=MODULE'),
+    (['x', '--node', f'x={FAKE}', '--params', '/nonexistent/params.yaml'],
+     'params file /nonexistent/params.yaml does not exist'),
+])
+def test_bad_arguments_are_clear_errors_and_start_nothing(args, message, capsys):
+    assert launcher.main(args) == launcher.EXIT_USAGE
+    assert message in capsys.readouterr().err
+
+
+def test_registry_points_at_the_project_node_modules():
+    assert launcher.NODE_REGISTRY['driver'].module == 'lightstage_driver.driver_node'
+    assert launcher.NODE_REGISTRY['camera'].module == 'lightstage_camera.camera_node'
+    assert launcher.NODE_REGISTRY['classifier'].module == 'mux_classifier.classifier_node'
+    assert launcher.NODE_REGISTRY['trainer'].module == 'mux_trainer.trainer_node'
+    argv = launcher.node_command('pkg.mod', 'driver', '/p.yaml')
+    assert argv[0] == sys.executable
+    assert argv[argv.index('--ros-args'):] == ['--ros-args', '-r', '__node:=driver', '--params-file', '/p.yaml']
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f'/proc/{pid}/stat') as f:
+        return f.read().split(')')[-1].split()[0] != 'Z'
