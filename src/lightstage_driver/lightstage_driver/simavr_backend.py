@@ -51,9 +51,16 @@ def missing_tools() -> list[str]:
 _build_lock = threading.Lock()
 
 
-def build_firmware(directory: Path | None = None, timeout_s: float = 300.0) -> tuple[Path, Path]:
+#: build-time pin options of the Makefile (Arduino pin numbers)
+PIN_NAMES = ('data', 'clock', 'latch', 'trigger')
+
+
+def build_firmware(directory: Path | None = None, build_dir: Path | None = None,
+                   pins: dict[str, int] | None = None, timeout_s: float = 300.0) -> tuple[Path, Path]:
     """Run `make` in the firmware directory (a no-op when up to date); return (harness, elf).
 
+    `pins` overrides the wiring ({'data': 12, 'clock': 10, 'latch': 11, 'trigger': 8} by
+    default, Arduino pin numbers); use a separate `build_dir` for a non-default wiring.
     Serialised across threads and processes (a lock file in the build dir), since several
     test processes may start at once.
     """
@@ -62,11 +69,15 @@ def build_firmware(directory: Path | None = None, timeout_s: float = 300.0) -> t
     if missing:
         raise SimavrUnavailable(f'cannot build the AVR firmware: missing {", ".join(missing)}; '
                                 f'install the Debian packages {DEBIAN_PACKAGES}')
-    build = directory / 'build'
-    build.mkdir(exist_ok=True)
+    unknown = set(pins or {}) - set(PIN_NAMES)
+    if unknown:
+        raise ValueError(f'unknown pin name(s) {sorted(unknown)}; the wiring has {list(PIN_NAMES)}')
+    build = Path(build_dir) if build_dir else directory / 'build'
+    build.mkdir(parents=True, exist_ok=True)
+    make_vars = [f'BUILD={build}'] + [f'PIN_{name.upper()}={int(pin)}' for name, pin in (pins or {}).items()]
     with _build_lock, open(build / '.lock', 'w') as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        result = subprocess.run(['make', '-s', '-C', str(directory), 'firmware', 'harness'],
+        result = subprocess.run(['make', '-s', '-C', str(directory), *make_vars, 'firmware', 'harness'],
                                 capture_output=True, text=True, timeout=timeout_s)
     if result.returncode != 0:
         raise SimavrUnavailable(f'building the AVR firmware failed (make -C {directory}):\n'
@@ -81,12 +92,16 @@ class SimavrBackend(FirmwareBackend):
     pulse_tolerance_us = 0.5
 
     def __init__(self, throttle: bool = True, start_timeout_s: float = 10.0,
-                 directory: str | os.PathLike | None = None):
+                 directory: str | os.PathLike | None = None, build_dir: str | os.PathLike | None = None,
+                 pins: dict[str, int] | None = None):
         """throttle=False lets simulated time run ahead of wall time (as fast as the host
-        can); the firmware's millisecond timeouts then elapse faster than the host's."""
+        can); the firmware's millisecond timeouts then elapse faster than the host's.
+        `pins` and `build_dir` select a non-default wiring (see `build_firmware`)."""
         self.throttle = throttle
         self.start_timeout_s = start_timeout_s
         self.directory = Path(directory) if directory else firmware_dir()
+        self.build_dir = Path(build_dir) if build_dir else None
+        self.pins = dict(pins or {})
         self._dir = tempfile.mkdtemp(prefix='lightstage-avr-')
         self._link = os.path.join(self._dir, 'tty')
         self._log_path = os.path.join(self._dir, 'harness.log')
@@ -106,7 +121,7 @@ class SimavrBackend(FirmwareBackend):
     def start(self) -> None:
         if self.running:
             return
-        harness, elf = build_firmware(self.directory)
+        harness, elf = build_firmware(self.directory, self.build_dir, self.pins)
         cmd = [str(harness), str(elf)] + ([] if self.throttle else ['--no-throttle'])
         with self._lock:
             self.pty_path = ''

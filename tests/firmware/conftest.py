@@ -1,0 +1,34 @@
+"""Fixtures for the compiled AVR firmware running in simavr.
+
+One harness per module (start-up builds the firmware if needed); every test gets the MCU
+freshly reset (as opening a real Uno's port does), an open `Wire` and empty observations.
+"""
+import pytest
+
+from lightstage_driver.simavr_backend import SimavrBackend, missing_tools
+
+from firmware_wire import Wire
+
+
+@pytest.fixture(scope='module')
+def avr():
+    missing = missing_tools()
+    if missing:
+        pytest.skip(f'AVR toolchain / simavr not available: missing {", ".join(missing)}')
+    backend = SimavrBackend()
+    backend.start()
+    yield backend
+    backend.close()
+
+
+@pytest.fixture
+def wire(avr):
+    avr.reset()
+    link = Wire(avr.port)
+    link.call(0x01, timeout_s=2.0)  # IDENTIFY: answered once the firmware has booted
+    # the power-up clear of the chain (word 0) precedes the reply on the pins
+    assert avr.wait_for(lambda words, pulses: len(words) >= 1, 1.0)
+    link.drain()
+    avr.reset_observations()
+    yield link
+    link.close()
