@@ -1,0 +1,195 @@
+"""`lightstage train` and `lightstage eval`: the search and the evaluation on a capture folder.
+
+With --json only the JSON document goes to stdout; progress and logs go to stderr.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from .data import NOISE_SETTINGS
+from .report import DEFAULT_METHODS, METHODS
+
+
+def _hog_config(args):
+    from mux_classifier.hog import HogConfig
+    try:
+        return HogConfig(image_size=args.image_size, cell_px=args.cell_px,
+                         block_cells=args.block_cells)
+    except ValueError as exc:
+        raise SystemExit(f'lightstage: bad feature options: {exc}') from None
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument('capture_dir', metavar='CAPTURE_DIR', help='capture folder (holds rig.yaml)')
+    p.add_argument('--repeats', type=int, default=400,
+                   help='random 75/25 pose splits per candidate (default: 400, the paper)')
+    p.add_argument('--max-images', type=int, default=8,
+                   help='most pattern columns to select (default: 8)')
+    p.add_argument('--seed', type=int, default=0, help='seed of splits and noise (default: 0)')
+    p.add_argument('--jobs', type=int, default=1,
+                   help='joblib workers for candidate evaluation (default: 1; -1 = all cores)')
+    p.add_argument('--json', action='store_true', help='print the results as one JSON document')
+    p.add_argument('--quiet', action='store_true', help='no progress on stderr')
+    g = p.add_argument_group('features (defaults: the paper\'s HOG, 900 values per image)')
+    g.add_argument('--image-size', type=int, default=120)
+    g.add_argument('--cell-px', type=int, default=12)
+    g.add_argument('--block-cells', type=int, default=10)
+
+
+def _positive(args, *names):
+    for name in names:
+        if getattr(args, name) < 1:
+            raise SystemExit(f'lightstage: --{name.replace("_", "-")} must be >= 1, '
+                             f'got {getattr(args, name)}')
+
+
+def _load(capture_dir: str, hog_config):
+    from lightstage_camera.capture_format import load_capture
+    path = Path(capture_dir)
+    if not path.is_dir():
+        raise SystemExit(f'lightstage: {capture_dir}: no such capture folder '
+                         '(write one with `lightstage synth OUT_DIR`)')
+    try:
+        return load_capture(path, downscale_to=hog_config.image_size)
+    except ValueError as exc:
+        raise SystemExit(f'lightstage: cannot load capture {capture_dir}: {exc}') from None
+
+
+def train_main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog='lightstage train',
+        description='Learn illumination patterns and a classifier per image count from a '
+                    'capture folder; write the trained artifact (.npz).')
+    _common(p)
+    p.add_argument('--out', required=True, metavar='ARTIFACT', help='artifact file to write (.npz)')
+    p.add_argument('--method', choices=('greedy', 'snr_optimal', 'naive'), default='greedy')
+    p.add_argument('--mode', choices=('per_colour', 'joint'), default='per_colour',
+                   help='greedy only: 8-site patterns per colour (paper) or 32-LED patterns')
+    p.add_argument('--noise', choices=NOISE_SETTINGS, default='sigma3')
+    p.add_argument('--fixed-count', action='store_true',
+                   help='greedy: select --max-images columns even when accuracy stops improving')
+    p.add_argument('--inner-classifier', choices=('ridge', 'linear_svm'), default='ridge',
+                   help='classifier used to score candidates (default: ridge, fast)')
+    p.add_argument('--classifier', choices=('linear_svm', 'ridge'), default='linear_svm',
+                   help='classifier stored in the artifact (default: linear_svm, the paper)')
+    p.add_argument('--beam-width', type=int, default=1, help='joint mode: beam width')
+    args = p.parse_args(argv)
+    _positive(args, 'repeats', 'max_images', 'beam_width')
+    hog_config = _hog_config(args)
+    modelset = _load(args.capture_dir, hog_config)
+    from .baselines import NaiveClassifier, SnrOptimalClassifier
+    from .greedy import GreedyPatternSelector
+    common = dict(n_repeats=args.repeats, seed=args.seed, n_jobs=args.jobs, noise=args.noise,
+                  hog_config=hog_config, inner_classifier=args.inner_classifier,
+                  final_classifier=args.classifier)
+    if args.method == 'greedy':
+        model = GreedyPatternSelector(mode=args.mode, max_patterns=args.max_images,
+                                      n_patterns=args.max_images if args.fixed_count else None,
+                                      beam_width=args.beam_width, progress=not args.quiet,
+                                      **common)
+    elif args.method == 'snr_optimal':
+        model = SnrOptimalClassifier(n_images=args.max_images, **common)
+    else:
+        model = NaiveClassifier(**common)
+    t0 = time.perf_counter()
+    try:
+        model.fit(modelset)
+    except ValueError as exc:
+        raise SystemExit(f'lightstage train: {exc}') from None
+    seconds = time.perf_counter() - t0
+    artifact = model.to_artifact(provenance={'capture': str(Path(args.capture_dir).resolve()),
+                                             'train_seconds': seconds})
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    artifact.save(out)
+    doc = {
+        'method': args.method, 'mode': model.mode, 'noise': args.noise,
+        'artifact': str(out), 'class_names': list(model.class_names_),
+        'patterns': model.patterns_.astype(int).tolist(),
+        'images_per_pattern': int(model.images_per_pattern),
+        'accuracy_by_images': {str(k): float(v) for k, v in model.accuracy_by_images_.items()},
+        'best_n_images': int(model.best_n_patterns_),
+        'train_seconds': seconds,
+    }
+    if hasattr(model, 'improved_'):
+        doc['improved'] = [bool(v) for v in model.improved_]
+    if args.json:
+        print(json.dumps(doc))
+    elif not args.quiet:
+        print(f'wrote {out}: {model.patterns_.shape[1]} pattern column(s), split accuracy by '
+              f'image count {doc["accuracy_by_images"]}, best at {doc["best_n_images"]}; '
+              f'{seconds:.1f} s')
+    return 0
+
+
+def eval_main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog='lightstage eval',
+        description='Evaluate naive, naive + BoW, SNR-optimal and greedy illumination on a '
+                    'capture folder (Table 1 and accuracy vs image count of the paper), on '
+                    'held-out poses rendered with fresh noise.')
+    _common(p)
+    p.add_argument('--noise', default='sigma3',
+                   help='comma-separated noise settings, e.g. sigma1,sigma2,sigma3 (default: '
+                        'sigma3); the JSON\'s top-level "methods" are those of the first')
+    p.add_argument('--methods', default=','.join(DEFAULT_METHODS),
+                   help=f'comma-separated, from {",".join(METHODS)} (default: '
+                        f'{",".join(DEFAULT_METHODS)})')
+    p.add_argument('--holdout', type=float, default=0.25,
+                   help='fraction of pose indices held out for testing (default: 0.25)')
+    p.add_argument('--renders', type=int, default=4,
+                   help='noisy renders of each held-out sample (default: 4)')
+    p.add_argument('--beam-width', type=int, default=1, help='greedy_joint: beam width')
+    p.add_argument('--out', metavar='DIR', help='write results.json, CSVs and PNG plots here')
+    p.add_argument('--no-plots', action='store_true', help='with --out: skip the PNG plots')
+    args = p.parse_args(argv)
+    _positive(args, 'repeats', 'max_images', 'renders', 'beam_width')
+    noises = [n.strip().lower() for n in args.noise.split(',') if n.strip()]
+    bad = [n for n in noises if n not in NOISE_SETTINGS]
+    if not noises or bad:
+        raise SystemExit(f'lightstage eval: unknown noise setting(s) {bad}; use '
+                         f'{", ".join(NOISE_SETTINGS)}')
+    methods = [m.strip() for m in args.methods.split(',') if m.strip()]
+    bad = [m for m in methods if m not in METHODS]
+    if not methods or bad:
+        raise SystemExit(f'lightstage eval: unknown method(s) {bad}; use {", ".join(METHODS)}')
+    if not 0 < args.holdout < 1:
+        raise SystemExit(f'lightstage eval: --holdout must be in (0, 1), got {args.holdout}')
+    hog_config = _hog_config(args)
+    modelset = _load(args.capture_dir, hog_config)
+    from .report import json_ready, run_evaluation, write_outputs
+    try:
+        results = run_evaluation(modelset, noises, methods, n_repeats=args.repeats,
+                                 max_images=args.max_images, holdout_fraction=args.holdout,
+                                 n_renders=args.renders, seed=args.seed, n_jobs=args.jobs,
+                                 hog_config=hog_config, beam_width=args.beam_width,
+                                 quiet=args.quiet, progress=not args.quiet)
+    except ValueError as exc:
+        raise SystemExit(f'lightstage eval: {exc}') from None
+    results['capture'] = str(Path(args.capture_dir).resolve())
+    results['settings'] = {'repeats': args.repeats, 'max_images': args.max_images,
+                           'holdout': args.holdout, 'renders': args.renders, 'seed': args.seed,
+                           'methods': methods, 'noise': noises}
+    if args.out:
+        for path in write_outputs(results, args.out, plots=not args.no_plots):
+            if not args.quiet:
+                print(f'wrote {path}', file=sys.stderr)
+    doc = json_ready(results)
+    if args.json:
+        print(json.dumps(doc))
+    else:
+        for noise, r in doc['by_noise'].items():
+            print(f'noise {noise}: held-out accuracy (test poses {r["test_poses"]})')
+            for name, m in r['methods'].items():
+                types = ', '.join(f'{t} {100 * a:.1f}' for t, a in m['accuracy_by_type'].items())
+                print(f'  {name:<13} {100 * m["accuracy"]:6.2f} %  at {m["n_images"]} image(s)'
+                      f'  [{types}]')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(train_main())

@@ -1,0 +1,74 @@
+"""PNG figures of an evaluation: accuracy vs image count and the selected pattern matrices."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+STYLE = {'greedy': ('-', 'o'), 'snr_optimal': ('--', 's'), 'greedy_joint': (':', '^')}
+
+
+def plot_accuracy_vs_images(doc: dict, path) -> Path:
+    """Held-out accuracy vs image count (pattern columns): greedy solid, SNR-optimal dashed,
+    one colour per noise setting; naive methods as horizontal reference lines."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
+    for i, (noise, r) in enumerate(doc['by_noise'].items()):
+        colour = colours[i % len(colours)]
+        for name, m in r['methods'].items():
+            acc = m['accuracy_by_images']
+            if name in STYLE:
+                ks = sorted(int(k) for k in acc)
+                ax.plot(ks, [100 * acc[str(k)] for k in ks], linestyle=STYLE[name][0],
+                        marker=STYLE[name][1], color=colour, label=f'{name} {noise}')
+            elif i == 0:
+                ax.axhline(100 * m['accuracy'], color='gray', linewidth=0.8,
+                           linestyle='-.' if name == 'naive_bow' else ':')
+                ax.annotate(f'{name} {noise}', (1, 100 * m['accuracy']), fontsize=7,
+                            color='gray', va='bottom')
+    ax.set_xlabel('image count (pattern columns; per colour: 4 exposures each)')
+    ax.set_ylabel('held-out accuracy %')
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_pattern_matrices(doc: dict, path) -> Path:
+    """Like the paper's figure of patterns: one panel per (method, noise), rows = sites or
+    LEDs, columns = images, lit = white; columns that did not improve accuracy are shaded."""
+    panels = [(name, noise, m) for noise, r in doc['by_noise'].items()
+              for name, m in r['methods'].items() if name in STYLE]
+    if not panels:
+        panels = [(name, noise, m) for noise, r in doc['by_noise'].items()
+                  for name, m in r['methods'].items()]
+    n = len(panels)
+    ncol = min(3, n)
+    nrow = int(np.ceil(n / ncol))
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 2.8 * nrow), squeeze=False)
+    for ax in axes.ravel():
+        ax.axis('off')
+    for ax, (name, noise, m) in zip(axes.ravel(), panels):
+        P = np.asarray(m['patterns'], dtype=float)
+        ax.axis('on')
+        ax.imshow(P, cmap='gray', vmin=0, vmax=1, interpolation='nearest', aspect='auto')
+        for j, improved in enumerate(m.get('improved', [True] * P.shape[1])):
+            if not improved:
+                ax.axvspan(j - 0.5, j + 0.5, color='tab:red', alpha=0.35, linewidth=0)
+        ax.set_title(f'{name} {noise}', fontsize=9)
+        ax.set_xticks(range(P.shape[1]), [str(j + 1) for j in range(P.shape[1])], fontsize=7)
+        ax.set_yticks(range(P.shape[0]), [str(i) for i in range(P.shape[0])], fontsize=6)
+        ax.set_xlabel('image', fontsize=8)
+        ax.set_ylabel('site' if P.shape[0] <= 8 else 'LED (site*4+colour)', fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -1,0 +1,129 @@
+import itertools
+
+import numpy as np
+import pytest
+from mux_classifier.model import ArtifactError, TrainedArtifact
+
+from mux_trainer.greedy import GreedyPatternSelector
+from mux_trainer.patterns import pattern_code
+from mux_trainer.reference import reference_candidate_scores
+
+
+def brute_force_greedy(data, n_columns, n_repeats, seed):
+    """The paper's loop written plainly: every pattern in natural binary order, each
+    scored by the straightforward reference (per-image render, skimage HOG, a ridge fit
+    per split); returns the chosen columns and each column's {code: score}."""
+    n = data.n_sites
+    patterns = np.array([[(code >> i) & 1 for i in range(n)]
+                         for code in range(1, 2 ** n - 1)], np.float32).T
+    columns = np.zeros((n, 0), np.float32)
+    scores_by_column = []
+    for _ in range(n_columns):
+        acc = reference_candidate_scores(data, 'per_colour', columns if columns.shape[1] else None,
+                                         patterns, seed=seed, n_repeats=n_repeats,
+                                         classifier='ridge').mean(axis=1)
+        scores_by_column.append({pattern_code(p): a for p, a in zip(patterns.T, acc)})
+        columns = np.hstack([columns, patterns[:, [int(np.argmax(acc))]]])
+    return columns, scores_by_column
+
+
+def test_greedy_selects_the_brute_force_patterns(tiny4_data):
+    sel = GreedyPatternSelector(n_patterns=3, n_repeats=20, seed=11).fit(tiny4_data)
+    ref_cols, ref_scores = brute_force_greedy(tiny4_data, 3, 20, 11)
+    for j, record in enumerate(sel.history_):
+        fast = {pattern_code(p): s for p, s in zip(record['candidates'].T, record['scores'])}
+        assert fast.keys() == ref_scores[j].keys()  # all 14 patterns with 1..3 of 4 sites
+        assert all(fast[c] == ref_scores[j][c] for c in fast)
+        best = max(ref_scores[j].values())
+        winners = [c for c, s in ref_scores[j].items() if s == best]
+        assert len(winners) == 1, 'the tiny problem should have a unique winner per column'
+    np.testing.assert_array_equal(sel.patterns_, ref_cols)
+    assert list(sel.accuracy_by_images_) == [1, 2, 3]
+
+
+def test_early_termination_stops_at_the_first_non_improving_column(tiny_data):
+    full = GreedyPatternSelector(n_patterns=4, n_repeats=16, seed=0).fit(tiny_data)
+    acc = [full.accuracy_by_images_[k] for k in (1, 2, 3, 4)]
+    best = np.maximum.accumulate(acc)
+    expected_improved = [True] + [acc[i] > best[i - 1] for i in range(1, 4)]
+    np.testing.assert_array_equal(full.improved_, expected_improved)
+    early = GreedyPatternSelector(n_patterns=None, max_patterns=4, n_repeats=16,
+                                  seed=0).fit(tiny_data)
+    stop = expected_improved.index(False) if False in expected_improved else 4
+    assert early.patterns_.shape[1] == stop
+    np.testing.assert_array_equal(early.patterns_, full.patterns_[:, :stop])
+    assert len(early.history_) == min(stop + 1, 4)  # the rejected column is recorded
+    if stop < 4:
+        assert early.history_[-1]['kept'] is False
+    assert set(early.classifiers_) == set(range(1, stop + 1))
+
+
+def test_early_termination_when_one_column_is_perfect():
+    from trainer_helpers import make_search_data
+    easy = make_search_data(signal=200.0, noise_a=0.0, noise_b=0.0)
+    sel = GreedyPatternSelector(n_repeats=10, max_patterns=5, seed=0).fit(easy)
+    assert sel.accuracy_by_images_[1] == 1.0
+    assert sel.patterns_.shape[1] == 1 and len(sel.history_) == 2
+
+
+def test_same_seed_same_result_other_seed_other_noise(tiny_data):
+    a = GreedyPatternSelector(n_patterns=2, n_repeats=10, seed=3).fit(tiny_data)
+    b = GreedyPatternSelector(n_patterns=2, n_repeats=10, seed=3).fit(tiny_data)
+    c = GreedyPatternSelector(n_patterns=2, n_repeats=10, seed=4).fit(tiny_data)
+    np.testing.assert_array_equal(a.patterns_, b.patterns_)
+    np.testing.assert_array_equal(a.history_[1]['scores'], b.history_[1]['scores'])
+    assert not np.array_equal(a.history_[0]['scores'], c.history_[0]['scores'])
+
+
+def test_joint_mode_beam_search_over_led_additions(tiny_data):
+    sel = GreedyPatternSelector(mode='joint', n_patterns=2, n_repeats=10, seed=0,
+                                beam_width=2).fit(tiny_data)
+    assert sel.patterns_.shape == (32, 2)
+    first = sel.history_[0]
+    singles = first['candidates'][:, :32]
+    np.testing.assert_array_equal(singles, np.eye(32, dtype=np.float32))
+    ref = reference_candidate_scores(tiny_data, 'joint', None, singles, seed=0, n_repeats=10,
+                                     classifier='ridge').mean(axis=1)
+    np.testing.assert_array_equal(first['scores'][:32], ref)
+    # the column is the best pattern seen, and it is at least as good as the best single LED
+    assert first['accuracy'] == first['scores'].max() >= ref.max()
+    lit = int(sel.patterns_[:, 0].sum())
+    # beam 2: step t tries at most 2 * (33 - t) patterns
+    assert first['candidates'].shape[1] <= 32 + sum(2 * (32 - t) for t in range(1, lit + 1))
+    # the joint mode learns something on this data: the informative LEDs are red of
+    # site 0 / 2 and NIR of site 1
+    assert sel.accuracy_by_images_[2] > 0.6
+
+
+def test_saved_classifier_reloads_and_predicts_identically(tiny_data, tmp_path):
+    sel = GreedyPatternSelector(n_patterns=2, n_repeats=8, seed=0).fit(tiny_data)
+    art = sel.to_artifact()
+    path = tmp_path / 'greedy.npz'
+    art.save(path)
+    loaded = TrainedArtifact.load(path)
+    assert loaded.n_images == [4, 8] and loaded.mode == 'per_colour'
+    np.testing.assert_array_equal(loaded.site_patterns, sel.patterns_)
+    from mux_trainer.evaluation import render
+    from mux_trainer.rendering import add_noise
+    imgs = add_noise(tiny_data, render(tiny_data, 'per_colour', sel.patterns_), None)
+    stacks = imgs.transpose(1, 0, 2).reshape(tiny_data.n_samples, 8, 24, 24)
+    np.testing.assert_array_equal(art.decision_function(stacks), loaded.decision_function(stacks))
+    np.testing.assert_array_equal(loaded.predict(stacks[:, :4]), art.predict(stacks[:, :4]))
+    # the artifact's classifier is the selector's
+    X = sel.evaluator_.features(sel.patterns_)
+    names = np.asarray(tiny_data.class_names)
+    np.testing.assert_array_equal(
+        names[sel.classifiers_[2].predict_features(X)],
+        loaded.classifier(8).predict_features(X))
+    with pytest.raises(ArtifactError, match='images'):
+        loaded.predict(stacks[:, :3])
+    path.write_bytes(b'not a zip')
+    with pytest.raises(ArtifactError, match='not an .npz'):
+        TrainedArtifact.load(path)
+
+
+def test_bad_parameters_fail_clearly(tiny_data):
+    with pytest.raises(ValueError, match='unknown mode'):
+        GreedyPatternSelector(mode='diagonal').fit(tiny_data)
+    with pytest.raises(ValueError, match='at least one pattern column'):
+        GreedyPatternSelector(n_patterns=0).fit(tiny_data)
