@@ -1,0 +1,21 @@
+"""Small helpers shared by the driver tests."""
+from __future__ import annotations
+
+
+def wait_until(predicate, timeout_s: float, interval_s: float = 0.01) -> bool:
+    import time
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(interval_s)
+    return predicate()
+
+
+def distinct_words(backend) -> list[int]:
+    """Latched LED words with repeats collapsed (a firmware may re-latch an unchanged word)."""
+    out: list[int] = []
+    for latched in backend.led_words():
+        if not out or out[-1] != latched.word:
+            out.append(latched.word)
+    return out
