@@ -12,7 +12,9 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', ['lightstage_bringup/config/fastdds_profile.xml']),
+        ('share/' + package_name + '/config', ['lightstage_bringup/config/fastdds_profile.xml',
+                                               'config/lightstage.yaml']),
+        ('share/' + package_name + '/launch', ['launch/lightstage.launch.py']),
         # `ros2 run lightstage_bringup EXE` looks for an executable at <prefix>/lib/<pkg>/EXE;
         # pip puts console_scripts in bin/, so small wrappers are installed there as data.
         ('lib/' + package_name, ['scripts/recorder_node'])

@@ -1,0 +1,42 @@
+"""Launch the light stage on a full ROS 2 Jazzy install: driver, camera and classifier.
+
+    ros2 launch lightstage_bringup lightstage.launch.py [params_file:=FILE.yaml] [use_trainer:=true]
+
+The same nodes, names and parameters as `lightstage up` (lightstage_bringup.launcher), which
+is what runs where `launch` is not available (the pip-only setup). Node names are the keys
+of config/lightstage.yaml. Set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (and the Fast DDS
+profile) as `lightstage_bringup.ros_env` does, or run through `lightstage up`.
+"""
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+
+def generate_launch_description():
+    default_params = os.path.join(get_package_share_directory('lightstage_bringup'),
+                                  'config', 'lightstage.yaml')
+    params_file = LaunchConfiguration('params_file')
+    # (name, package, executable in lib/<package>/); names match the launcher's registry
+    nodes = [
+        ('driver', 'lightstage_driver', 'driver_node'),
+        ('camera', 'lightstage_camera', 'camera_node'),
+        ('classifier', 'mux_classifier', 'classifier_node'),
+    ]
+    actions = [
+        DeclareLaunchArgument('params_file', default_value=default_params,
+                              description='ROS parameters YAML for all nodes'),
+        DeclareLaunchArgument('use_trainer', default_value='false',
+                              description='also start the trainer node (Train action)'),
+    ]
+    for name, package, executable in nodes:
+        actions.append(Node(package=package, executable=executable, name=name,
+                            parameters=[params_file], output='screen', emulate_tty=True))
+    actions.append(Node(package='mux_trainer', executable='trainer_node', name='trainer',
+                        parameters=[params_file], output='screen', emulate_tty=True,
+                        condition=IfCondition(LaunchConfiguration('use_trainer'))))
+    return LaunchDescription(actions)

@@ -1,0 +1,73 @@
+"""The launch file for full ROS installs (launch/launch_ros are not installable here, so it
+is checked statically), its params YAML, and that setup.py installs both."""
+import ast
+import py_compile
+import runpy
+from pathlib import Path
+
+import setuptools
+import yaml
+
+from lightstage_bringup import launcher
+
+PKG = Path(__file__).resolve().parents[2] / 'src' / 'lightstage_bringup'
+LAUNCH = PKG / 'launch' / 'lightstage.launch.py'
+CONFIG = PKG / 'config' / 'lightstage.yaml'
+SRC = PKG.parent
+
+
+def _node_calls(tree: ast.AST) -> list[dict]:
+    """Keyword arguments of each Node(...) call, and the (name, package, executable) table."""
+    calls = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and getattr(node.func, 'id', None) == 'Node':
+            calls.append({k.arg: k.value for k in node.keywords})
+    return calls
+
+
+def test_launch_file_compiles_and_defines_generate_launch_description(tmp_path):
+    py_compile.compile(str(LAUNCH), cfile=str(tmp_path / 'launch.pyc'), doraise=True)
+    tree = ast.parse(LAUNCH.read_text())
+    functions = {f.name for f in tree.body if isinstance(f, ast.FunctionDef)}
+    assert 'generate_launch_description' in functions
+    imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}
+    assert {'LaunchDescription', 'Node', 'DeclareLaunchArgument'} <= imported
+
+
+def test_launch_file_starts_the_registry_nodes_with_executables_that_exist():
+    tree = ast.parse(LAUNCH.read_text())
+    table = next(ast.literal_eval(n.value) for n in ast.walk(tree)
+                 if isinstance(n, ast.Assign) and getattr(n.targets[0], 'id', '') == 'nodes')
+    assert [name for name, _, _ in table] == list(launcher.DEFAULT_NODES)
+    for name, package, executable in table + [('trainer', 'mux_trainer', 'trainer_node')]:
+        # the executable is installed to lib/<package>/ (ros2 run / launch_ros look there) ...
+        assert (SRC / package / 'scripts' / executable).is_file(), (package, executable)
+        assert f"'scripts/{executable}'" in (SRC / package / 'setup.py').read_text()
+        # ... and runs the module the launcher's registry starts for that name
+        assert f'from {launcher.NODE_REGISTRY[name].module} import main' in \
+            (SRC / package / 'scripts' / executable).read_text()
+    calls = _node_calls(tree)
+    assert len(calls) == 2  # the loop's Node(...) and the optional trainer
+    for kw in calls:
+        assert {'package', 'executable', 'name', 'parameters'} <= set(kw)
+
+
+def test_params_yaml_has_a_section_per_registry_node():
+    doc = yaml.safe_load(CONFIG.read_text())
+    for name in launcher.NODE_REGISTRY:
+        assert 'ros__parameters' in doc[name], name
+    for section in doc.values():
+        assert set(section) == {'ros__parameters'}
+
+
+def test_setup_installs_launch_and_config_into_share(monkeypatch):
+    captured = {}
+    monkeypatch.setattr(setuptools, 'setup', lambda **kw: captured.update(kw))
+    monkeypatch.chdir(PKG)
+    runpy.run_path(str(PKG / 'setup.py'))
+    data = {dest: files for dest, files in captured['data_files']}
+    assert 'launch/lightstage.launch.py' in data['share/lightstage_bringup/launch']
+    assert 'config/lightstage.yaml' in data['share/lightstage_bringup/config']
+    for files in data.values():
+        for f in files:
+            assert (PKG / f).is_file(), f
