@@ -40,6 +40,7 @@ class FaultConfig:
     drop_rx_prob: float = 0.0        # drop each received byte with this probability
     corrupt_tx_next: int = 0         # corrupt the next N sent frames (one byte flipped)
     corrupt_tx_prob: float = 0.0
+    corrupt_only_cmd: int = -1       # >=0: corrupt only frames with this CMD byte (e.g. 0x41 events)
     mute_next: int = 0               # ignore the next N valid frames: no execution, no reply
     mute_all: bool = False           # ignore every frame (a hung firmware)
     seed: int = 0
@@ -143,6 +144,8 @@ class PtyFirmware:
     def _corrupt(self, frame: bytes) -> bytes:
         f = self.faults
         hit = False
+        if f.corrupt_only_cmd >= 0 and frame[3] != f.corrupt_only_cmd:
+            return frame
         if f.corrupt_tx_next > 0:
             f.corrupt_tx_next -= 1
             hit = True
@@ -242,8 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     stop = False
 
     def on_signal(signum, frame):
-        nonlocal stop
-        stop = True
+        raise SystemExit(0)    # leaves select() at once; the finally below darkens the LEDs
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
