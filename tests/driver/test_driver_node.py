@@ -1,0 +1,232 @@
+"""The lifecycle driver node as a separate process, against the Python simulator on a pty."""
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lightstage_bringup.ros_env import ros_environment
+from lightstage_driver.sim_backend import PythonSimBackend
+
+from driver_helpers import distinct_words, wait_until
+
+pytestmark = pytest.mark.ros
+
+rclpy = pytest.importorskip('rclpy')
+interfaces = pytest.importorskip('lightstage_interfaces.srv')
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from lifecycle_msgs.msg import Transition  # noqa: E402
+from lifecycle_msgs.srv import ChangeState  # noqa: E402
+from lightstage_interfaces.msg import IlluminationState, Pattern  # noqa: E402
+from lightstage_interfaces.srv import ApplyPatterns  # noqa: E402
+
+SRC = Path(__file__).resolve().parents[2] / 'src'
+
+
+def own_domain(k: int) -> int:
+    """A domain id of this test run's own (the suite's in-process domain is 100..199)."""
+    return 1 + (os.getpid() * 7 + k) % 99
+
+
+def start_node(port: str, name: str, *params: str, domain_id: int) -> subprocess.Popen:
+    env = ros_environment(domain_id)
+    env['PYTHONPATH'] = os.pathsep.join([str(SRC / 'lightstage_driver'), str(SRC / 'lightstage_bringup'),
+                                         env.get('PYTHONPATH', '')])
+    args = [sys.executable, '-m', 'lightstage_driver.driver_node', '--ros-args', '-r', f'__node:={name}',
+            '-p', f'port:={port}', '-p', 'diagnostics_period_s:=0.2', '-p', 'timeout_ms:=100', '-p', 'connect_timeout_s:=0.5']
+    for param in params:
+        args += ['-p', param]
+    return subprocess.Popen(args, env=env)
+
+
+def stop_node(proc: subprocess.Popen) -> int:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            return proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+    return proc.wait()
+
+
+class Client:
+    """An rclpy context of its own on the node's domain, so tests never see each other's nodes."""
+
+    def __init__(self, node_name: str, domain_id: int):
+        from rclpy.executors import SingleThreadedExecutor
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node(f'driver_test_client_{node_name}', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.illumination: list[IlluminationState] = []
+        self.diagnostics: list[DiagnosticArray] = []
+        self.node.create_subscription(IlluminationState, '/illumination', self.illumination.append, 100)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append, 50)
+        self.apply_client = self.node.create_client(ApplyPatterns, '/lightstage/apply_patterns')
+        self.lifecycle = self.node.create_client(ChangeState, f'/{node_name}/change_state')
+
+    def call(self, client, request, timeout_s=10.0):
+        assert client.wait_for_service(timeout_sec=20.0), 'service did not appear'
+        future = client.call_async(request)
+        self.executor.spin_until_future_complete(future, timeout_sec=timeout_s)
+        assert future.done(), 'no response'
+        return future.result()
+
+    def apply(self, patterns, trigger=True, exposure_us=1000):
+        request = ApplyPatterns.Request(trigger=trigger)
+        for pattern in patterns:
+            msg = Pattern()
+            msg.intensities = np.asarray(pattern, dtype=np.float32)
+            msg.exposure_us = exposure_us
+            msg.gain_db = 12.0
+            request.patterns.append(msg)
+        return self.call(self.apply_client, request)
+
+    def transition(self, transition_id):
+        request = ChangeState.Request()
+        request.transition.id = transition_id
+        return self.call(self.lifecycle, request).success
+
+    def spin_until(self, predicate, timeout_s=5.0):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and not predicate():
+            self.executor.spin_once(timeout_sec=0.05)
+        return predicate()
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+@pytest.fixture(scope='module')
+def rig():
+    backend = PythonSimBackend()
+    backend.start()
+    proc = start_node(backend.port, 'stage_driver_under_test', domain_id=own_domain(0))
+    client = Client('stage_driver_under_test', own_domain(0))
+    yield backend, proc, client
+    client.close()
+    stop_node(proc)
+    backend.close()
+
+
+def eye(*leds):
+    pattern = np.zeros(32)
+    pattern[list(leds)] = 1.0
+    return pattern
+
+
+def test_apply_triggers_stamps_and_publishes_illumination(rig):
+    backend, proc, client = rig
+    assert client.apply([eye(0)], trigger=False).success      # wait for the service; warm-up
+    backend.reset_observations()
+    client.illumination.clear()
+    patterns = [eye(k * 4) for k in range(3)]
+    before = time.time()
+    response = client.apply(patterns, exposure_us=2000)
+    assert response.success, response.message
+    assert len(response.trigger_stamps) == 3 and len(response.sequences) == 3
+    assert list(np.diff(response.sequences)) == [1, 1]
+    stamps = [s.sec + s.nanosec * 1e-9 for s in response.trigger_stamps]
+    assert before - 0.5 < stamps[0] < time.time() + 0.5
+    assert np.diff(stamps) == pytest.approx([0.002, 0.002], abs=0.0015)  # exposure apart (gap 0)
+    assert client.spin_until(lambda: len(client.illumination) == 3)
+    for k, msg in enumerate(client.illumination):
+        assert msg.sequence == response.sequences[k] and msg.request_id == response.request_id
+        assert (msg.index_in_request, msg.count_in_request) == (k, 3)
+        assert msg.header.stamp == response.trigger_stamps[k] and msg.header.frame_id == 'lightstage'
+        assert np.array_equal(msg.intensities, eye(k * 4).astype(np.float32))
+        assert msg.exposure_us == 2000 and msg.gain_db == pytest.approx(12.0)
+    assert wait_until(lambda: len(backend.trigger_pulses()) == 3, 2.0)
+    assert [w for w in distinct_words(backend) if w] == [1, 1 << 4, 1 << 8]
+
+
+def test_bad_request_is_refused_and_nothing_is_sent(rig):
+    backend, proc, client = rig
+    client.apply([eye(1)], trigger=True)
+    backend.reset_observations()
+    bad = eye(2)
+    bad[6] = 1.7
+    response = client.apply([eye(1), bad])
+    assert not response.success
+    assert 'pattern 1, LED 6 (site 1, channel 2) is above 1: 1.7' in response.message
+    assert 'nothing was sent' in response.message
+    response = client.apply([eye(1)], exposure_us=5)
+    assert not response.success and 'exposure_us of pattern 0 5 us is outside' in response.message
+    time.sleep(0.1)
+    assert backend.led_words() == [] and backend.trigger_pulses() == []
+
+
+def test_diagnostics_report_the_link(rig):
+    backend, proc, client = rig
+    client.diagnostics.clear()
+    assert client.spin_until(lambda: len(client.diagnostics) >= 1)
+    status = client.diagnostics[-1].status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.level == b'\x00' and values['state'] == 'armed'
+    assert values['firmware'] == 'lightstage-pysim' and status.hardware_id.startswith('lightstage-pysim')
+    assert int(values['commands']) > 0 and 'crc_errors' in values and 'watchdog_trips' in values
+
+
+def test_deactivate_darkens_and_refuses_then_activate_serves_again(rig):
+    backend, proc, client = rig
+    assert client.apply([eye(5, 6)], trigger=False).success
+    assert wait_until(lambda: backend.current_word() == (1 << 5) | (1 << 6), 2.0)
+    assert client.transition(Transition.TRANSITION_DEACTIVATE)
+    assert wait_until(lambda: backend.current_word() == 0, 2.0)
+    response = client.apply([eye(1)])
+    assert not response.success and 'not active' in response.message
+    assert client.transition(Transition.TRANSITION_ACTIVATE)
+    assert client.apply([eye(1)]).success
+
+
+def test_a_fault_is_reported_and_the_link_recovers(rig):
+    backend, proc, client = rig
+    backend.kill()
+    response = client.apply([eye(3)])
+    assert not response.success and ('went away' in response.message or 'does not exist' in response.message)
+    client.diagnostics.clear()
+    assert client.spin_until(lambda: any(
+        {kv.key: kv.value for kv in d.status[0].values}['state'] == 'fault' for d in client.diagnostics))
+    backend.restart()
+    response = client.apply([eye(3)])
+    assert response.success, response.message
+    assert backend.current_word() == 0
+
+
+def test_shutdown_switches_the_leds_off():
+    backend = PythonSimBackend()
+    backend.start()
+    proc = start_node(backend.port, 'stage_driver_shutdown', domain_id=own_domain(1))
+    client = Client('stage_driver_shutdown', own_domain(1))
+    try:
+        assert client.apply([eye(30, 31)], trigger=False).success
+        assert wait_until(lambda: backend.current_word() == 3 << 30, 2.0), backend.led_words()
+        assert stop_node(proc) == 0
+        assert backend.current_word() == 0
+    finally:
+        client.close()
+        stop_node(proc)
+        backend.close()
+
+
+def test_port_sim_starts_its_own_simulator():
+    proc = start_node('sim://?pwm_bits=8', 'stage_driver_own_sim', domain_id=own_domain(2))
+    client = Client('stage_driver_own_sim', own_domain(2))
+    try:
+        half = np.full(32, 0.25)
+        response = client.apply([half, eye(2)], exposure_us=500)
+        assert response.success, response.message
+        assert len(response.trigger_stamps) == 2
+        client.diagnostics.clear()
+        assert client.spin_until(lambda: any(
+            {kv.key: kv.value for kv in d.status[0].values}.get('pwm_bits') == '8' for d in client.diagnostics))
+    finally:
+        client.close()
+        assert stop_node(proc) == 0
