@@ -86,6 +86,7 @@ class PtyFirmware:
         self.slave_path = ''
         self.outgoing: list[tuple[float, bytes]] = []
         self.reconnect_at: float | None = None
+        self._tx_free_at = 0.0
         self.model: FirmwareModel | None = None
 
     # ------------------------------------------------------------------ lifecycle
@@ -160,10 +161,14 @@ class PtyFirmware:
 
     def _queue(self, frames: list[bytes], now: float, rx_bytes: int = 0) -> None:
         for frame in frames:
-            delay = self.faults.latency_ms / 1000.0
-            if self.faults.emulate_baud:
-                delay += p.line_seconds(rx_bytes + len(frame), self.faults.emulate_baud)
-            self.outgoing.append((now + delay, self._corrupt(frame)))
+            send_at = now + self.faults.latency_ms / 1000.0
+            baud = self.faults.emulate_baud
+            if baud:
+                # the command had to arrive first; frames leave one after another
+                send_at = max(send_at + p.line_seconds(rx_bytes, baud), self._tx_free_at) \
+                    + p.line_seconds(len(frame), baud)
+                self._tx_free_at = send_at
+            self.outgoing.append((send_at, self._corrupt(frame)))
 
     # ------------------------------------------------------------------ loop
     def step(self, timeout: float, control_fd: int | None = None, on_control=None) -> None:

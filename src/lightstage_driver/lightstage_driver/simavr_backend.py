@@ -93,15 +93,17 @@ class SimavrBackend(FirmwareBackend):
 
     def __init__(self, throttle: bool = True, start_timeout_s: float = 10.0,
                  directory: str | os.PathLike | None = None, build_dir: str | os.PathLike | None = None,
-                 pins: dict[str, int] | None = None):
+                 pins: dict[str, int] | None = None, trace_bytes: bool = False):
         """throttle=False lets simulated time run ahead of wall time (as fast as the host
         can); the firmware's millisecond timeouts then elapse faster than the host's.
-        `pins` and `build_dir` select a non-default wiring (see `build_firmware`)."""
+        `pins` and `build_dir` select a non-default wiring (see `build_firmware`).
+        trace_bytes=True logs every byte crossing the UART, with its cycle, to `log_path`."""
         self.throttle = throttle
         self.start_timeout_s = start_timeout_s
         self.directory = Path(directory) if directory else firmware_dir()
         self.build_dir = Path(build_dir) if build_dir else None
         self.pins = dict(pins or {})
+        self.trace_bytes = trace_bytes
         self._dir = tempfile.mkdtemp(prefix='lightstage-avr-')
         self._link = os.path.join(self._dir, 'tty')
         self._log_path = os.path.join(self._dir, 'harness.log')
@@ -122,7 +124,8 @@ class SimavrBackend(FirmwareBackend):
         if self.running:
             return
         harness, elf = build_firmware(self.directory, self.build_dir, self.pins)
-        cmd = [str(harness), str(elf)] + ([] if self.throttle else ['--no-throttle'])
+        cmd = [str(harness), str(elf)] + ([] if self.throttle else ['--no-throttle']) + \
+            (['--trace-bytes'] if self.trace_bytes else [])
         with self._lock:
             self.pty_path = ''
             self._recording = False
@@ -150,6 +153,11 @@ class SimavrBackend(FirmwareBackend):
                 os.unlink(tmp)
             os.symlink(self.pty_path, tmp)
             os.replace(tmp, self._link)
+
+    @property
+    def log_path(self) -> str:
+        """The harness's stderr (simavr messages, byte trace)."""
+        return self._log_path
 
     def _log_tail(self) -> str:
         try:

@@ -72,9 +72,14 @@ static uint8_t rx_queue[65536];
 static size_t rx_head, rx_tail;
 static int uart_xoff;
 
-/* firmware -> host bytes waiting for the pty */
+/* firmware -> host bytes waiting for the pty; written when the simulated line has been
+ * idle for TX_IDLE_CYCLES (a bit over two byte times), so that a frame reaches the host in
+ * one write even if this process is descheduled between two of its bytes (the host's
+ * decoder drops a frame that stalls for 10 ms between bytes). */
+#define TX_IDLE_CYCLES 4000
 static uint8_t tx_queue[65536];
 static size_t tx_len;
+static avr_cycle_count_t tx_last_cycle;
 
 static void on_data(avr_irq_t *irq, uint32_t value, void *param)
 {
@@ -109,10 +114,15 @@ static void on_trigger(avr_irq_t *irq, uint32_t value, void *param)
     trigger_level = level;
 }
 
+static int trace_bytes;
+
 static void on_uart_output(avr_irq_t *irq, uint32_t value, void *param)
 {
+    if (trace_bytes)
+        fprintf(stderr, "O %llu %02x\n", (unsigned long long)avr->cycle, value & 0xFF);
     if (tx_len < sizeof(tx_queue))
         tx_queue[tx_len++] = (uint8_t)value;
+    tx_last_cycle = avr->cycle;
 }
 
 static void on_uart_xon(avr_irq_t *irq, uint32_t value, void *param)
@@ -173,6 +183,8 @@ static void feed_uart(void)
     if (!(avr->data[UCSR0B_ADDR] & (1 << RXEN0_BIT)))
         return;
     while (!uart_xoff && rx_tail != rx_head) {
+        if (trace_bytes)
+            fprintf(stderr, "I %llu %02x\n", (unsigned long long)avr->cycle, rx_queue[rx_tail]);
         avr_raise_irq(in, rx_queue[rx_tail]);
         rx_tail = (rx_tail + 1) % sizeof(rx_queue);
     }
@@ -218,7 +230,15 @@ static int read_commands(int *hold)
             return 0;
         if (!strcmp(line, "run"))
             *hold = 0;
-        else if (!strcmp(line, "reset")) {
+        else if (!strcmp(line, "status")) {
+            fprintf(stderr,
+                    "lightstage_simavr: cycle %llu state %d pc 0x%x sreg 0x%02x ucsr0a 0x%02x "
+                    "ucsr0b 0x%02x xoff %d rx_queued %zu tx_queued %zu\n",
+                    (unsigned long long)avr->cycle, avr->state, avr->pc, avr->data[0x5F],
+                    avr->data[0xC0], avr->data[UCSR0B_ADDR], uart_xoff,
+                    (rx_head + sizeof(rx_queue) - rx_tail) % sizeof(rx_queue), tx_len);
+            fflush(stderr);
+        } else if (!strcmp(line, "reset")) {
             avr_reset(avr);
             reset_observers();
             fprintf(events, "R %llu\n", (unsigned long long)avr->cycle);
@@ -255,6 +275,8 @@ int main(int argc, char **argv)
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--no-throttle"))
             throttle = 0;
+        else if (!strcmp(argv[i], "--trace-bytes"))
+            trace_bytes = 1;
         else if (!strcmp(argv[i], "--hold"))
             hold = 1;
         else if (argv[i][0] != '-' && !elf)
@@ -330,7 +352,8 @@ int main(int argc, char **argv)
                 }
             }
         }
-        flush_tx();
+        if (tx_len && (avr->cycle - tx_last_cycle > TX_IDLE_CYCLES || tx_len > 4096 || hold))
+            flush_tx();
         fflush(events);
 
         int timeout_ms = 0;
