@@ -1,0 +1,108 @@
+"""`lightstage classify`: classify the sample on the stage through ``/lightstage/classify``.
+
+Exit codes: 0 classified; 1 the classifier answered with an error (printed); 2 bad
+arguments; 3 the service is not available or did not answer in time.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from lightstage_bringup.ros_env import apply_ros_environment
+
+SERVICE = '/lightstage/classify'
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNAVAILABLE = 0, 1, 2, 3
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog='lightstage classify',
+        description='Classify the sample on the stage: the classifier node lights its learned '
+                    'patterns, collects the images and answers with a label.',
+        epilog='exit codes: 0 classified, 1 the classifier reported an error, 2 bad arguments, '
+               '3 the service is not available / did not answer')
+    p.add_argument('--max-images', type=int, default=0,
+                   help='use at most this many learned patterns (default 0: all the classifier has)')
+    p.add_argument('--timeout-s', type=float, default=0.0,
+                   help='time limit of the classification [s] (default 0: the node\'s timeout_s)')
+    p.add_argument('--wait-s', type=float, default=5.0,
+                   help='how long to wait for the classify service to appear [s] (default 5)')
+    p.add_argument('--domain-id', type=int, default=None,
+                   help='ROS_DOMAIN_ID of the graph (default: $ROS_DOMAIN_ID or 0)')
+    p.add_argument('--json', action='store_true', help='print the answer as one JSON object')
+    return p
+
+
+def format_answer(answer: dict) -> str:
+    """Human-readable answer: the label, then the scores best first, then the timings."""
+    if not answer['success']:
+        return f'classification failed: {answer["message"]}'
+    lines = [f'label: {answer["label"]}  ({answer["images_used"]} images, acquisition '
+             f'{answer["acquisition_ms"]:.1f} ms, compute {answer["compute_ms"]:.1f} ms)']
+    ranked = sorted(zip(answer['class_names'], answer['scores']), key=lambda cs: -cs[1])
+    width = max((len(c) for c, _ in ranked), default=0)
+    lines += [f'  {c:<{width}}  {s:+.3f}' for c, s in ranked]
+    return '\n'.join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
+    if args.max_images < 0:
+        print('lightstage classify: --max-images must be >= 0 (0 = all)', file=sys.stderr)
+        return EXIT_USAGE
+    if args.timeout_s < 0 or args.wait_s < 0:
+        print('lightstage classify: --timeout-s and --wait-s must be >= 0', file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        apply_ros_environment(args.domain_id)  # before rclpy is imported: LOCALHOST discovery
+    except ValueError as exc:
+        print(f'lightstage classify: {exc}', file=sys.stderr)
+        return EXIT_USAGE
+
+    import rclpy
+    from lightstage_interfaces.srv import Classify
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    context = Context()
+    rclpy.init(context=context, args=[])
+    try:
+        node = rclpy.create_node(f'lightstage_classify_cli_{int(time.time() * 1000) % 100000}',
+                                 context=context, start_parameter_services=False)
+        client = node.create_client(Classify, SERVICE)
+        if not client.wait_for_service(timeout_sec=args.wait_s):
+            print(f'lightstage classify: the service {SERVICE} is not available after '
+                  f'{args.wait_s:g} s (ROS_DOMAIN_ID={context.get_domain_id()}); start the graph '
+                  f'with `lightstage up` (driver camera classifier) in the same domain',
+                  file=sys.stderr)
+            return EXIT_UNAVAILABLE
+        request = Classify.Request(max_images=args.max_images, timeout_s=args.timeout_s)
+        future = client.call_async(request)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        # the node enforces the timeout; the margin covers its own default when we sent 0
+        limit_s = (args.timeout_s if args.timeout_s > 0 else 60.0) + 5.0
+        executor.spin_until_future_complete(future, timeout_sec=limit_s)
+        if not future.done():
+            client.remove_pending_request(future)
+            print(f'lightstage classify: no answer from {SERVICE} within {limit_s:g} s',
+                  file=sys.stderr)
+            return EXIT_UNAVAILABLE
+        r = future.result()
+    finally:
+        rclpy.shutdown(context=context)
+    answer = {'success': bool(r.success), 'message': r.message, 'label': r.label,
+              'class_names': list(r.class_names), 'scores': [float(s) for s in r.scores],
+              'images_used': int(r.images_used), 'acquisition_ms': float(r.acquisition_ms),
+              'compute_ms': float(r.compute_ms)}
+    if args.json:
+        print(json.dumps(answer))
+    else:
+        print(format_answer(answer), file=sys.stdout if answer['success'] else sys.stderr)
+    return EXIT_OK if answer['success'] else EXIT_FAILED
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,80 @@
+"""What the camera node needs from a camera: triggers in, stamped frames out.
+
+The camera node (``camera_node.py``) maps ROS onto this small interface; every camera,
+simulated or real, implements it in its own module:
+
+- ``sim``    `sim_camera.SimCameraBackend`: renders the sample "on the stage" under the
+             trigger's LED intensities and adds the camera's noise (no hardware);
+- a real camera (e.g. a Basler pylon backend) would arm hardware triggering in
+  ``__init__``, record each `Trigger` in `trigger()` and deliver the grabbed image from its
+  grab thread through the same `deliver` callback, paired with the trigger it belongs to.
+
+No rclpy here: a backend is usable from a notebook or a test.
+"""
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Trigger:
+    """One camera trigger as the light stage reported it (an IlluminationState).
+
+    stamp_ns         trigger time (ROS time, ns): the frame's acquisition time
+    sequence         the driver's trigger counter
+    led_intensities  (32,) float32, site-major LED drive in [0, 1]
+    exposure_us      exposure / LED on-time [us]
+    gain_db          camera gain [dB]; NaN = the camera's default gain
+    """
+    stamp_ns: int
+    sequence: int
+    led_intensities: np.ndarray
+    exposure_us: int
+    gain_db: float = math.nan
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One image a backend produced for a trigger.
+
+    image      uint16 (H, W), gray levels MSB-aligned in 16 bits (``mono16``, as Basler
+               cameras deliver 10-bit data: value << 6)
+    bit_depth  significant bits of the camera (10: gray level = value >> 6)
+    """
+    trigger: Trigger
+    image: np.ndarray
+    bit_depth: int
+    info: dict = field(default_factory=dict)
+
+
+@dataclass
+class BackendStatus:
+    """Health of a backend for /diagnostics: ok, a one-line message, key/value details."""
+    ok: bool
+    message: str
+    values: dict = field(default_factory=dict)
+
+
+class CameraBackend(ABC):
+    """A camera driven by light-stage triggers; frames go to the `deliver` callback."""
+
+    name = 'abstract'
+
+    def __init__(self, deliver: Callable[[Frame], None]):
+        self._deliver = deliver
+
+    @abstractmethod
+    def trigger(self, trigger: Trigger) -> None:
+        """A trigger fired: deliver its frame (now, or later from a grab thread)."""
+
+    @abstractmethod
+    def status(self) -> BackendStatus:
+        """Current health, for /diagnostics."""
+
+    def close(self) -> None:
+        """Release the camera (default: nothing to release)."""

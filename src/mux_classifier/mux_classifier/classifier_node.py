@@ -1,0 +1,241 @@
+"""The classifier node: ``/lightstage/classify`` lights the learned patterns and classifies.
+
+One call: the artifact's first k LED patterns go to the driver (``/lightstage/apply_patterns``,
+one trigger each, exposure and gain of the noise setting the artifact was trained for); the
+``/image_raw`` frames whose header stamps equal the returned trigger stamps are collected
+in pattern order; the artifact's classifier for k images predicts; the answer also goes
+out on ``/lightstage/result``. The work itself is `inference.classify_on_stage`.
+
+The service handler blocks while it waits for the driver and the images, so the node runs
+in a MultiThreadedExecutor with one ReentrantCallbackGroup: images and the driver's reply
+are handled by other threads meanwhile.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+
+import numpy as np
+import rclpy
+from lightstage_interfaces.msg import ClassificationResult, Pattern
+from lightstage_interfaces.srv import ApplyPatterns, Classify
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType, SetParametersResult)
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
+from builtin_interfaces.msg import Time
+
+from .inference import (AcquisitionPlan, ImageMatcher, InferenceError, classify_on_stage,
+                        image_from_buffer)
+from .model import ArtifactError, TrainedArtifact
+
+NODE_NAME = 'mux_classifier'
+CLASSIFY_SERVICE = '/lightstage/classify'
+APPLY_SERVICE = '/lightstage/apply_patterns'
+IMAGE_TOPIC = '/image_raw'
+RESULT_TOPIC = '/lightstage/result'
+# as the camera publishes: every frame of a sequence matters (see camera_node.IMAGE_QOS)
+IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32,
+                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+
+def _float(description: str, lo: float, hi: float, read_only: bool = False) -> ParameterDescriptor:
+    return ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE, description=description,
+                               read_only=read_only,
+                               floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])
+
+
+def _int(description: str, lo: int, hi: int, read_only: bool = False) -> ParameterDescriptor:
+    return ParameterDescriptor(type=ParameterType.PARAMETER_INTEGER, description=description,
+                               read_only=read_only,
+                               integer_range=[IntegerRange(from_value=lo, to_value=hi, step=1)])
+
+
+PARAMETERS = {
+    'artifact_path': ('', ParameterDescriptor(
+        type=ParameterType.PARAMETER_STRING,
+        description='trained classifier (.npz written by `lightstage train`); settable at run '
+                    'time (a file that does not load is rejected and the old one kept)')),
+    'timeout_s': (10.0, _float('default time limit of one classification (driver + images) [s]; '
+                               'a request\'s timeout_s > 0 overrides it', 0.1, 600.0)),
+    'camera_bit_depth': (10, _int('significant bits of the camera\'s mono16 images '
+                                  '(10: gray level = value >> 6)', 8, 16)),
+    'image_buffer': (64, _int('images kept while waiting for their trigger stamps', 8, 1024,
+                              read_only=True)),
+}
+
+
+def stamp_to_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def ns_to_stamp(ns: int) -> Time:
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+class ClassifierNode(Node):
+    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+        super().__init__(node_name, **kwargs)
+        for name, (default, descriptor) in PARAMETERS.items():
+            self.declare_parameter(name, default, descriptor)
+        self.artifact: TrainedArtifact | None = None
+        self.artifact_error = ''
+        self._load_artifact(self.p('artifact_path'))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.matcher = ImageMatcher(self.p('image_buffer'),
+                                    clock=lambda: self.get_clock().now().nanoseconds)
+        self._busy = threading.Lock()  # one classification at a time: they share the stage
+        group = ReentrantCallbackGroup()
+        self._apply_client = self.create_client(ApplyPatterns, APPLY_SERVICE, callback_group=group)
+        self._result_pub = self.create_publisher(ClassificationResult, RESULT_TOPIC, 10)
+        self.create_subscription(Image, IMAGE_TOPIC, self._on_image, IMAGE_QOS, callback_group=group)
+        self.create_service(Classify, CLASSIFY_SERVICE, self._on_classify, callback_group=group)
+
+    def p(self, name: str):
+        return self.get_parameter(name).value
+
+    # ------------------------------------------------------------------ artifact
+    @staticmethod
+    def _read(path: str) -> TrainedArtifact:
+        if not str(path).strip():
+            raise ArtifactError('artifact_path is empty; set it to a classifier file written by '
+                                '`lightstage train` (a .npz)')
+        return TrainedArtifact.load(path)
+
+    def _load_artifact(self, path: str) -> None:
+        try:
+            self.artifact, self.artifact_error = self._read(path), ''
+        except ArtifactError as exc:
+            self.artifact = None
+            self.artifact_error = f'no classifier loaded: {exc}'
+            self.get_logger().error(self.artifact_error)
+            return
+        a = self.artifact
+        self.get_logger().info(f'loaded {path}: {len(a.class_names)} classes, {a.mode} patterns, '
+                               f'classifiers for {a.n_images} images, noise {a.noise.get("name")}')
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        for param in params:
+            if param.name == 'artifact_path':
+                try:
+                    artifact = self._read(param.value)
+                except ArtifactError as exc:
+                    return SetParametersResult(successful=False, reason=str(exc))
+                self.artifact, self.artifact_error = artifact, ''
+                self.get_logger().info(f'loaded {param.value}: classifiers for {artifact.n_images} images')
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ images
+    def _on_image(self, msg: Image) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        try:
+            image = image_from_buffer(msg.data, msg.height, msg.width, msg.step, msg.encoding,
+                                      bool(msg.is_bigendian))
+        except ValueError as exc:
+            self.matcher.add(stamp, None, error=str(exc))
+            return
+        self.matcher.add(stamp, image)
+
+    # ------------------------------------------------------------------ driver
+    def _apply(self, plan: AcquisitionPlan, timeout_s: float):
+        deadline = time.monotonic() + timeout_s
+        if not self._apply_client.wait_for_service(timeout_sec=timeout_s):
+            raise InferenceError(
+                f'the light stage driver\'s service {APPLY_SERVICE} is not available (waited '
+                f'{timeout_s:g} s); start the driver, e.g. `lightstage up driver camera classifier`')
+        request = ApplyPatterns.Request(trigger=True)
+        for column in plan.led_patterns.T:
+            request.patterns.append(Pattern(intensities=np.asarray(column, dtype=np.float32),
+                                            exposure_us=plan.exposure_us, gain_db=plan.gain_db))
+        done = threading.Event()
+        future = self._apply_client.call_async(request)
+        future.add_done_callback(lambda _f: done.set())
+        if not done.wait(max(0.0, deadline - time.monotonic())):
+            self._apply_client.remove_pending_request(future)
+            raise InferenceError(f'the driver did not answer {APPLY_SERVICE} within {timeout_s:g} s '
+                                 f'({plan.n_images} patterns); check the driver\'s log and '
+                                 '/diagnostics')
+        response = future.result()
+        if response is None or not response.success:
+            reason = response.message if response is not None else future.exception()
+            raise InferenceError(f'the driver did not apply the patterns: {reason}')
+        return [stamp_to_ns(t) for t in response.trigger_stamps], list(response.sequences)
+
+    # ------------------------------------------------------------------ service
+    def _on_classify(self, request: Classify.Request, response: Classify.Response):
+        response.success = False
+        artifact = self.artifact
+        if artifact is None:
+            response.message = self.artifact_error
+            return response
+        timeout_s = float(request.timeout_s) if request.timeout_s > 0 else float(self.p('timeout_s'))
+        if not math.isfinite(timeout_s):
+            response.message = f'timeout_s must be a finite number of seconds, got {request.timeout_s}'
+            return response
+        start = time.monotonic()
+        if not self._busy.acquire(timeout=timeout_s):
+            response.message = (f'another classification kept the stage busy for {timeout_s:g} s; '
+                                'try again')
+            return response
+        try:
+            result = classify_on_stage(artifact, self._apply, self.matcher,
+                                       max_images=request.max_images,
+                                       timeout_s=timeout_s - (time.monotonic() - start),
+                                       bit_depth=self.p('camera_bit_depth'))
+        except InferenceError as exc:
+            response.message = str(exc)
+            self.get_logger().warning(f'classify failed: {exc}')
+            return response
+        finally:
+            self._busy.release()
+        response.success = True
+        response.message = f'{result.label} from {result.images_used} images'
+        response.label = result.label
+        response.class_names = list(result.class_names)
+        response.scores = [float(s) for s in result.scores]
+        response.images_used = result.images_used
+        response.acquisition_ms = float(result.acquisition_ms)
+        response.compute_ms = float(result.compute_ms)
+        self._publish_result(result)
+        self.get_logger().info(f'classified: {result.label} ({result.images_used} images, '
+                               f'acquisition {result.acquisition_ms:.1f} ms, compute '
+                               f'{result.compute_ms:.1f} ms)')
+        return response
+
+    def _publish_result(self, result) -> None:
+        msg = ClassificationResult()
+        msg.header.stamp = ns_to_stamp(result.first_stamp_ns)
+        msg.label = result.label
+        msg.class_names = list(result.class_names)
+        msg.scores = [float(s) for s in result.scores]
+        msg.images_used = result.images_used
+        msg.sequences = [int(s) for s in result.sequences]
+        msg.acquisition_ms = float(result.acquisition_ms)
+        msg.compute_ms = float(result.compute_ms)
+        self._result_pub.publish(msg)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+    rclpy.init(args=sys.argv if argv is None else argv)
+    node = ClassifierNode()
+    executor = MultiThreadedExecutor(num_threads=4)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
