@@ -145,7 +145,7 @@ def test_port_gone_for_good_is_port_not_found(sim):
     start = time.monotonic()
     with pytest.raises(PortNotFoundError, match='does not exist'):
         stage.heartbeat()
-    assert time.monotonic() - start < 1.0
+    assert time.monotonic() - start < 0.3 + 1.0     # connect timeout + slack for a loaded machine
 
 
 def test_missing_port_and_unknown_usb_serial_are_named():
