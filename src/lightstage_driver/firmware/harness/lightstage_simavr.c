@@ -80,6 +80,7 @@ static int uart_xoff;
 static uint8_t tx_queue[65536];
 static size_t tx_len;
 static avr_cycle_count_t tx_last_cycle;
+static int tx_stalled; /* the pty is full: the host is not reading */
 
 static void on_data(avr_irq_t *irq, uint32_t value, void *param)
 {
@@ -173,6 +174,7 @@ static void flush_tx(void)
     }
     memmove(tx_queue, tx_queue + done, tx_len - done);
     tx_len -= done;
+    tx_stalled = tx_len > 0;
 }
 
 static void feed_uart(void)
@@ -369,7 +371,7 @@ int main(int argc, char **argv)
                 wall0 += wall - sim - MAX_LAG_NS;
         }
         struct pollfd fds[2] = {{master_fd, POLLIN, 0}, {STDIN_FILENO, POLLIN, 0}};
-        if (tx_len)
+        if (tx_stalled)
             fds[0].events |= POLLOUT;
         if (timeout_ms > 0 || hold) {
             struct timespec ts = {0, 0};
