@@ -85,9 +85,9 @@ def test_a_node_dying_stops_the_rest_and_fails_naming_it(tmp_path):
 def test_a_node_that_never_joins_the_graph_times_out_naming_it():
     t0 = time.monotonic()
     p = run_up('ok', 'ghost', '--node', f'ok={FAKE}', '--node', 'ghost=bringup_no_graph_node',
-               '--timeout-s', '3')
+               '--timeout-s', '6')
     assert p.returncode == launcher.EXIT_NOT_DISCOVERED
-    assert 'node(s) ghost not discoverable in the ROS graph' in p.stderr
+    assert 'node(s) ghost not discoverable in the ROS graph' in p.stderr, p.stderr
     assert 'graph up' not in p.stdout
     assert '[ghost] starting, but never creating a ROS node' in p.stdout
     assert time.monotonic() - t0 < 20

@@ -110,60 +110,106 @@ def _module_exists(module: str) -> bool:
         return False
 
 
-def wait_for_nodes(names: list[str], domain_id: int, timeout_s: float, supervisor: Supervisor,
-                   stop_event: threading.Event) -> tuple[list[str], str | None]:
-    """Poll the ROS graph until every name in `names` is a node in it and is spinning.
+class GraphWatcher:
+    """A hidden rclpy node on its own context that watches the ROS graph for given nodes.
 
-    "Spinning" = its parameter service answers a `list_parameters` call, which an rclpy
-    node does only once its executor runs, i.e. after its set-up code; a node without
-    parameter services counts as up once discoverable. Returns (names not up, name of a
-    child that died meanwhile or None); an empty first list means all are up. Uses its own
-    rclpy context, so it can run inside a process that uses rclpy otherwise.
+    With LOCALHOST discovery, Fast DDS finds a participant that starts *after* this one
+    only at this one's next periodic announcement (measured: ~3.5 s), while one that
+    already exists is found in ~0.1 s. So while expected nodes are missing from the graph,
+    the watcher re-creates its participant, which announces it afresh: after `renew_s`,
+    then after twice that, and so on (a renewal drops calls in flight, so it backs off).
+    Its own context makes it usable inside a process that uses rclpy otherwise.
     """
-    apply_ros_environment()  # LOCALHOST discovery and the profile for this process's own participant
-    import rclpy
-    from rcl_interfaces.srv import ListParameters
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
 
-    context = Context()
-    # the launcher's own SIGINT/SIGTERM handlers stay in charge of shutdown
-    rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
-    try:
-        node = rclpy.create_node(f'_lightstage_up_{os.getpid()}', context=context,
-                                 enable_rosout=False, start_parameter_services=False,
-                                 use_global_arguments=False)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
+    def __init__(self, domain_id: int, renew_s: float = 1.0):
+        self.domain_id = domain_id
+        self.renew_s = renew_s
+        self._context = None
+        self.node = None
+
+    def _open(self) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+
+        self._context = Context()
+        # the caller's own SIGINT/SIGTERM handlers stay in charge of shutdown
+        rclpy.init(context=self._context, domain_id=self.domain_id,
+                   signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node(f'_lightstage_up_{os.getpid()}', context=self._context,
+                                      enable_rosout=False, start_parameter_services=False,
+                                      use_global_arguments=False)
+        self._executor = SingleThreadedExecutor(context=self._context)
+        self._executor.add_node(self.node)
+        self._opened_at = time.monotonic()
+
+    def _close(self) -> None:
+        import rclpy
+        if self._context is not None:
+            rclpy.shutdown(context=self._context)  # also ends the executor and the node
+            self._context = None
+
+    def __enter__(self) -> 'GraphWatcher':
+        apply_ros_environment()  # LOCALHOST discovery and the profile for this participant
+        self._open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._close()
+
+    def wait_for(self, names: list[str], timeout_s: float, supervisor: Supervisor | None = None,
+                 stop_event: threading.Event | None = None) -> tuple[list[str], str | None]:
+        """Poll the graph until every name in `names` is a node in it and is spinning.
+
+        "Spinning" = its parameter service answers a `list_parameters` call, which an rclpy
+        node does only once its executor runs, i.e. after its set-up code; a node without
+        parameter services counts as up once discoverable. Stops early when a child of
+        `supervisor` exits or `stop_event` is set. Returns (names not up, name of a child
+        that died meanwhile or None); an empty first list means all are up.
+        """
+        from rcl_interfaces.srv import ListParameters
+
         deadline = time.monotonic() + timeout_s
         discovered_at: dict[str, float] = {}
-        pending: dict[str, object] = {}  # name -> in-flight list_parameters future
+        clients: dict[str, object] = {}  # name -> list_parameters client
+        pending: dict[str, tuple[object, float]] = {}  # name -> (in-flight future, sent at)
         up: set[str] = set()
+        renew_s = self.renew_s
         while True:
             now = time.monotonic()
-            for n, ns in node.get_node_names_and_namespaces():
+            graph = self.node.get_node_names_and_namespaces()
+            for n, ns in graph:
                 if n not in names or n in up:
                     continue
                 discovered_at.setdefault(n, now)
-                if n in pending:
-                    if pending[n].done():
+                if n not in clients:
+                    services = {s for s, _t in self.node.get_service_names_and_types_by_node(n, ns)}
+                    service = f'{ns.rstrip("/")}/{n}/list_parameters'
+                    if service in services:
+                        clients[n] = self.node.create_client(ListParameters, service)
+                    elif now - discovered_at[n] > 2.0:  # no parameter services: discoverable is all
                         up.add(n)
                     continue
-                services = {s for s, _t in node.get_service_names_and_types_by_node(n, ns)}
-                service = f'{ns.rstrip("/")}/{n}/list_parameters'
-                if service in services:
-                    client = node.create_client(ListParameters, service)
-                    pending[n] = client.call_async(ListParameters.Request(depth=1))
-                elif now - discovered_at[n] > 2.0:  # no parameter services: discoverable is all we get
+                if n in pending and pending[n][0].done():
                     up.add(n)
+                elif clients[n].service_is_ready() and (n not in pending or now - pending[n][1] > 1.0):
+                    # (re)send: a request sent while the match is still settling can get lost
+                    pending[n] = (clients[n].call_async(ListParameters.Request(depth=1)), now)
             missing = [n for n in names if n not in up]
-            dead = supervisor.exited()
-            if not missing or dead or stop_event.is_set() or time.monotonic() >= deadline:
+            dead = supervisor.exited() if supervisor is not None else []
+            stopped = stop_event is not None and stop_event.is_set()
+            if not missing or dead or stopped or time.monotonic() >= deadline:
                 return missing, (dead[0].name if dead else None)
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        rclpy.shutdown(context=context)  # also ends the executor and the node
+            in_graph = {n for n, _ns in graph}
+            if any(n not in in_graph for n in missing) and now - self._opened_at > renew_s:
+                renew_s *= 2
+                self._close()
+                self._open()
+                clients.clear()
+                pending.clear()
+                continue
+            self._executor.spin_once(timeout_sec=0.05)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -226,9 +272,10 @@ def main(argv: list[str] | None = None) -> int:
                             sigterm_timeout_s=args.sigterm_timeout_s)
     try:
         t0 = time.monotonic()
-        for n in names:
-            supervisor.start(ProcessSpec(n, node_command(registry[n].module, n, params), env))
-        missing, dead = wait_for_nodes(names, domain_id, args.timeout_s, supervisor, stop)
+        with GraphWatcher(domain_id) as graph:
+            for n in names:
+                supervisor.start(ProcessSpec(n, node_command(registry[n].module, n, params), env))
+            missing, dead = graph.wait_for(names, args.timeout_s, supervisor, stop)
         if dead is not None:
             p = supervisor[dead]
             print(f'lightstage up: node {dead!r} died during start-up ({describe_exit(p.returncode)}); '

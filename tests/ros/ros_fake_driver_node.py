@@ -1,0 +1,69 @@
+"""Stand-in for the driver node in the cross-process interface tests.
+
+Serves ApplyPatterns on `~/apply_patterns` and publishes one IlluminationState on
+`illumination` per pattern when the request asks for triggers, as the real driver does;
+no hardware behind it.
+"""
+import sys
+
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+from lightstage_interfaces.msg import IlluminationState
+from lightstage_interfaces.srv import ApplyPatterns
+
+
+class FakeDriver(Node):
+    def __init__(self):
+        super().__init__('fake_driver')
+        self.publisher = self.create_publisher(IlluminationState, 'illumination', 50)
+        self.create_service(ApplyPatterns, '~/apply_patterns', self.apply_patterns)
+        self.next_request_id = 1
+        self.next_sequence = 0
+
+    def apply_patterns(self, request, response):
+        for i, p in enumerate(request.patterns):
+            values = np.asarray(p.intensities)
+            if not np.all((values >= 0) & (values <= 1)):
+                response.success = False
+                response.message = (f'pattern {i}: intensities must lie in 0..1, got '
+                                    f'{values.min():g}..{values.max():g}; scale the pattern')
+                return response
+        response.request_id = self.next_request_id
+        self.next_request_id += 1
+        response.success = True
+        if not request.trigger:
+            return response
+        for i, p in enumerate(request.patterns):
+            msg = IlluminationState()
+            msg.header.stamp = self.get_clock().now().to_msg()
+            msg.header.frame_id = 'rig'
+            msg.sequence = self.next_sequence
+            msg.request_id = response.request_id
+            msg.index_in_request = i
+            msg.count_in_request = len(request.patterns)
+            msg.intensities = p.intensities
+            msg.exposure_us = p.exposure_us
+            msg.gain_db = p.gain_db
+            self.publisher.publish(msg)
+            response.trigger_stamps.append(msg.header.stamp)
+            response.sequences.append(msg.sequence)
+            self.next_sequence += 1
+        return response
+
+
+def main() -> int:
+    rclpy.init()
+    node = FakeDriver()
+    print(f'fake driver up as {node.get_fully_qualified_name()}', flush=True)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
