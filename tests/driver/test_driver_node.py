@@ -18,7 +18,7 @@ pytestmark = pytest.mark.ros
 
 rclpy = pytest.importorskip('rclpy')
 interfaces = pytest.importorskip('lightstage_interfaces.srv')
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from lifecycle_msgs.msg import Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState  # noqa: E402
 from lightstage_interfaces.msg import IlluminationState, Pattern  # noqa: E402
@@ -227,6 +227,22 @@ def test_port_sim_starts_its_own_simulator():
         client.diagnostics.clear()
         assert client.spin_until(lambda: any(
             {kv.key: kv.value for kv in d.status[0].values}.get('pwm_bits') == '8' for d in client.diagnostics))
+    finally:
+        client.close()
+        assert stop_node(proc) == 0
+
+
+def test_a_missing_port_leaves_the_node_up_unconfigured_with_the_reason():
+    proc = start_node('/nonexistent/ttyACM9', 'stage_driver_no_port', domain_id=own_domain(3))
+    client = Client('stage_driver_no_port', own_domain(3))
+    try:
+        assert client.spin_until(lambda: bool(client.diagnostics), 20.0)
+        status = client.diagnostics[-1].status[0]
+        assert status.level == DiagnosticStatus.ERROR
+        assert 'unconfigured' in status.message and '/nonexistent/ttyACM9 does not exist' in status.message
+        response = client.apply([eye(0)])
+        assert not response.success and 'not active' in response.message
+        assert proc.poll() is None
     finally:
         client.close()
         assert stop_node(proc) == 0

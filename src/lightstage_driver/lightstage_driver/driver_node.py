@@ -208,8 +208,12 @@ class LightStageDriverNode(LifecycleNode):
         ident = self.stage.link.identity if self.stage is not None else None
         stats = self.stage.link.stats.as_dict() if self.stage is not None else {}
         healthy = self.link_state in ('armed', 'connected')
-        status.level = DiagnosticStatus.OK if healthy else (
-            DiagnosticStatus.WARN if self.link_state == 'unconfigured' else DiagnosticStatus.ERROR)
+        if healthy:
+            status.level = DiagnosticStatus.OK
+        elif self.link_state == 'unconfigured' and not self.last_error:
+            status.level = DiagnosticStatus.WARN
+        else:
+            status.level = DiagnosticStatus.ERROR
         status.message = self.link_state if not self.last_error or healthy else \
             f'{self.link_state}: {self.last_error}'
         status.hardware_id = f'{ident.name} {ident.version_string}' if ident else ''
@@ -302,8 +306,13 @@ def main(argv: list[str] | None = None) -> int:
     node = LightStageDriverNode()
     try:
         if node.p('autostart'):
-            node.trigger_configure()
-            node.trigger_activate()
+            if node.trigger_configure() == TransitionCallbackReturn.SUCCESS:
+                node.trigger_activate()
+            else:
+                # stay up, unconfigured: /diagnostics shows why; configure again once fixed
+                node.get_logger().error(f'autostart: not configured ({node.last_error}); fix it and '
+                                        f'trigger configure + activate, or restart the node')
+                node.link_state = 'unconfigured'
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
