@@ -130,3 +130,21 @@ def test_config_dict_round_trip():
     assert HogConfig.from_dict(config.to_dict()) == config
     with pytest.raises(ValueError, match="unknown"):
         HogConfig.from_dict({**config.to_dict(), "cells": 3})
+
+
+@pytest.mark.parametrize("scale", [1e-42, 1e-20, 1e20, 1e36])
+def test_extreme_gray_level_scales_match_skimage(scale):
+    # subnormal and huge float32 values: no overflow, no out-of-range bins
+    rng = np.random.default_rng(6)
+    images = (rng.uniform(0, 1, (3, 120, 120)) * scale).astype(np.float32)
+    got = hog_batch(images)
+    assert np.isfinite(got).all()
+    np.testing.assert_allclose(got, reference(images), rtol=0, atol=1e-6)
+
+
+def test_mixed_tiny_and_zero_gradients_match_skimage():
+    rng = np.random.default_rng(7)
+    images = rng.uniform(0, 1, (3, 120, 120)).astype(np.float32)
+    images[:, ::2] = 1e-44
+    images[:, :, ::3] = 0
+    np.testing.assert_allclose(hog_batch(images), reference(images), rtol=0, atol=1e-6)

@@ -15,7 +15,7 @@ What makes it fast (see ``benchmarks/bench_hog.py`` for the figures):
 
 - images are processed in chunks of ``HogConfig.batch_size`` (cache-sized);
 - orientations are binned into 18 *signed* 20-degree bins straight from ``arctan2``
-  (no floating-point ``% 180``) and a single ``np.bincount`` over
+  (no floating-point ``% 180``, no ``rad2deg``) and a single ``np.bincount`` over
   (image, cell, signed bin) builds every histogram of the chunk; the two signed halves
   are then folded into the 9 unsigned bins;
 - the magnitude is ``sqrt(x*x + y*y)``, not ``np.hypot``.
@@ -47,7 +47,7 @@ class HogConfig:
     block_cells: int = 10
     orientations: int = 9
     block_norm: str = "L2-Hys"
-    batch_size: int = 16  # images per internal chunk; affects speed only, never values
+    batch_size: int = 8  # images per internal chunk (cache-sized); affects speed only, never values
 
     def __post_init__(self):
         for name in ("image_size", "cell_px", "block_cells", "orientations", "batch_size"):
@@ -138,40 +138,43 @@ class _Binner:
         # index of (cell, signed bin 0) for every pixel of the cropped image
         self.cell_base = (cell_of_pixel * self.n_bins_signed).ravel()
         self.per_image = n_cells * n_cells * self.n_bins_signed
-        # Signed angle a (degrees, in [-180, 180]) -> bin floor(a / width) + orientations,
-        # i.e. 0..2*orientations-1 (a = +180 lands in an overflow bin folded like -180).
-        # Divide (not multiply by 1/width): skimage compares degrees with multiples of width.
-        self.bin_width_deg = 180.0 / config.orientations
+        # radians -> bins of 180/orientations degrees. One multiply instead of skimage's
+        # rad2deg and comparisons: bins can differ only for angles within ~1e-13 degrees of
+        # a bin edge, which float32 gray levels do not produce.
+        self.bins_per_radian = config.orientations / np.pi
 
     def histograms(self, chunk: np.ndarray) -> np.ndarray:
         """Cell histograms (n, n_cells, n_cells, orientations) in float64, divided by cell area."""
         cfg = self.config
         n = chunk.shape[0]
         span = self.span
-        # Central differences in float32 with zero border gradient (skimage).
         # Central differences in float32 with zero border gradient (skimage), on the full
         # image, then cropped to the whole cells (skimage ignores the remainder).
         g_row = np.zeros(chunk.shape, dtype=np.float32)
         g_col = np.zeros(chunk.shape, dtype=np.float32)
         np.subtract(chunk[:, 2:, :], chunk[:, :-2, :], out=g_row[:, 1:-1, :])
         np.subtract(chunk[:, :, 2:], chunk[:, :, :-2], out=g_col[:, :, 1:-1])
-        g_row64 = g_row[:, :span, :span].astype(np.float64).reshape(n, -1)
-        g_col64 = g_col[:, :span, :span].astype(np.float64).reshape(n, -1)
-        magnitude = np.sqrt(g_row64 * g_row64 + g_col64 * g_col64)
-        angle = np.arctan2(g_row64, g_col64)
-        np.rad2deg(angle, out=angle)
-        angle /= self.bin_width_deg
-        np.floor(angle, out=angle)
+        if span != chunk.shape[1] or span != chunk.shape[2]:
+            g_row = np.ascontiguousarray(g_row[:, :span, :span])
+            g_col = np.ascontiguousarray(g_col[:, :span, :span])
+        g_row = g_row.reshape(n, -1)
+        g_col = g_col.reshape(n, -1)
+        # Signed bin = floor(angle_deg / width) + orientations, in 0 .. 2*orientations-1;
+        # all terms are >= 0 so truncation is floor. The angle is computed in float64 from
+        # the float32 gradients, as skimage does.
+        angle = np.arctan2(g_row, g_col, dtype=np.float64)
+        angle *= self.bins_per_radian
+        angle += cfg.orientations
         signed_bin = angle.astype(np.intp)
-        signed_bin += cfg.orientations  # -9..9 -> 0..18 (18 only for exactly +180 deg)
-        # +180 deg is orientation 0 in skimage (180 % 180); -180 deg already maps to bin 0.
+        # g_row == 0: angle 0 or +-180 deg, all orientation 0 in skimage (180 % 180 == 0)
+        np.putmask(signed_bin, g_row == 0, cfg.orientations)
+        # (an angle that rounds to +180 with g_row != 0 needs a subnormal g_row; keep it in range)
         np.minimum(signed_bin, self.n_bins_signed - 1, out=signed_bin)
-        over = signed_bin == self.n_bins_signed - 1
-        # bin 17 is legitimately [160, 180) deg; only exact +180 must go to bin 9 (0 deg).
-        exact_180 = over & (g_row64 == 0) & (g_col64 < 0)
-        signed_bin[exact_180] = cfg.orientations
         signed_bin += self.cell_base[None, :]
         signed_bin += (np.arange(n, dtype=np.intp) * self.per_image)[:, None]
+        magnitude = np.multiply(g_row, g_row, dtype=np.float64)
+        magnitude += np.multiply(g_col, g_col, dtype=np.float64)
+        np.sqrt(magnitude, out=magnitude)  # sqrt(x*x + y*y): faster than np.hypot
         hist = np.bincount(signed_bin.ravel(), weights=magnitude.ravel(),
                            minlength=n * self.per_image)
         hist = hist.reshape(n, cfg.n_cells, cfg.n_cells, 2, cfg.orientations)
