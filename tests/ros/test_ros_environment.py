@@ -1,0 +1,168 @@
+"""The ROS environment module, and that ROS processes started with it stay on loopback:
+checked on the sockets they bind (/proc) and, where strace is available, on the
+addresses they actually send to."""
+import os
+import re
+import shutil
+import subprocess
+import xml.etree.ElementTree as ET
+
+import pytest
+
+from lightstage_bringup import ros_env
+from proc_sockets import (InetSocket, ephemeral_port_low, listening_beyond_loopback,
+                          parse_address, parse_proc_net, sockets_of)
+from ros_helpers import RosClient, fresh_domain_id, running_nodes
+
+DRIVER = {'driver': 'ros_fake_driver_node'}
+NS = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
+
+
+# -- ros_env --------------------------------------------------------------------------
+def test_ros_environment_forces_localhost_and_sets_domain_without_touching_the_base():
+    base = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET', 'ROS_STATIC_PEERS': '10.0.0.7',
+            'ROS_DOMAIN_ID': '5', 'PATH': '/bin'}
+    env = ros_env.ros_environment(17, base=base)
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    assert 'ROS_STATIC_PEERS' not in env
+    assert env['ROS_DOMAIN_ID'] == '17' and env['PATH'] == '/bin'
+    assert env['RMW_IMPLEMENTATION'] == 'rmw_fastrtps_cpp'
+    assert env['FASTRTPS_DEFAULT_PROFILES_FILE'] == str(ros_env.fastdds_profile_path())
+    assert base['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SUBNET'  # a copy, not the input
+    # no explicit id: the base's is kept; a profile the user chose is kept
+    env = ros_env.ros_environment(None, base={'ROS_DOMAIN_ID': '5', 'FASTRTPS_DEFAULT_PROFILES_FILE': '/my.xml'})
+    assert env['ROS_DOMAIN_ID'] == '5' and env['FASTRTPS_DEFAULT_PROFILES_FILE'] == '/my.xml'
+
+
+@pytest.mark.parametrize('bad', [-1, 233])
+def test_ros_environment_rejects_out_of_range_domain_ids(bad):
+    with pytest.raises(ValueError, match=r'out of range: use 0\.\.232'):
+        ros_env.ros_environment(bad, base={})
+
+
+@pytest.fixture
+def saved_environ():
+    """Restore this process's whole environment after the test (apply_* changes it)."""
+    saved = dict(os.environ)
+    yield
+    os.environ.clear()
+    os.environ.update(saved)
+
+
+def test_apply_ros_environment_updates_this_process(monkeypatch, saved_environ):
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SUBNET')
+    monkeypatch.setenv('ROS_DOMAIN_ID', '3')
+    ros_env.apply_ros_environment(9)
+    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    assert os.environ['ROS_DOMAIN_ID'] == '9'
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    'apply_ros_environment() only os.environ.update()s, so a ROS_STATIC_PEERS already set in '
+    'the process survives (ros_environment() drops it from its copy); static peers are '
+    'contacted even with LOCALHOST discovery. Reported; remove this mark when fixed.'))
+def test_apply_ros_environment_drops_static_peers(monkeypatch, saved_environ):
+    monkeypatch.setenv('ROS_STATIC_PEERS', '10.0.0.7')
+    ros_env.apply_ros_environment(9)
+    assert 'ROS_STATIC_PEERS' not in os.environ
+
+
+def test_fastdds_profile_has_the_large_shared_memory_segment():
+    root = ET.parse(ros_env.fastdds_profile_path()).getroot()
+    shm = [t for t in root.iter(f'{NS}transport_descriptor') if t.findtext(f'{NS}type') == 'SHM']
+    assert len(shm) == 1
+    assert int(shm[0].findtext(f'{NS}segment_size')) == 16 * 1024 * 1024
+    assert int(shm[0].findtext(f'{NS}maxMessageSize')) == 4 * 1024 * 1024
+    assert root.find(f'.//{NS}participant[@is_default_profile="true"]') is not None
+
+
+# -- the socket inspection itself ---------------------------------------------------
+def test_proc_net_addresses_are_decoded():
+    assert parse_address('0100007F:1B58') == (parse_address('0100007F:0000')[0], 7000)
+    assert str(parse_address('0100007F:1B58')[0]) == '127.0.0.1'
+    assert str(parse_address('020200C0:93A4')[0]) == '192.0.2.2'
+    assert str(parse_address('00000000000000000000000001000000:0016')[0]) == '::1'
+    table = parse_proc_net(
+        '  sl  local_address rem_address   st tx_queue rx_queue tr tm->when retrnsmt   uid  timeout inode\n'
+        '   1: 00000000:5492 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 111 2\n'
+        '   2: 0100007F:5493 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 112 2\n'
+        '   3: 020200C0:93A4 00000000:0000 07 00000000:00000000 00:00000000 00000000     0        0 113 2\n',
+        'udp')
+    bad = listening_beyond_loopback(list(table.values()), ephemeral_low=32768)
+    assert [str(s) for s in bad] == ['udp 0.0.0.0:21650']  # 113 is an ephemeral send socket
+    listen = InetSocket('tcp', parse_address('00000000:C350')[0], 50000, '0A')
+    assert listening_beyond_loopback([listen], 32768) == [listen]
+
+
+def test_sockets_of_finds_a_socket_this_test_binds():
+    import socket
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(('127.0.0.1', 0))
+        port = s.getsockname()[1]
+        mine = [x for x in sockets_of(os.getpid()) if x.port == port]
+    assert len(mine) == 1 and mine[0].loopback and mine[0].proto == 'udp'
+
+
+# -- ROS processes -------------------------------------------------------------------
+def _whitelisted_profile(tmp_path):
+    """The project's profile with its UDPv4 transport restricted to 127.0.0.1."""
+    text = ros_env.fastdds_profile_path().read_text()
+    text = text.replace('<type>UDPv4</type>', '<type>UDPv4</type>\n        '
+                        '<interfaceWhiteList><address>127.0.0.1</address></interfaceWhiteList>')
+    path = tmp_path / 'profile_loopback.xml'
+    path.write_text(text)
+    return str(path)
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('profile', [
+    pytest.param('project', marks=pytest.mark.xfail(strict=True, reason=(
+        'fastdds_profile.xml: its UDPv4 transport has no interfaceWhiteList, so Fast DDS binds '
+        'the discovery/data ports on 0.0.0.0 even with LOCALHOST discovery (reported; the fix '
+        'is the whitelisted variant below). Remove this mark when the profile is fixed.'))),
+    'project+loopback-whitelist',
+])
+def test_ros_node_process_binds_no_port_beyond_loopback(profile, tmp_path):
+    domain_id = fresh_domain_id()
+    overrides = {}
+    if profile != 'project':
+        overrides['FASTRTPS_DEFAULT_PROFILES_FILE'] = _whitelisted_profile(tmp_path)
+    with running_nodes(DRIVER, domain_id, **overrides) as sup:
+        sockets = sockets_of(sup['driver'].pid)
+    rtps_ports = [s for s in sockets if 7400 + 250 * domain_id <= s.port < 7400 + 250 * (domain_id + 1)]
+    assert rtps_ports, f'no DDS ports found among {[str(s) for s in sockets]}: nothing was checked'
+    bad = listening_beyond_loopback(sockets, ephemeral_port_low())
+    assert not bad, f'listening beyond loopback: {[str(s) for s in bad]}'
+
+
+def _strace_works() -> bool:
+    if shutil.which('strace') is None:
+        return False
+    return subprocess.run(['strace', '-qq', '-o', '/dev/null', 'true'], capture_output=True).returncode == 0
+
+
+@pytest.mark.ros
+@pytest.mark.skipif(not _strace_works(), reason='strace missing or ptrace not permitted')
+def test_ros_node_process_sends_only_to_loopback(tmp_path):
+    """Every datagram the node process sends (discovery, service replies, topic data) goes
+    to a loopback address: traced with strace during a service exchange."""
+    from lightstage_interfaces.srv import ApplyPatterns
+    from lightstage_interfaces.msg import Pattern
+    trace = tmp_path / 'strace.txt'
+    wrap = ['strace', '-f', '-qq', '-e', 'trace=sendto,sendmsg,sendmmsg,connect', '-o', str(trace)]
+    domain_id = fresh_domain_id()
+    with running_nodes(DRIVER, domain_id, wrap=wrap):
+        c = RosClient(domain_id)
+        try:
+            cli = c.node.create_client(ApplyPatterns, '/driver/apply_patterns')
+            c.spin_until(cli.service_is_ready, 10, 'the driver service')
+            resp = c.result(cli.call_async(ApplyPatterns.Request(patterns=[Pattern()] * 4, trigger=True)))
+            assert resp.success and len(resp.sequences) == 4
+        finally:
+            c.close()
+    text = trace.read_text()
+    v4 = re.findall(r'sa_family=AF_INET, sin_port=htons\(\d+\), sin_addr=inet_addr\("([\d.]+)"\)', text)
+    v6 = re.findall(r'sa_family=AF_INET6, sin6_port=htons\(\d+\), sin6_flowinfo=[^,]+, inet_pton\(AF_INET6, "([^"]+)"', text)
+    assert len(v4) + len(v6) > 20, f'too few sends traced to judge:\n{text[:2000]}'
+    assert {a for a in v4 if not a.startswith('127.')} == set()
+    assert {a for a in v6 if a != '::1'} == set()
