@@ -232,14 +232,18 @@ def test_port_sim_starts_its_own_simulator():
         assert stop_node(proc) == 0
 
 
-def test_a_missing_port_leaves_the_node_up_unconfigured_with_the_reason():
-    proc = start_node('/nonexistent/ttyACM9', 'stage_driver_no_port', domain_id=own_domain(3))
+@pytest.mark.parametrize('port, params, reason', [
+    ('/nonexistent/ttyACM9', (), '/nonexistent/ttyACM9 does not exist'),
+    ('sim', ('sites:=6',), 'drives 8 sites x 4 channels, but this rig is configured as 6 x 4'),
+])
+def test_a_configure_failure_leaves_the_node_up_unconfigured_with_the_reason(port, params, reason):
+    proc = start_node(port, 'stage_driver_no_port', *params, domain_id=own_domain(3))
     client = Client('stage_driver_no_port', own_domain(3))
     try:
         assert client.spin_until(lambda: bool(client.diagnostics), 20.0)
         status = client.diagnostics[-1].status[0]
         assert status.level == DiagnosticStatus.ERROR
-        assert 'unconfigured' in status.message and '/nonexistent/ttyACM9 does not exist' in status.message
+        assert 'unconfigured' in status.message and reason in status.message
         response = client.apply([eye(0)])
         assert not response.success and 'not active' in response.message
         assert proc.poll() is None

@@ -180,3 +180,16 @@ def test_clock_wraps_without_breaking_stamps():
             hosts = [t.host_time_s for t in triggers]
             assert all(b > a for a, b in zip(hosts, hosts[1:]))
             assert hosts[-1] - hosts[0] == pytest.approx((us[-1] - us[0]) * 1e-6, abs=2e-3)
+
+
+def test_pwm_firmware_gets_levels_and_dims():
+    from lightstage_driver.sim_backend import PythonSimBackend
+    with PythonSimBackend(pwm_bits=8) as backend, LightStage(backend.port) as stage:
+        assert stage.identity.pwm_bits == 8
+        dim = np.zeros(32)
+        dim[[0, 1]] = [0.2, 1.0]            # 0.2 is off on an on/off rig, dimmed here
+        triggers = stage.apply(np.array([dim, one_hot(4)]), 500)
+        assert [t.word for t in triggers] == [0b11, 1 << 4]
+        assert wait_until(lambda: len(backend.trigger_pulses()) == 2, 2.0)
+        stage.apply(dim, 500, trigger=False)
+        assert wait_until(lambda: backend.current_word() == 0b11, 2.0)

@@ -26,7 +26,7 @@ from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from .errors import LightStageError, PatternError
+from .errors import FirmwareMismatchError, LightStageError, PatternError
 from .sim_backend import backend_from_url, is_sim_url
 from .stage import LightStage, Trigger
 
@@ -63,6 +63,8 @@ PARAMETERS = {
     'watchdog_ms': (1000, _int('firmware watchdog: LEDs off after this much host silence [ms]',
                                50, 60_000)),
     'diagnostics_period_s': (1.0, _float('/diagnostics period [s]', 0.1, 60.0)),
+    'sites': (8, _int('rig layout: illumination sites the firmware must report', 1, 32)),
+    'channels': (4, _int('rig layout: LEDs (colour channels) per site the firmware must report', 1, 32)),
     'frame_id': ('lightstage', _text('frame id of the rig in IlluminationState headers')),
     'autostart': (True, _text('configure and activate on start-up', ParameterType.PARAMETER_BOOL)),
 }
@@ -106,6 +108,12 @@ class LightStageDriverNode(LifecycleNode):
                                     self.p('connect_timeout_s'), watchdog_ms=self.p('watchdog_ms'),
                                     on_watchdog=self._on_watchdog)
             ident = self.stage.connect()
+            layout = (self.p('sites'), self.p('channels'))
+            if (ident.sites, ident.channels) != layout:
+                raise FirmwareMismatchError(
+                    f'firmware {ident.name} on {device} drives {ident.sites} sites x {ident.channels} '
+                    f'channels, but this rig is configured as {layout[0]} x {layout[1]}: fix the sites/'
+                    f'channels parameters or flash the right firmware')
         except (LightStageError, ValueError, RuntimeError) as exc:
             self._note_error(f'configure failed: {exc}')
             self.get_logger().error(self.last_error)

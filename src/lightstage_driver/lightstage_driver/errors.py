@@ -51,6 +51,10 @@ class NoReplyError(LinkError):
     """The firmware did not answer within the timeout, after every retry."""
 
 
+class ReplyChecksumError(NoReplyError):
+    """Replies kept arriving with a CRC mismatch (or the firmware kept receiving ours so)."""
+
+
 class DisconnectedError(LinkError):
     """The port went away while in use (cable pulled, firmware process killed)."""
 

@@ -23,7 +23,7 @@ from serial.tools import list_ports
 
 from . import protocol as p
 from .errors import (DisconnectedError, FirmwareMismatchError, LinkError, NakError, NoReplyError,
-                     PortNotFoundError, PortPermissionError, ProtocolError)
+                     PortNotFoundError, PortPermissionError, ProtocolError, ReplyChecksumError)
 
 USB_PREFIX = 'usb:'
 DEFAULT_BAUD = 115200
@@ -199,9 +199,15 @@ class SerialLink:
             reply = self._transact_once(cmd, payload, self.timeout_s + extra_timeout_s, self.retries)
             if reply is None:
                 attempts = self.retries + 1
-                self.last_error = f'no reply to {p.Command(cmd).name}'
+                name = p.Command(cmd).name if cmd in tuple(p.Command) else f'0x{cmd:02X}'
+                self.last_error = f'no valid reply to {name}'
+                if all(why != 'timeout' for why in self._failures):
+                    raise ReplyChecksumError(
+                        f'{self.port}: every one of {attempts} attempt(s) at {name} met a CRC mismatch '
+                        f'({", ".join(self._failures)}): the line corrupts data; check the baud rate '
+                        f'({self.baud}), the cable and its grounding')
                 raise NoReplyError(
-                    f'{self.port}: no valid reply to {p.Command(cmd).name} after {attempts} attempt(s) of '
+                    f'{self.port}: no valid reply to {name} after {attempts} attempt(s) of '
                     f'{(self.timeout_s + extra_timeout_s) * 1e3:.0f} ms; is the firmware alive? '
                     f'(timeouts {self.stats.timeouts}, corrupted replies {self.stats.crc_errors})')
             return reply
@@ -209,6 +215,7 @@ class SerialLink:
     def _transact_once(self, cmd: int, payload: bytes, timeout_s: float, retries: int = 0) -> Reply | None:
         seq = self._next_seq()
         frame = p.encode_frame(seq, cmd, payload)
+        self._failures: list[str] = []
         for attempt in range(retries + 1):
             if attempt:
                 self.stats.retries += 1
@@ -216,6 +223,7 @@ class SerialLink:
             reply = self._await_reply(seq, cmd, sent + timeout_s)
             if isinstance(reply, Reply):
                 return Reply(reply.frame, sent, reply.host_recv_s)
+            self._failures.append(reply)
         return None
 
     def _write(self, data: bytes) -> float:
@@ -239,14 +247,15 @@ class SerialLink:
             raise self._lost(exc) from exc
 
     def _await_reply(self, seq: int, cmd: int, deadline: float) -> Reply | str:
-        """Read until the reply to (seq, cmd); 'retry' when it is lost or the frame was corrupted."""
+        """Read until the reply to (seq, cmd), or say why to retry: 'timeout', 'corrupt' (a frame
+        arrived with a bad CRC, maybe our reply) or 'firmware-crc' (the firmware got ours corrupted)."""
         while True:
             now = time.monotonic()
             if now >= deadline:
                 self.stats.timeouts += 1
                 for item in self._decoder.expire():
                     self._dispatch_other(item, now)
-                return 'retry'
+                return 'timeout'
             data = self._read(min(deadline - now, 0.05))
             now = time.monotonic()
             result: Reply | str | None = None
@@ -257,7 +266,7 @@ class SerialLink:
                     continue
                 if isinstance(item, p.BadFrame):
                     self.stats.crc_errors += 1
-                    result = 'retry'   # possibly our reply: ask again (the firmware caches it)
+                    result = 'corrupt'   # possibly our reply: ask again (the firmware caches it)
                     continue
                 frame = item
                 if frame.cmd == p.NAK_CMD:
@@ -265,11 +274,11 @@ class SerialLink:
                         nak = p.Nak.unpack(frame.payload)
                     except ProtocolError:
                         self.stats.crc_errors += 1
-                        result = 'retry'
+                        result = 'corrupt'
                         continue
                     if nak.reason == p.NakReason.BAD_CRC:
                         self.stats.firmware_crc_naks += 1
-                        result = 'retry'
+                        result = 'firmware-crc'
                     elif frame.seq == seq:
                         self.stats.naks += 1
                         self.last_error = nak.describe()

@@ -59,6 +59,13 @@ def pattern_levels(pattern: np.ndarray, pwm_bits: int) -> list[int]:
     return [int(v) for v in np.rint(np.asarray(pattern) * full)]
 
 
+def lit_word(pattern: np.ndarray, pwm_bits: int) -> int:
+    """LED word of the LEDs that will actually light (on/off: above 0.5; PWM: level > 0)."""
+    if not pwm_bits:
+        return pattern_word(pattern)
+    return sum(1 << i for i, level in enumerate(pattern_levels(pattern, pwm_bits)) if level > 0)
+
+
 def validate_exposure(exposure_us, min_us: int, max_us: int, what: str = 'exposure_us') -> int:
     """Return the exposure as an int in [min_us, max_us], or raise PatternError."""
     if isinstance(exposure_us, bool) or not isinstance(exposure_us, (int, float, np.integer, np.floating)):

@@ -17,7 +17,7 @@ from . import protocol as p
 from .clock import FirmwareClock
 from .errors import LinkError, PatternError, ProtocolError
 from .link import DEFAULT_BAUD, SerialLink
-from .patterns import pattern_levels, pattern_word, validate_exposure, validate_patterns
+from .patterns import lit_word, pattern_levels, pattern_word, validate_exposure, validate_patterns
 
 
 @dataclass(frozen=True)
@@ -151,14 +151,14 @@ class LightStage:
         return self.link.transact(p.Command.SET_PATTERN, p.pack_set_pattern(pattern_word(pattern), show_now))
 
     def set_pattern(self, pattern, show_now: bool = True) -> int:
-        """Light (or only arm) one pattern without a trigger. Returns its LED word."""
+        """Light (or only arm) one pattern without a trigger. Returns the word of the LEDs lit."""
         array = validate_patterns(pattern, self.identity.led_count)
         if len(array) != 1:
             raise PatternError(f'set_pattern takes one pattern, got {len(array)}')
         reply = self._send_pattern(array[0], show_now)
         self.clock.add_probe(reply.host_send_s, p.unpack_u32(reply.frame.payload, 'SET_PATTERN reply'),
                              reply.host_recv_s)
-        return pattern_word(array[0])
+        return lit_word(array[0], self.identity.pwm_bits)
 
     def fire(self, exposure_us: int, index: int = 0, word: int | None = None) -> Trigger:
         """Trigger the camera with the armed pattern lit for exposure_us."""
@@ -189,7 +189,7 @@ class LightStage:
             out = []
             for k, pattern in enumerate(array):
                 self._send_pattern(pattern, show_now=False)
-                out.append(self.fire(exposures[k], k, pattern_word(pattern)))
+                out.append(self.fire(exposures[k], k, lit_word(pattern, self.identity.pwm_bits)))
             return out
         words = [pattern_word(pattern) for pattern in array]
         if len(words) == 1:
