@@ -27,13 +27,18 @@ def holdout_split(data: SearchData, test_fraction: float = 0.25, seed: int = 0):
     return np.flatnonzero(~mask), np.flatnonzero(mask)
 
 
+def test_images(test_data: SearchData, mode: str, patterns: np.ndarray, render_index: int,
+                seed: int) -> np.ndarray:
+    """Freshly rendered noisy test images of all columns, `(n_images, n, pixels)`."""
+    clean = render(test_data, mode, patterns)
+    rng = np.random.default_rng([int(seed), HOLDOUT_STREAM, 2, int(render_index)])
+    return add_noise(test_data, clean, standard_normal(rng, clean.shape))
+
+
 def test_features(test_data: SearchData, mode: str, patterns: np.ndarray, render_index: int,
                   seed: int) -> np.ndarray:
     """Features of freshly rendered noisy test images of all columns, `(n, features)`."""
-    clean = render(test_data, mode, patterns)
-    rng = np.random.default_rng([int(seed), HOLDOUT_STREAM, 2, int(render_index)])
-    noisy = add_noise(test_data, clean, standard_normal(rng, clean.shape))
-    return image_features(test_data, noisy)
+    return image_features(test_data, test_images(test_data, mode, patterns, render_index, seed))
 
 
 def evaluate_heldout(model, test_data: SearchData, n_renders: int = 4, seed: int = 0) -> dict:

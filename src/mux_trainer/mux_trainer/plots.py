@@ -61,7 +61,7 @@ def plot_pattern_matrices(doc: dict, path) -> Path:
         ax.imshow(P, cmap='gray', vmin=0, vmax=1, interpolation='nearest', aspect='auto')
         for j, improved in enumerate(m.get('improved', [True] * P.shape[1])):
             if not improved:
-                ax.axvspan(j - 0.5, j + 0.5, color='tab:red', alpha=0.35, linewidth=0)
+                ax.axvspan(j - 0.5, j + 0.5, color='tab:gray', alpha=0.6, linewidth=0)
         ax.set_title(f'{name} {noise}', fontsize=9)
         ax.set_xticks(range(P.shape[1]), [str(j + 1) for j in range(P.shape[1])], fontsize=7)
         ax.set_yticks(range(P.shape[0]), [str(i) for i in range(P.shape[0])], fontsize=6)

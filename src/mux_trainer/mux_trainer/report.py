@@ -47,7 +47,7 @@ def _naive_bow_summary(naive, train_data, test_data, n_renders, seed, n_jobs):
         'accuracy_by_type': accuracy_by_type(test_data, correct),
         'accuracy_by_images': {'1': acc}, 'mode': 'naive',
         'patterns': np.asarray(naive.patterns_).astype(int).tolist(),
-        'train_seconds': float(train_s), 'n_words': int(model.n_words),
+        'train_seconds': float(train_s), 'n_words': model.n_words_,
     }
 
 

@@ -1,0 +1,177 @@
+"""Speed of the greedy pattern search: optimized path vs the straightforward reference.
+
+Prints, from one run on the same data:
+1. time per candidate evaluation of the optimized path (Gray-code rendering, float32 noise
+   shared by the column's candidates, batched HOG, ridge with one kernel for all splits) and
+   of the straightforward reference (per-image `L @ w`, float64 noise, skimage HOG per image,
+   one LinearSVC per split), each with its breakdown (render, noise, features, classifier).
+   The reference's classifier time is measured on --ref-splits splits and scaled to 400
+   (said so in the output); everything else is measured.
+2. the measured wall time of the full default search: paper's per-colour mode, 8 columns x
+   254 candidates x 400 splits, on the capture (default: the synthetic dataset, 10 classes
+   x 20 poses), with --jobs workers.
+3. the columns selected by the optimized path and by the reference on a reduced problem
+   (the first --check-sites sites, --check-splits splits, --check-columns columns, same
+   seeds), side by side.
+
+Usage: .venv/bin/python benchmarks/bench_search.py [--capture DIR] [--jobs 2] [--skip-full]
+Without --capture the synthetic dataset is generated once into .cache/bench_synth
+(`lightstage synth`, about 2-3 minutes on 2 cores).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+for pkg in ('lightstage_camera', 'mux_classifier', 'mux_trainer'):
+    sys.path.insert(0, str(ROOT / 'src' / pkg))
+
+from lightstage_camera.capture_format import load_capture  # noqa: E402
+from mux_trainer.data import search_data  # noqa: E402
+from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk  # noqa: E402
+from mux_trainer.greedy import GreedyPatternSelector  # noqa: E402
+from mux_trainer.patterns import site_pattern_candidates  # noqa: E402
+from mux_trainer.reference import reference_candidate_scores  # noqa: E402
+from mux_trainer.rendering import SearchData  # noqa: E402
+
+PAPER_SPLITS = 400
+
+
+def default_capture() -> Path:
+    path = ROOT / '.cache' / 'bench_synth'
+    if not (path / 'rig.yaml').exists():
+        from lightstage_camera.synth import generate
+        print(f'generating the synthetic dataset into {path} ...', flush=True)
+        generate(path)
+    return path
+
+
+def fmt_breakdown(t: dict, n: int, scale_classifier: float = 1.0) -> str:
+    parts = {k: 1e3 * v / n for k, v in t.items()}
+    if 'classifier' in parts:
+        parts['classifier'] *= scale_classifier
+    return ', '.join(f'{k} {v:8.1f} ms' for k, v in parts.items())
+
+
+def sites_subset(data: SearchData, n_sites: int) -> SearchData:
+    return SearchData(basis=data.basis[:n_sites], labels=data.labels,
+                      pose_index=data.pose_index, class_names=data.class_names,
+                      image_shape=data.image_shape, noise_a=data.noise_a, noise_b=data.noise_b,
+                      max_level=data.max_level, noise_name=data.noise_name,
+                      hog_config=data.hog_config)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument('--capture', help='capture folder (default: synthetic dataset in .cache)')
+    p.add_argument('--noise', default='sigma3')
+    p.add_argument('--jobs', type=int, default=2)
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--fast-candidates', type=int, default=32)
+    p.add_argument('--ref-candidates', type=int, default=2)
+    p.add_argument('--ref-splits', type=int, default=8)
+    p.add_argument('--check-sites', type=int, default=4)
+    p.add_argument('--check-splits', type=int, default=12)
+    p.add_argument('--check-columns', type=int, default=2)
+    p.add_argument('--skip-full', action='store_true', help='skip the full default search')
+    p.add_argument('--skip-check', action='store_true', help='skip the reduced-problem check')
+    args = p.parse_args(argv)
+
+    capture = Path(args.capture) if args.capture else default_capture()
+    t0 = time.perf_counter()
+    data = search_data(load_capture(capture, downscale_to=120), args.noise)
+    print(f'data: {capture}: {data.n_samples} samples, {len(data.class_names)} classes, '
+          f'{len(np.unique(data.pose_index))} pose indices, {data.image_shape} px, noise '
+          f'{args.noise}; loaded in {time.perf_counter() - t0:.1f} s; cpus {os.cpu_count()}, '
+          f'load average {os.getloadavg()[0]:.1f}')
+    W = site_pattern_candidates()
+    prev = W[:, [37]]  # time the second column: one earlier column in the kernel
+
+    # 1a. optimized path, one worker, one chunk of candidates
+    ev = CandidateEvaluator(data, n_repeats=PAPER_SPLITS, seed=args.seed)
+    t0 = time.perf_counter()
+    ctx = ev.prepare_column(prev)
+    prep = time.perf_counter() - t0
+    n_fast = args.fast_candidates
+    t_fast: dict = {}
+    t0 = time.perf_counter()
+    score_candidate_chunk(data, ctx, W[:, :n_fast], timings=t_fast)
+    fast_total = (time.perf_counter() - t0) / n_fast
+    print(f'\n[1] time per candidate evaluation ({data.n_samples} samples x 4 images, '
+          f'{PAPER_SPLITS} splits, column 2)')
+    print(f'  optimized  : {1e3 * fast_total:9.1f} ms   ({fmt_breakdown(t_fast, n_fast)}); '
+          f'column set-up {1e3 * prep:.0f} ms once per column ({1e3 * prep / 254:.1f} ms per candidate)')
+
+    # 1b. straightforward reference on a few candidates, classifier on fewer splits
+    t_ref: dict = {}
+    n_ref = args.ref_candidates
+    reference_candidate_scores(data, 'per_colour', prev, W[:, :n_ref], seed=args.seed,
+                               n_repeats=args.ref_splits, classifier='linear_svm',
+                               timings=t_ref)
+    scale = PAPER_SPLITS / args.ref_splits
+    ref_total = (t_ref['render_noise'] + t_ref['features'] + t_ref['classifier'] * scale) / n_ref
+    print(f'  reference  : {1e3 * ref_total:9.1f} ms   ({fmt_breakdown(t_ref, n_ref, scale)}); '
+          f'classifier measured on {args.ref_splits} LinearSVC fits per candidate and scaled '
+          f'x{scale:g} to {PAPER_SPLITS} splits')
+    print(f'  speed-up   : {ref_total / (fast_total + prep / 254):9.0f} x per candidate '
+          f'(target >= 100 x)')
+    ref_search_days = ref_total * 8 * 254 / 86400
+    print(f'  reference full search (8 x 254 candidates) would take ~{ref_search_days:.1f} days '
+          'on one core')
+
+    # 2. the full default search, measured
+    if not args.skip_full:
+        print(f'\n[2] full default search: per-colour, 8 columns x 254 candidates x '
+              f'{PAPER_SPLITS} splits, {args.jobs} worker(s)', flush=True)
+        t0 = time.perf_counter()
+        sel = GreedyPatternSelector(n_patterns=8, n_repeats=PAPER_SPLITS, seed=args.seed,
+                                    n_jobs=args.jobs, progress=True).fit(data)
+        wall = time.perf_counter() - t0
+        print(f'  wall time  : {wall:9.1f} s = {wall / 60:.2f} min (target < 10 min), '
+              f'including the 8 final LinearSVC classifiers; load average now '
+              f'{os.getloadavg()[0]:.1f}')
+        acc = ', '.join(f'{k}: {v:.4f}' for k, v in sel.accuracy_by_images_.items())
+        print(f'  split accuracy by image count: {acc}')
+        print('  columns (sites lit): ' + ' | '.join(
+            ''.join(str(int(v)) for v in col) for col in sel.patterns_.T))
+
+    # 3. reduced problem: same columns as the reference?
+    if not args.skip_check:
+        small = sites_subset(data, args.check_sites)
+        cands = site_pattern_candidates(args.check_sites)
+        print(f'\n[3] reduced problem: first {args.check_sites} sites ({cands.shape[1]} '
+              f'candidates), {args.check_splits} splits, {args.check_columns} columns, '
+              f'seed {args.seed}', flush=True)
+        fast = GreedyPatternSelector(n_patterns=args.check_columns, n_repeats=args.check_splits,
+                                     seed=args.seed).fit(small)
+        cols = np.zeros((args.check_sites, 0), np.float32)
+        ref_cols = []
+        t0 = time.perf_counter()
+        for j in range(args.check_columns):
+            acc = reference_candidate_scores(small, 'per_colour', cols if j else None, cands,
+                                             seed=args.seed, n_repeats=args.check_splits,
+                                             classifier='linear_svm').mean(axis=1)
+            best = int(np.argmax(acc))
+            cols = np.hstack([cols, cands[:, [best]]])
+            fast_scores = fast.history_[j]['scores']
+            from scipy.stats import spearmanr
+            rho = spearmanr(fast_scores, acc).statistic
+            ref_cols.append(cands[:, best])
+            print(f'  column {j + 1}: optimized (ridge) '
+                  f'{"".join(str(int(v)) for v in fast.patterns_[:, j])} '
+                  f'acc {fast.history_[j]["accuracy"]:.4f} | reference (LinearSVC) '
+                  f'{"".join(str(int(v)) for v in cands[:, best])} acc {acc[best]:.4f} | '
+                  f'Spearman of the {cands.shape[1]} scores {rho:.3f}', flush=True)
+        same = all(np.array_equal(a, b) for a, b in zip(fast.patterns_.T, ref_cols))
+        print(f'  identical columns: {same}   (reference took {time.perf_counter() - t0:.0f} s)')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
