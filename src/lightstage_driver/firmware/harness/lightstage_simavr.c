@@ -2,7 +2,7 @@
  * bridges its UART0 to a pseudo-terminal the driver opens like a USB serial port, and
  * watches the 74HC595 chain and trigger pins.
  *
- *   lightstage_simavr FIRMWARE.elf [--no-throttle] [--hold]
+ *   lightstage_simavr FIRMWARE.elf [--no-throttle] [--hold] [--trace-bytes]
  *
  * Reports, one line each on stdout (everything simavr prints goes to stderr):
  *   F <hz>                   simulated clock frequency
@@ -10,19 +10,21 @@
  *   L <cycle> <word>         a latch (RCLK) rising edge: the 32-bit word now on the chain's
  *                            outputs, hex, bit i = output i (QA of the first register = 0)
  *   T <rise> <fall>          a trigger pulse: rising and falling edge cycles
- *   R <cycle>                the MCU was reset (stdin "reset" or its own watchdog)
+ *   R <cycle>                the MCU was reset (stdin "reset")
  *   X <cycle> <state>        the simulated CPU stopped (crashed or done)
  * Cycles count from power-up at the simulated clock (exact widths: fall - rise).
  *
  * Commands on stdin, one per line: "reset" (pulse the reset line, as DTR does on an Uno),
+ * "status" (harness state to stderr),
  * "run" (start the CPU when started with --hold), "quit".  End of input also quits, so
  * the harness never outlives the process that started it.
  *
  * The pty bridge is done here, single-threaded, instead of with simavr's uart_pty part,
  * which creates a shared /tmp/simavr-uart0 link, prints banners on stdout and can hang in
- * its stop function.  Simulated time is throttled to wall time (never ahead of it, and
- * at most 50 ms behind), so the firmware's millisecond timeouts mean the same as the
- * host's; --no-throttle runs as fast as the host can.
+ * its stop function.  Simulated time is throttled to wall time (it waits whenever it is
+ * ahead, and forgets lag beyond 50 ms instead of catching up in a burst), so the
+ * firmware's millisecond timeouts mean the same as the host's; --no-throttle runs as fast
+ * as the host can.  --trace-bytes logs every UART byte with its cycle to stderr.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -284,7 +286,8 @@ int main(int argc, char **argv)
         else if (argv[i][0] != '-' && !elf)
             elf = argv[i];
         else {
-            fprintf(stderr, "usage: %s FIRMWARE.elf [--no-throttle] [--hold]\n", argv[0]);
+            fprintf(stderr, "usage: %s FIRMWARE.elf [--no-throttle] [--hold] [--trace-bytes]\n",
+                    argv[0]);
             return 2;
         }
     }
