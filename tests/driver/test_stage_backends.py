@@ -70,7 +70,9 @@ def test_fire_lights_the_pattern_for_the_exposure(stage, backend):
 def test_apply_runs_a_sequence_with_one_trigger_each(stage, backend):
     patterns = np.array([one_hot(k * 4 + (k % 4)) for k in range(8)])
     exposures = [500 + 250 * k for k in range(8)]
-    triggers = stage.apply(patterns, exposures, trigger=True, gap_us=200)
+    seen = []
+    triggers = stage.apply(patterns, exposures, trigger=True, gap_us=200, on_trigger=seen.append)
+    assert seen == triggers                  # reported one by one as the events came in
     assert [t.index for t in triggers] == list(range(8))
     assert [t.word for t in triggers] == [1 << (k * 4 + k % 4) for k in range(8)]
     starts = [t.firmware_us for t in triggers]

@@ -255,8 +255,20 @@ class LightStageDriverNode(LifecycleNode):
         exposures = [int(pt.exposure_us) or default for pt in request.patterns]
         self.request_id += 1
         response.request_id = self.request_id
+        published: list[Trigger] = []
+
+        def publish(trigger: Trigger) -> None:
+            # as each trigger is reported, so cameras get it while the sequence still runs
+            self.sequence += 1
+            stamp = self._ros_stamp(trigger)
+            response.trigger_stamps.append(stamp)
+            response.sequences.append(self.sequence)
+            published.append(trigger)
+            self._publish_illumination(trigger, request.patterns[trigger.index], stamp, len(request.patterns))
+
         try:
-            triggers = self.stage.apply(intensities, exposures, trigger=request.trigger, gap_us=self.p('gap_us'))
+            triggers = self.stage.apply(intensities, exposures, trigger=request.trigger, gap_us=self.p('gap_us'),
+                                        on_trigger=publish)
         except PatternError as exc:
             response.message = f'rejected, nothing was sent: {exc}'
             return response
@@ -266,16 +278,12 @@ class LightStageDriverNode(LifecycleNode):
             self._note_error(f'apply failed: {exc}')
             self.get_logger().error(self.last_error)
             self._leds_off('fault')
-            response.message = f'{exc} (LEDs switched off)'
+            response.message = f'{exc} (LEDs switched off; {len(published)} trigger(s) happened and were published)'
             return response
         self.link_state = 'armed'
-        for trigger in triggers:
-            pattern = request.patterns[trigger.index]
-            self.sequence += 1
-            stamp = self._ros_stamp(trigger)
-            response.trigger_stamps.append(stamp)
-            response.sequences.append(self.sequence)
-            self._publish_illumination(trigger, pattern, stamp, len(request.patterns))
+        if len(published) != len(triggers):    # a callback missed: should not happen, be explicit
+            response.message = f'{len(triggers)} triggers but {len(published)} published'
+            return response
         response.success = True
         response.message = f'{len(request.patterns)} pattern(s) applied' + \
             (f', {len(triggers)} trigger(s)' if request.trigger else ' (no trigger)')

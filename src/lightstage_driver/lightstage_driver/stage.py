@@ -46,6 +46,9 @@ class LightStage:
         self._seq_events: list[p.TriggerEvent] = []
         self._seq_done: p.SequenceDone | None = None
         self._running_seq = -1
+        self._seq_entries: list[p.SequenceEntry] = []
+        self._seq_first = 0
+        self._seq_on_trigger: Callable[[Trigger], None] | None = None
 
     # ------------------------------------------------------------------ connection
     def connect(self) -> p.Identity:
@@ -83,7 +86,12 @@ class LightStage:
     def _on_event(self, frame: p.Frame, host_s: float) -> None:
         try:
             if frame.cmd == p.Event.TRIGGER and frame.seq == self._running_seq:
-                self._seq_events.append(p.TriggerEvent.unpack(frame.payload))
+                event = p.TriggerEvent.unpack(frame.payload)
+                self._seq_events.append(event)
+                if self._seq_on_trigger is not None and event.index < len(self._seq_entries):
+                    entry = self._seq_entries[event.index]
+                    self._seq_on_trigger(self._trigger(self._seq_first + event.index, entry.word,
+                                                       entry.exposure_us, event.t_trigger_us))
             elif frame.cmd == p.Event.SEQUENCE_DONE and frame.seq == self._running_seq:
                 self._seq_done = p.SequenceDone.unpack(frame.payload)
             elif frame.cmd == p.Event.WATCHDOG:
@@ -160,13 +168,17 @@ class LightStage:
                              reply.host_recv_s)
         return lit_word(array[0], self.identity.pwm_bits)
 
-    def fire(self, exposure_us: int, index: int = 0, word: int | None = None) -> Trigger:
+    def fire(self, exposure_us: int, index: int = 0, word: int | None = None,
+             on_trigger: Callable[[Trigger], None] | None = None) -> Trigger:
         """Trigger the camera with the armed pattern lit for exposure_us."""
         ident = self.identity
         exposure = validate_exposure(exposure_us, ident.min_exposure_us, ident.max_exposure_us)
         reply = self.link.transact(p.Command.FIRE, p.pack_u32(exposure), extra_timeout_s=exposure / 1e6)
         t_trigger, _ = p.unpack_u32_pair(reply.frame.payload, 'FIRE reply')
-        return self._trigger(index, word if word is not None else -1, exposure, t_trigger)
+        trigger = self._trigger(index, word if word is not None else -1, exposure, t_trigger)
+        if on_trigger is not None:
+            on_trigger(trigger)
+        return trigger
 
     def _trigger(self, index: int, word: int, exposure: int, raw_us: int) -> Trigger:
         if not self.clock.synced:
@@ -174,9 +186,11 @@ class LightStage:
         host = self.clock.to_host(raw_us)
         return Trigger(index, word, exposure, self.clock.unwrap(raw_us), host, self.clock.uncertainty_s)
 
-    def apply(self, patterns, exposures_us, trigger: bool = True, gap_us: int = 0) -> list[Trigger]:
+    def apply(self, patterns, exposures_us, trigger: bool = True, gap_us: int = 0,
+              on_trigger: Callable[[Trigger], None] | None = None) -> list[Trigger]:
         """Show patterns in order. trigger=True: one camera trigger each (LEDs dark after);
-        trigger=False: only light them, the last one stays lit. Everything is checked first."""
+        trigger=False: only light them, the last one stays lit. Everything is checked first.
+        `on_trigger(trigger)` is called as each trigger is reported (before apply returns)."""
         array, exposures = self._check(patterns, exposures_us)
         if not isinstance(gap_us, (int, np.integer)) or not 0 <= gap_us <= p.MAX_GAP_US:
             raise PatternError(f'gap_us {gap_us!r} must be an integer in 0..{p.MAX_GAP_US}')
@@ -189,24 +203,25 @@ class LightStage:
             out = []
             for k, pattern in enumerate(array):
                 self._send_pattern(pattern, show_now=False)
-                out.append(self.fire(exposures[k], k, lit_word(pattern, self.identity.pwm_bits)))
+                out.append(self.fire(exposures[k], k, lit_word(pattern, self.identity.pwm_bits), on_trigger))
             return out
         words = [pattern_word(pattern) for pattern in array]
         if len(words) == 1:
             self.link.transact(p.Command.SET_PATTERN, p.pack_set_pattern(words[0], False))
-            return [self.fire(exposures[0], 0, words[0])]
+            return [self.fire(exposures[0], 0, words[0], on_trigger)]
         out: list[Trigger] = []
         chunk = self.identity.max_sequence
         for start in range(0, len(words), chunk):
             out += self.run_sequence(words[start:start + chunk], exposures[start:start + chunk],
-                                     gap_us, first_index=start)
+                                     gap_us, first_index=start, on_trigger=on_trigger)
         return out
 
     def run_sequence(self, words: Sequence[int], exposures_us: Sequence[int], gap_us: int = 0,
-                     first_index: int = 0) -> list[Trigger]:
+                     first_index: int = 0, on_trigger: Callable[[Trigger], None] | None = None) -> list[Trigger]:
         """Run one firmware sequence (checked words and exposures) and wait for its triggers."""
         entries = [p.SequenceEntry(int(w), int(e)) for w, e in zip(words, exposures_us)]
         self._seq_events, self._seq_done = [], None
+        self._seq_entries, self._seq_first, self._seq_on_trigger = entries, first_index, on_trigger
         payload = p.pack_sequence(int(gap_us), entries)
         with self.link.lock:
             self.link.ensure_open()
@@ -221,6 +236,10 @@ class LightStage:
                                     f'{budget:.3f} s (got {len(self._seq_events)} triggers); LEDs switched off')
             finally:
                 self._running_seq = -1
+                self._seq_on_trigger = None
+        self._seq_entries: list[p.SequenceEntry] = []
+        self._seq_first = 0
+        self._seq_on_trigger: Callable[[Trigger], None] | None = None
         done = self._seq_done
         if done.status != p.SequenceStatus.COMPLETE:
             why = p.SequenceStatus(done.status).name if done.status in tuple(p.SequenceStatus) else done.status

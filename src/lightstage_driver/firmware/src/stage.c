@@ -169,9 +169,13 @@ static void sequence_finish(uint8_t status)
     link_send(sequence.seq, EVT_SEQUENCE_DONE, p, 2);
 }
 
+static void service_exposure_end(void);
+
 /* Every LED off, trigger low, armed pattern cleared, a sequence aborted with `status`. */
 static void all_off(uint8_t status)
 {
+    /* an exposure that ended just now is reported before the abort */
+    service_exposure_end();
     if (lit || exposure_running())
         exposure_abort_all_off();
     lit = 0;
