@@ -57,10 +57,6 @@ def test_apply_ros_environment_updates_this_process(monkeypatch, saved_environ):
     assert os.environ['ROS_DOMAIN_ID'] == '9'
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'apply_ros_environment() only os.environ.update()s, so a ROS_STATIC_PEERS already set in '
-    'the process survives (ros_environment() drops it from its copy); static peers are '
-    'contacted even with LOCALHOST discovery. Reported; remove this mark when fixed.'))
 def test_apply_ros_environment_drops_static_peers(monkeypatch, saved_environ):
     monkeypatch.setenv('ROS_STATIC_PEERS', '10.0.0.7')
     ros_env.apply_ros_environment(9)
@@ -116,10 +112,7 @@ def _whitelisted_profile(tmp_path):
 
 @pytest.mark.ros
 @pytest.mark.parametrize('profile', [
-    pytest.param('project', marks=pytest.mark.xfail(strict=True, reason=(
-        'fastdds_profile.xml: its UDPv4 transport has no interfaceWhiteList, so Fast DDS binds '
-        'the discovery/data ports on 0.0.0.0 even with LOCALHOST discovery (reported; the fix '
-        'is the whitelisted variant below). Remove this mark when the profile is fixed.'))),
+    'project',
     'project+loopback-whitelist',
 ])
 def test_ros_node_process_binds_no_port_beyond_loopback(profile, tmp_path):
@@ -163,6 +156,7 @@ def test_ros_node_process_sends_only_to_loopback(tmp_path):
     text = trace.read_text()
     v4 = re.findall(r'sa_family=AF_INET, sin_port=htons\(\d+\), sin_addr=inet_addr\("([\d.]+)"\)', text)
     v6 = re.findall(r'sa_family=AF_INET6, sin6_port=htons\(\d+\), sin6_flowinfo=[^,]+, inet_pton\(AF_INET6, "([^"]+)"', text)
+    print(f'{len(v4)} IPv4 and {len(v6)} IPv6 sends traced')
     assert len(v4) + len(v6) > 20, f'too few sends traced to judge:\n{text[:2000]}'
     assert {a for a in v4 if not a.startswith('127.')} == set()
     assert {a for a in v6 if a != '::1'} == set()

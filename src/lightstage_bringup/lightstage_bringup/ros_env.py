@@ -39,4 +39,8 @@ def ros_environment(domain_id: int | None = None, base: dict[str, str] | None = 
 
 def apply_ros_environment(domain_id: int | None = None) -> None:
     """Set the project's ROS settings in this process (call before importing rclpy)."""
-    os.environ.update(ros_environment(domain_id))
+    env = ros_environment(domain_id)
+    # Static peers are contacted even with LOCALHOST discovery: remove, not just override.
+    for name in set(os.environ) - set(env):
+        del os.environ[name]
+    os.environ.update(env)

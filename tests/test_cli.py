@@ -1,0 +1,33 @@
+"""The `lightstage` dispatcher: help, unknown verbs, and that every verb resolves."""
+import importlib
+
+import pytest
+
+from lightstage_bringup import cli
+
+
+def test_help_lists_every_verb(capsys):
+    assert cli.main(['--help']) == 0
+    out = capsys.readouterr().out
+    for verb in cli.VERBS:
+        assert verb in out
+
+
+def test_no_arguments_prints_help_and_fails(capsys):
+    assert cli.main([]) == 2
+    assert 'verbs:' in capsys.readouterr().out
+
+
+def test_unknown_verb_is_a_clear_error(capsys):
+    with pytest.raises(SystemExit) as excinfo:
+        cli.main(['frobnicate'])
+    assert excinfo.value.code == 2
+    err = capsys.readouterr().err
+    assert "unknown verb 'frobnicate'" in err
+    assert 'synth' in err
+
+
+@pytest.mark.parametrize('verb', sorted(cli.VERBS))
+def test_every_verb_points_at_a_callable(verb):
+    module, function, _ = cli.VERBS[verb]
+    assert callable(getattr(importlib.import_module(module), function))
