@@ -87,11 +87,18 @@ class SerialLink:
         self.device = ''
         self.lock = threading.RLock()      # one command at a time, across threads
         self._serial: serial.Serial | None = None
-        self._decoder = p.FrameDecoder()
+        self._decoder = self._new_decoder()
         self._seq = 0
         self.last_error = ''
 
     # ------------------------------------------------------------------ connection
+    @staticmethod
+    def _new_decoder() -> p.FrameDecoder:
+        # The host reads when it is scheduled, not when bytes arrive: a gap between two reads
+        # says nothing about the line, so a stalled frame is dropped at the reply timeout instead
+        # of the 10 ms inter-byte timeout (see PROTOCOL.md, changelog).
+        return p.FrameDecoder(inter_byte_timeout_s=float('inf'))
+
     @property
     def is_open(self) -> bool:
         return self._serial is not None
@@ -151,7 +158,7 @@ class SerialLink:
             raise LinkError(f'cannot open serial port {device}: {exc}') from exc
         self._serial = ser
         self.device = device
-        self._decoder = p.FrameDecoder()
+        self._decoder = self._new_decoder()
 
     def close(self) -> None:
         with self.lock:
