@@ -4,6 +4,7 @@ NAK reason, framing errors, resynchronisation and the duplicate-reply cache."""
 import struct
 import time
 
+import numpy as np
 import pytest
 
 from lightstage_driver import protocol as p
@@ -143,3 +144,19 @@ def test_longest_sequence_fits_the_receive_buffer(avr, wire, count):
     assert p.SequenceDone.unpack(wire.event(p.Event.SEQUENCE_DONE).payload).count_done == count
     assert avr.wait_for(lambda w, pl: len(w) >= 2 * count, 1.0)
     assert [w.word for w in avr.led_words()][::2] == [1 << k for k in range(count)]
+
+
+def test_line_noise_never_wedges_the_receiver(avr, wire):
+    """Random bytes (with SOFs salted in), a pause past the inter-byte timeout, then a
+    command: it is answered, and nothing on the pins moved."""
+    rng = np.random.default_rng(16)
+    for _ in range(12):
+        noise = bytearray(rng.integers(0, 256, rng.integers(1, 300), dtype='uint8').tobytes())
+        for at in rng.integers(0, len(noise), 4):
+            noise[at] = p.SOF
+        wire.send_raw(bytes(noise))
+        time.sleep(0.03)
+        wire.drain()      # BAD_CRC NAKs to the noise, whose SEQ may be anything
+        assert p.Status.unpack(wire.expect_ok(C.HEARTBEAT)).leds_lit is False
+    assert avr.crashed == '' and avr.running
+    assert avr.led_words() == [] and avr.trigger_pulses() == []
