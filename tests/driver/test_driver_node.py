@@ -235,6 +235,7 @@ def test_port_sim_starts_its_own_simulator():
 @pytest.mark.parametrize('port, params, reason', [
     ('/nonexistent/ttyACM9', (), '/nonexistent/ttyACM9 does not exist'),
     ('sim', ('sites:=6',), 'drives 8 sites x 4 channels, but this rig is configured as 6 x 4'),
+    ('sim', ('heartbeat_period_s:=0.8',), 'heartbeat_period_s 0.8 is too long for watchdog_ms 1000'),
 ])
 def test_a_configure_failure_leaves_the_node_up_unconfigured_with_the_reason(port, params, reason):
     proc = start_node(port, 'stage_driver_no_port', *params, domain_id=own_domain(3))

@@ -96,6 +96,12 @@ class LightStageDriverNode(LifecycleNode):
     # ------------------------------------------------------------------ lifecycle
     def on_configure(self, state: State) -> TransitionCallbackReturn:
         port = self.p('port')
+        if self.p('heartbeat_period_s') * 1000.0 > self.p('watchdog_ms') / 2:
+            self._note_error(f'heartbeat_period_s {self.p("heartbeat_period_s")} is too long for watchdog_ms '
+                             f'{self.p("watchdog_ms")}: LEDs left lit would go dark between heartbeats; '
+                             f'keep the period at most half the watchdog')
+            self.get_logger().error(self.last_error)
+            return TransitionCallbackReturn.FAILURE
         try:
             if is_sim_url(port):
                 self.backend = backend_from_url(port)
