@@ -295,7 +295,7 @@ static void handle_frame(void)
     silence_handled = 0;
 
     uint8_t cmd = frame.cmd;
-    if (cmd != CMD_IDENTIFY && cmd != CMD_HEARTBEAT && 0 && cache_valid && cache_seq == frame.seq &&
+    if (cmd != CMD_IDENTIFY && cmd != CMD_HEARTBEAT && cache_valid && cache_seq == frame.seq &&
         cache_cmd == cmd) {
         link_send(frame.seq, cache_reply_cmd, cache_payload, cache_len);
         return;
