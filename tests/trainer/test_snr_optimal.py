@@ -130,3 +130,25 @@ def test_compare_with_hadamard_reports_side_by_side():
     # 8 sites = S_7 plus one site alone: (7 * 7/16 + 1) / 8 of the identity's MSE
     assert r["mse"]["s_matrix"] == pytest.approx((7 * 7 / 16 + 1) / 8)
     assert r["gain_vs_identity"]["snr_optimal"] > 1.5
+
+
+def test_start_from_s_matrix_is_never_worse_than_the_s_code():
+    sp, sr, level = 0.94, 117.37, 20.0
+    s_mse = multiplexing_mse(s_matrix_for_sites(8), sp, sr, level)
+    m = SnrOptimalMultiplexer(noise=(sp, sr), n_iter=500, start="s_matrix").fit(level)
+    assert m.history_[0][1] == pytest.approx(s_mse) and m.mse_ <= s_mse
+    both = SnrOptimalMultiplexer(noise=(sp, sr), n_iter=500, start="both").fit(level)
+    ident = SnrOptimalMultiplexer(noise=(sp, sr), n_iter=500, start="identity").fit(level)
+    assert both.mse_ <= min(s_mse, ident.mse_ + 1e-12)
+    with pytest.raises(ValueError, match="start must be"):
+        SnrOptimalMultiplexer(noise=(sp, sr), start="random").fit(level)
+    with pytest.raises(ValueError, match="square"):
+        SnrOptimalMultiplexer(n_images=9, noise=(sp, sr), start="both").fit(level)
+
+
+def test_command_line_prints_the_comparison(capsys):
+    from mux_trainer.snr_optimal import main
+
+    assert main(["--noise", "0,1", "--mean-level", "100", "--iterations", "300"]) == 0
+    out = capsys.readouterr().out
+    assert "S-code" in out and "1.969" in out   # S_7 + 1 gain for signal-independent noise

@@ -128,6 +128,11 @@ class SnrOptimalMultiplexer(BaseEstimator):
         Matrices with condition number >= max_cond are rejected (authors' code: 100).
     noise_scale : float
         Variance factor (e.g. of a downscale); scales the MSE, never changes the optimum.
+    start : {"identity", "s_matrix", "both"}
+        Where the search starts: the identity (the paper), the S-code of
+        ``s_matrix_for_sites`` (square W only), or both, n_iter each, keeping the better.
+        From the identity the stochastic search can end below the S-code's MSE when
+        photon noise is weak (see docs/CLASSIFIER.md); "both" never does.
     seed : int
         The search is deterministic for a seed.
 
@@ -137,7 +142,7 @@ class SnrOptimalMultiplexer(BaseEstimator):
     """
 
     def __init__(self, n_sites=8, n_images=None, noise="sigma3", n_iter=20000, max_flips=8,
-                 max_cond=100.0, noise_scale=1.0, seed=0):
+                 max_cond=100.0, noise_scale=1.0, start="identity", seed=0):
         self.n_sites = n_sites
         self.n_images = n_images
         self.noise = noise
@@ -145,9 +150,10 @@ class SnrOptimalMultiplexer(BaseEstimator):
         self.max_flips = max_flips
         self.max_cond = max_cond
         self.noise_scale = noise_scale
+        self.start = start
         self.seed = seed
 
-    def _start(self) -> np.ndarray:
+    def _identity(self) -> np.ndarray:
         n = int(self.n_sites)
         m = n if self.n_images is None else int(self.n_images)
         if n < 1:
@@ -162,22 +168,44 @@ class SnrOptimalMultiplexer(BaseEstimator):
         # identity, repeated if there are more images than sites
         return np.eye(n, dtype=np.float64)[:, np.arange(m) % n]
 
+    def _starts(self, identity: np.ndarray) -> list[np.ndarray]:
+        starts = {"identity": ["identity"], "s_matrix": ["s_matrix"],
+                  "both": ["identity", "s_matrix"]}.get(self.start)
+        if starts is None:
+            raise ValueError(f"start must be 'identity', 's_matrix' or 'both', got {self.start!r}")
+        if "s_matrix" in starts and identity.shape[0] != identity.shape[1]:
+            raise ValueError("start='s_matrix' needs a square W (n_images=None)")
+        return [identity if s == "identity" else s_matrix_for_sites(identity.shape[0]).astype(np.float64)
+                for s in starts]
+
     def fit(self, mean_level, y=None):
         """Search W for images whose one-site mean gray level is ``mean_level``; returns self."""
         mean_level = float(mean_level)
         if not np.isfinite(mean_level) or mean_level < 0:
             raise ValueError(f"mean_level must be a finite gray level >= 0, got {mean_level}")
         sigma_p2, sigma_r2 = resolve_noise(self.noise)
-        best = self._start()
-        n, m = best.shape
+        identity = self._identity()
+        starts = self._starts(identity)
 
         def mse(W):
             return multiplexing_mse(W, sigma_p2, sigma_r2, mean_level, self.noise_scale)
 
-        best_mse = mse(best)
-        self.mse_identity_ = best_mse
-        history = [(0, best_mse)]
+        self.mse_identity_ = mse(identity)
         rng = np.random.default_rng(self.seed)
+        results = [self._search(W0, mse, rng) for W0 in starts]
+        best, best_mse, history = min(results, key=lambda r: r[1])
+        self.W_ = best.astype(np.float32)
+        self.mse_ = best_mse
+        self.cond_ = float(np.linalg.cond(best))
+        self.n_accepted_ = len(history) - 1
+        self.history_ = history
+        return self
+
+    def _search(self, best: np.ndarray, mse, rng: np.random.Generator):
+        """Stochastic bit-flip descent from ``best``: (W, mse, [(iteration, mse), ...])."""
+        n, m = best.shape
+        best_mse = mse(best)
+        history = [(0, best_mse)]
         flips = rng.integers(1, int(self.max_flips) + 1, size=int(self.n_iter))
         for it in range(int(self.n_iter)):
             trial = best.copy()
@@ -191,12 +219,7 @@ class SnrOptimalMultiplexer(BaseEstimator):
             if value < best_mse and np.linalg.cond(trial) < self.max_cond:
                 best, best_mse = trial, value
                 history.append((it + 1, value))
-        self.W_ = best.astype(np.float32)
-        self.mse_ = best_mse
-        self.cond_ = float(np.linalg.cond(best))
-        self.n_accepted_ = len(history) - 1
-        self.history_ = history
-        return self
+        return best, best_mse, history
 
     def columns(self, k: int) -> np.ndarray:
         """The first k columns (the patterns of a k-image classifier, paper's shortcut)."""
@@ -238,18 +261,25 @@ def compare_with_hadamard(n_sites: int = 8, noise="sigma3", mean_level: float = 
                           n_iter: int = 20000, seed: int = 0, noise_scale: float = 1.0) -> dict:
     """MSEs of the identity, the Hadamard S-code and the searched SNR-optimal matrix.
 
-    Returns a dict with ``mse`` (identity, s_matrix, snr_optimal), ``gain_vs_identity``
+    Returns a dict with ``mse`` (identity, s_matrix, snr_optimal: searched from the
+    identity as in the paper, snr_optimal_from_both: searched from the identity and from
+    the S-code), ``gain_vs_identity``
     (identity MSE / MSE), the S-code used, the searched W and the theoretical S-code gain
     for signal-independent noise, (n + 1)^2 / (4 n).
     """
     sigma_p2, sigma_r2 = resolve_noise(noise)
-    search = SnrOptimalMultiplexer(n_sites=n_sites, noise=(sigma_p2, sigma_r2), n_iter=n_iter,
-                                   seed=seed, noise_scale=noise_scale).fit(mean_level)
+    searches = {
+        start: SnrOptimalMultiplexer(n_sites=n_sites, noise=(sigma_p2, sigma_r2), n_iter=n_iter,
+                                     seed=seed, noise_scale=noise_scale, start=start).fit(mean_level)
+        for start in ("identity", "both")
+    }
+    search = searches["identity"]
     S = s_matrix_for_sites(n_sites)
     mse = {
         "identity": multiplexing_mse(np.eye(n_sites), sigma_p2, sigma_r2, mean_level, noise_scale),
         "s_matrix": multiplexing_mse(S, sigma_p2, sigma_r2, mean_level, noise_scale),
         "snr_optimal": search.mse_,
+        "snr_optimal_from_both": searches["both"].mse_,
     }
     order = int(S[:, 0].sum() * 2 - 1) if n_sites > 1 else 1
     return {
@@ -263,4 +293,34 @@ def compare_with_hadamard(n_sites: int = 8, noise="sigma3", mean_level: float = 
         "s_matrix_theory_gain": (order + 1) ** 2 / (4 * order),
         "s_matrix": S,
         "snr_optimal_W": search.W_,
+        "snr_optimal_from_both_W": searches["both"].W_,
     }
+
+
+def main(argv=None) -> int:
+    """Print the MSE comparison: python -m mux_trainer.snr_optimal [--noise sigma3] [--mean-level 50]."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description="SNR-optimal search vs Hadamard S-code (MSE)")
+    parser.add_argument("--noise", default="sigma3", help="sigma1|sigma2|sigma3 or SP2,SR2")
+    parser.add_argument("--mean-level", type=float, nargs="+", default=[10.0, 50.0, 200.0],
+                        help="mean gray level(s) of a one-site image")
+    parser.add_argument("--sites", type=int, default=8)
+    parser.add_argument("--iterations", type=int, default=20000)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    noise = tuple(float(v) for v in args.noise.split(",")) if "," in args.noise else args.noise
+    print(f"noise {args.noise}, {args.sites} sites, {args.iterations} iterations, seed {args.seed}")
+    print("MSE gain over the identity (identity MSE / MSE; higher is better)")
+    print(f"{'mean level':>10} {'S-code':>8} {'SNR-opt (paper)':>16} {'SNR-opt (both)':>15}  lit sites per image (paper)")
+    for level in args.mean_level:
+        r = compare_with_hadamard(args.sites, noise, level, args.iterations, args.seed)
+        g = r["gain_vs_identity"]
+        lit = r["snr_optimal_W"].sum(axis=0).astype(int).tolist()
+        print(f"{level:>10.1f} {g['s_matrix']:>8.3f} {g['snr_optimal']:>16.3f} "
+              f"{g['snr_optimal_from_both']:>15.3f}  {lit}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
