@@ -13,6 +13,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import weakref
 from pathlib import Path
 
 from .firmware_backend import FirmwareBackend, LatchedWord, TriggerPulse
@@ -35,6 +36,9 @@ class PythonSimBackend(FirmwareBackend):
         self.start_timeout_s = start_timeout_s
         self._dir = tempfile.mkdtemp(prefix='lightstage-sim-')
         self._link = os.path.join(self._dir, 'tty')
+        # the temp dir goes even if close() is never called (the process dies on its own when
+        # our end of its stdin closes)
+        self._cleanup = weakref.finalize(self, shutil.rmtree, self._dir, ignore_errors=True)
         self._proc: subprocess.Popen | None = None
         self._reader: threading.Thread | None = None
         self._lock = threading.Condition()
@@ -122,7 +126,7 @@ class PythonSimBackend(FirmwareBackend):
     def close(self) -> None:
         """Stop and remove the temp dir holding the port link."""
         self.stop()
-        shutil.rmtree(self._dir, ignore_errors=True)
+        self._cleanup()
 
     def __exit__(self, *exc) -> None:
         self.close()
