@@ -27,7 +27,7 @@ from .firmware_backend import FirmwareBackend, LatchedWord, TriggerPulse
 #: where the firmware sources and Makefile live (override with LIGHTSTAGE_FIRMWARE_DIR)
 DEFAULT_FIRMWARE_DIR = Path(__file__).resolve().parent.parent / 'firmware'
 #: Debian packages the build needs, named in error messages
-DEBIAN_PACKAGES = 'gcc-avr binutils-avr avr-libc simavr libsimavr-dev libsimavrparts1 libelf-dev make'
+DEBIAN_PACKAGES = 'gcc-avr binutils-avr avr-libc libsimavr-dev libelf-dev gcc make'
 
 
 class SimavrUnavailable(RuntimeError):
