@@ -56,7 +56,11 @@ def _load(capture_dir: str, hog_config):
     try:
         return load_capture(path, downscale_to=hog_config.image_size)
     except ValueError as exc:
-        raise SystemExit(f'lightstage: cannot load capture {capture_dir}: {exc}') from None
+        hint = ''
+        if 'larger size' in str(exc):
+            hint = ('; the features need images of at least --image-size px (default 120): '
+                    'for a small capture pass e.g. --image-size 24 --cell-px 6 --block-cells 4')
+        raise SystemExit(f'lightstage: cannot load capture {capture_dir}: {exc}{hint}') from None
 
 
 def train_main(argv: list[str] | None = None) -> int:
