@@ -1,9 +1,8 @@
 """The simulator as a standalone program: prints its pty and serves the protocol there."""
+import os
 import subprocess
 import sys
 from pathlib import Path
-
-import os
 
 from lightstage_driver.stage import LightStage
 

@@ -16,7 +16,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import serial
 from serial.tools import list_ports
@@ -51,6 +51,7 @@ class Reply:
     frame: p.Frame
     host_send_s: float       # monotonic time the command's last attempt was written
     host_recv_s: float       # monotonic time the reply was decoded
+    attempts: int = 1        # >1: the reply may answer an earlier attempt (no clock probe then)
 
 
 def resolve_port(port: str) -> str:
@@ -89,6 +90,7 @@ class SerialLink:
         self._serial: serial.Serial | None = None
         self._decoder = self._new_decoder()
         self._seq = 0
+        self._failures: list[str] = []   # why each attempt of the last command failed
         self.last_error = ''
 
     # ------------------------------------------------------------------ connection
@@ -222,14 +224,14 @@ class SerialLink:
     def _transact_once(self, cmd: int, payload: bytes, timeout_s: float, retries: int = 0) -> Reply | None:
         seq = self._next_seq()
         frame = p.encode_frame(seq, cmd, payload)
-        self._failures: list[str] = []
+        self._failures = []
         for attempt in range(retries + 1):
             if attempt:
                 self.stats.retries += 1
             sent = self._write(frame)
             reply = self._await_reply(seq, cmd, sent + timeout_s)
             if isinstance(reply, Reply):
-                return Reply(reply.frame, sent, reply.host_recv_s)
+                return Reply(reply.frame, sent, reply.host_recv_s, attempt + 1)
             self._failures.append(reply)
         return None
 

@@ -7,7 +7,6 @@ Trigger times come back on the firmware clock and mapped to the host's monotonic
 from __future__ import annotations
 
 import struct
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -103,25 +102,30 @@ class LightStage:
             self.link.stats.crc_errors += 1
 
     # ------------------------------------------------------------------ simple commands
+    def _add_probe(self, reply, raw_us: int) -> None:
+        if reply.attempts == 1:     # after a retry the reply may answer an earlier send
+            self.clock.add_probe(reply.host_send_s, raw_us, reply.host_recv_s)
+        else:
+            self.clock.unwrap(raw_us)
+
     def _probe(self) -> p.Status:
         reply = self.link._transact_once(p.Command.HEARTBEAT, b'', self.link.timeout_s, self.link.retries)
         if reply is None:
             raise LinkError(f'{self.link.port}: no HEARTBEAT reply while connecting')
         status = p.Status.unpack(reply.frame.payload)
-        self.clock.add_probe(reply.host_send_s, status.t_us, reply.host_recv_s)
+        self._add_probe(reply, status.t_us)
         return status
 
     def heartbeat(self) -> p.Status:
         """Keep the watchdog fed; also a clock-sync probe. Returns the firmware status."""
         reply = self.link.transact(p.Command.HEARTBEAT)
         status = p.Status.unpack(reply.frame.payload)
-        self.clock.add_probe(reply.host_send_s, status.t_us, reply.host_recv_s)
+        self._add_probe(reply, status.t_us)
         return status
 
     def all_off(self) -> None:
         reply = self.link.transact(p.Command.ALL_OFF)
-        self.clock.add_probe(reply.host_send_s, p.unpack_u32(reply.frame.payload, 'ALL_OFF reply'),
-                             reply.host_recv_s)
+        self._add_probe(reply, p.unpack_u32(reply.frame.payload, 'ALL_OFF reply'))
 
     def _set_watchdog_raw(self, timeout_ms: int) -> None:
         reply = self.link._transact_once(p.Command.SET_WATCHDOG, struct.pack('<H', timeout_ms),
@@ -164,8 +168,7 @@ class LightStage:
         if len(array) != 1:
             raise PatternError(f'set_pattern takes one pattern, got {len(array)}')
         reply = self._send_pattern(array[0], show_now)
-        self.clock.add_probe(reply.host_send_s, p.unpack_u32(reply.frame.payload, 'SET_PATTERN reply'),
-                             reply.host_recv_s)
+        self._add_probe(reply, p.unpack_u32(reply.frame.payload, 'SET_PATTERN reply'))
         return lit_word(array[0], self.identity.pwm_bits)
 
     def fire(self, exposure_us: int, index: int = 0, word: int | None = None,
