@@ -46,9 +46,9 @@ def running_nodes(nodes: dict[str, str], domain_id: int, timeout_s: float = 20.0
     sup.output = out
     env = child_environment(domain_id, **env_overrides)
     try:
+        for name, module in nodes.items():
+            sup.start(ProcessSpec(name, [*(wrap or []), *node_command(module, name)], env))
         with GraphWatcher(domain_id) as graph:
-            for name, module in nodes.items():
-                sup.start(ProcessSpec(name, [*(wrap or []), *node_command(module, name)], env))
             missing, dead = graph.wait_for(list(nodes), timeout_s, sup)
         assert dead is None, f'{dead} died during start-up:\n{out.getvalue()}'
         assert not missing, f'{missing} not up after {timeout_s} s:\n{out.getvalue()}'
@@ -89,6 +89,20 @@ class RosClient:
     def result(self, future, timeout_s: float = 10.0, what: str = 'a response'):
         self.spin_until(future.done, timeout_s, what)
         return future.result()
+
+    def call_until_answered(self, client, request, attempts: int = 4, per_try_s: float = 3.0):
+        """Call an idempotent service until it answers: the first response can be lost while
+        the reply path (server -> this client) is still being matched, which
+        `service_is_ready()` does not cover. Use it to warm a connection up."""
+        for _ in range(attempts):
+            future = client.call_async(request)
+            deadline = time.monotonic() + per_try_s
+            while not future.done() and time.monotonic() < deadline:
+                self.executor.spin_once(timeout_sec=0.05)
+            if future.done():
+                return future.result()
+            client.remove_pending_request(future)
+        raise AssertionError(f'no response after {attempts} calls of {per_try_s} s each')
 
     def close(self) -> None:
         self._rclpy.shutdown(context=self.context)

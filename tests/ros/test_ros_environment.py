@@ -148,8 +148,9 @@ def test_ros_node_process_sends_only_to_loopback(tmp_path):
         c = RosClient(domain_id)
         try:
             cli = c.node.create_client(ApplyPatterns, '/driver/apply_patterns')
-            c.spin_until(cli.service_is_ready, 10, 'the driver service')
-            resp = c.result(cli.call_async(ApplyPatterns.Request(patterns=[Pattern()] * 4, trigger=True)))
+            c.spin_until(cli.service_is_ready, 20, 'the driver service')
+            c.call_until_answered(cli, ApplyPatterns.Request(patterns=[Pattern()], trigger=False))
+            resp = c.result(cli.call_async(ApplyPatterns.Request(patterns=[Pattern()] * 4, trigger=True)), 20)
             assert resp.success and len(resp.sequences) == 4
         finally:
             c.close()

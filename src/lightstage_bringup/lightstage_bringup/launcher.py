@@ -272,9 +272,9 @@ def main(argv: list[str] | None = None) -> int:
                             sigterm_timeout_s=args.sigterm_timeout_s)
     try:
         t0 = time.monotonic()
-        with GraphWatcher(domain_id) as graph:
-            for n in names:
-                supervisor.start(ProcessSpec(n, node_command(registry[n].module, n, params), env))
+        for n in names:
+            supervisor.start(ProcessSpec(n, node_command(registry[n].module, n, params), env))
+        with GraphWatcher(domain_id) as graph:  # after the starts: rclpy loads while they do
             missing, dead = graph.wait_for(names, args.timeout_s, supervisor, stop)
         if dead is not None:
             p = supervisor[dead]
@@ -287,7 +287,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f'lightstage up: node(s) {", ".join(missing)} not discoverable in the ROS graph '
                   f'(ROS_DOMAIN_ID={domain_id}) after {args.timeout_s:g} s, or not answering their '
                   f'parameter service; their processes run but have not created and spun a node '
-                  f'named so (check their output above)', file=err)
+                  f'named so (check their output above, or raise --timeout-s)', file=err)
             rc = EXIT_NOT_DISCOVERED
         else:
             up = ', '.join(f'{p.name} (pid {p.pid})' for p in supervisor.processes)
