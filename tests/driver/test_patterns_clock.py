@@ -65,3 +65,17 @@ def test_clock_maps_with_the_tightest_probe():
     clock.add_probe(101.4999, 1_500_000, 101.5001)                  # rtt 0.2 ms
     assert clock.uncertainty_s == pytest.approx(1e-4)
     assert clock.to_host(2_000_000) == pytest.approx(102.0, abs=1e-6)
+
+
+def test_sim_urls():
+    from lightstage_driver.sim_backend import backend_from_url, is_sim_url
+    assert is_sim_url('sim') and is_sim_url('sim://?pwm_bits=8') and not is_sim_url('/dev/ttyACM0')
+    backend = backend_from_url('sim://?pwm_bits=12&latency_ms=2.5')
+    assert '--pwm-bits' in backend.options and '12' in backend.options and '2.5' in backend.options
+    backend.close()
+    with pytest.raises(ValueError, match=r"unknown simulator option\(s\) \['pwm'\]"):
+        backend_from_url('sim://?pwm=8')
+    with pytest.raises(ValueError, match='bad simulator option'):
+        backend_from_url('sim://?pwm_bits=eight')
+    with pytest.raises(ValueError, match='pwm_bits must be 0'):
+        backend_from_url('sim://?pwm_bits=7')

@@ -17,6 +17,7 @@ import weakref
 from pathlib import Path
 
 from .firmware_backend import FirmwareBackend, LatchedWord, TriggerPulse
+from .firmware_model import FirmwareLimits
 
 _PACKAGE_PARENT = str(Path(__file__).resolve().parent.parent)
 
@@ -29,6 +30,8 @@ class PythonSimBackend(FirmwareBackend):
     def __init__(self, pwm_bits: int = 0, latency_ms: float = 0.0, emulate_baud: int = 0,
                  clock_offset_us: int = 0, min_exposure_us: int = 20,
                  max_exposure_us: int = 2_000_000, start_timeout_s: float = 10.0):
+        FirmwareLimits(pwm_bits=pwm_bits, min_exposure_us=min_exposure_us,
+                       max_exposure_us=max_exposure_us)    # refuse bad limits here, not in the child
         self.options = ['--pwm-bits', str(pwm_bits), '--latency-ms', str(latency_ms),
                         '--emulate-baud', str(emulate_baud), '--clock-offset-us', str(clock_offset_us),
                         '--min-exposure-us', str(min_exposure_us),

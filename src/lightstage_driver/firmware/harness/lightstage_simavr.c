@@ -43,6 +43,7 @@
 #include "avr_ioport.h"
 #include "avr_uart.h"
 #include "sim_avr.h"
+#include "sim_cycle_timers.h"
 #include "sim_elf.h"
 #include "sim_irq.h"
 
@@ -78,7 +79,7 @@ static int uart_xoff;
  * idle for TX_IDLE_CYCLES (a bit over two byte times), so that a frame reaches the host in
  * one write even if this process is descheduled between two of its bytes (the host's
  * decoder drops a frame that stalls for 10 ms between bytes). */
-#define TX_IDLE_CYCLES 4000
+#define TX_IDLE_CYCLES 2000
 static uint8_t tx_queue[65536];
 static size_t tx_len;
 static avr_cycle_count_t tx_last_cycle;
@@ -155,6 +156,15 @@ static int64_t now_ns(void)
 /* simavr's own sleep callback would usleep(); throttling is done in the main loop. */
 static void no_sleep(avr_t *a, avr_cycle_count_t how_long)
 {
+}
+
+/* A sleeping CPU is skipped to its next timer event (up to a millisecond away at the
+ * firmware's 1 kHz tick), which would put simulated time that far ahead of wall time; host
+ * input arriving then would be answered only when wall time catches up.  This timer keeps
+ * such skips within one slice. */
+static avr_cycle_count_t pace(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    return when + SLICE_CYCLES;
 }
 
 static void reset_observers(void)
@@ -244,6 +254,8 @@ static int read_commands(int *hold)
             fflush(stderr);
         } else if (!strcmp(line, "reset")) {
             avr_reset(avr);
+            avr_cycle_timer_cancel(avr, pace, NULL);
+            avr_cycle_timer_register(avr, SLICE_CYCLES, pace, NULL);
             reset_observers();
             fprintf(events, "R %llu\n", (unsigned long long)avr->cycle);
         } else
@@ -319,6 +331,7 @@ int main(int argc, char **argv)
     avr_init(avr);
     avr_load_firmware(avr, &fw);
     avr->sleep = no_sleep;
+    avr_cycle_timer_register(avr, SLICE_CYCLES, pace, NULL);
     avr->log = 1; /* errors only */
 
     uint32_t flags = 0; /* no stdio echo of UART output, no poll sleeping */
