@@ -138,10 +138,19 @@ class _Binner:
         # index of (cell, signed bin 0) for every pixel of the cropped image
         self.cell_base = (cell_of_pixel * self.n_bins_signed).ravel()
         self.per_image = n_cells * n_cells * self.n_bins_signed
+        self._offsets_by_n: dict[int, np.ndarray] = {}
         # radians -> bins of 180/orientations degrees. One multiply instead of skimage's
         # rad2deg and comparisons: bins can differ only for angles within ~1e-13 degrees of
         # a bin edge, which float32 gray levels do not produce.
         self.bins_per_radian = config.orientations / np.pi
+
+    def _offsets(self, n: int) -> np.ndarray:
+        """Index of (image, cell, signed bin 0) for every pixel of a chunk of n images."""
+        offsets = self._offsets_by_n.get(n)
+        if offsets is None:
+            offsets = self.cell_base[None, :] + (np.arange(n, dtype=np.intp) * self.per_image)[:, None]
+            self._offsets_by_n[n] = offsets
+        return offsets
 
     def histograms(self, chunk: np.ndarray) -> np.ndarray:
         """Cell histograms (n, n_cells, n_cells, orientations) in float64, divided by cell area."""
@@ -170,8 +179,7 @@ class _Binner:
         np.putmask(signed_bin, g_row == 0, cfg.orientations)
         # (an angle that rounds to +180 with g_row != 0 needs a subnormal g_row; keep it in range)
         np.minimum(signed_bin, self.n_bins_signed - 1, out=signed_bin)
-        signed_bin += self.cell_base[None, :]
-        signed_bin += (np.arange(n, dtype=np.intp) * self.per_image)[:, None]
+        signed_bin += self._offsets(n)
         magnitude = np.multiply(g_row, g_row, dtype=np.float64)
         magnitude += np.multiply(g_col, g_col, dtype=np.float64)
         np.sqrt(magnitude, out=magnitude)  # sqrt(x*x + y*y): faster than np.hypot
