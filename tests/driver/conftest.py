@@ -17,8 +17,11 @@ BACKENDS = ['python', 'avr']
 
 
 def make_backend(kind: str):
+    """A started backend of that kind (skips the test when the AVR one cannot run here)."""
     if kind == 'python':
-        return PythonSimBackend()
+        backend = PythonSimBackend()
+        backend.start()
+        return backend
     try:
         from lightstage_driver.simavr_backend import SimavrBackend
     except ImportError as exc:
@@ -29,7 +32,6 @@ def make_backend(kind: str):
         backend.start()
     except (FileNotFoundError, OSError, RuntimeError) as exc:
         pytest.skip(f'AVR firmware under simavr could not start ({exc}); run its `make` first')
-    backend.stop()
     return backend
 
 
@@ -37,7 +39,6 @@ def make_backend(kind: str):
 def firmware(request):
     """A started backend shared by a module's tests (restarted if a test killed it)."""
     backend = make_backend(request.param)
-    backend.start()
     yield backend
     if hasattr(backend, 'close'):
         backend.close()
