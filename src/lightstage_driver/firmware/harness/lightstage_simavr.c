@@ -161,10 +161,12 @@ static void no_sleep(avr_t *a, avr_cycle_count_t how_long)
 /* A sleeping CPU is skipped to its next timer event (up to a millisecond away at the
  * firmware's 1 kHz tick), which would put simulated time that far ahead of wall time; host
  * input arriving then would be answered only when wall time catches up.  This timer keeps
- * such skips within one slice. */
+ * such skips short. */
+#define PACE_CYCLES 4800 /* 0.3 ms: ~0.15 ms added latency on average; ~9 % of a core idle */
+
 static avr_cycle_count_t pace(avr_t *a, avr_cycle_count_t when, void *param)
 {
-    return when + SLICE_CYCLES;
+    return when + PACE_CYCLES;
 }
 
 static void reset_observers(void)
@@ -255,7 +257,7 @@ static int read_commands(int *hold)
         } else if (!strcmp(line, "reset")) {
             avr_reset(avr);
             avr_cycle_timer_cancel(avr, pace, NULL);
-            avr_cycle_timer_register(avr, SLICE_CYCLES, pace, NULL);
+            avr_cycle_timer_register(avr, PACE_CYCLES, pace, NULL);
             reset_observers();
             fprintf(events, "R %llu\n", (unsigned long long)avr->cycle);
         } else
@@ -331,7 +333,7 @@ int main(int argc, char **argv)
     avr_init(avr);
     avr_load_firmware(avr, &fw);
     avr->sleep = no_sleep;
-    avr_cycle_timer_register(avr, SLICE_CYCLES, pace, NULL);
+    avr_cycle_timer_register(avr, PACE_CYCLES, pace, NULL);
     avr->log = 1; /* errors only */
 
     uint32_t flags = 0; /* no stdio echo of UART output, no poll sleeping */
