@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -142,3 +143,16 @@ def _alive(pid: int) -> bool:
         return False
     with open(f'/proc/{pid}/stat') as f:
         return f.read().split(')')[-1].split()[0] != 'Z'
+
+
+def test_up_with_the_project_nodes_and_config(tmp_path):
+    """The default set (driver, camera, classifier) from the registry with the shipped params
+    YAML: every node starts, spins and stops cleanly (unconfigured camera/classifier only log)."""
+    config = Path(__file__).resolve().parents[2] / 'src' / 'lightstage_bringup' / 'config' / 'lightstage.yaml'
+    p = run_up('--params', str(config), '--exit-after-up', '--log-dir', str(tmp_path), timeout_s=60)
+    assert p.returncode == 0, p.stdout + p.stderr
+    (up_line,) = [ln for ln in p.stdout.splitlines() if ln.startswith('graph up: ')]
+    for name in launcher.DEFAULT_NODES:
+        assert f'{name} (pid ' in up_line
+        assert (tmp_path / f'{name}.log').is_file()
+    assert p.stderr.count('exit code 0 after SIGINT') == len(launcher.DEFAULT_NODES), p.stderr

@@ -1,8 +1,8 @@
 """Stand-in for the driver node in the cross-process interface tests.
 
-Serves ApplyPatterns on `~/apply_patterns` and publishes one IlluminationState on
-`illumination` per pattern when the request asks for triggers, as the real driver does;
-no hardware behind it.
+Serves ApplyPatterns on `/lightstage/apply_patterns` and publishes one IlluminationState
+on `/illumination` per pattern when the request asks for triggers, the names and
+behaviour of lightstage_driver.driver_node; no hardware or firmware behind it.
 """
 import sys
 
@@ -18,18 +18,21 @@ from lightstage_interfaces.srv import ApplyPatterns
 class FakeDriver(Node):
     def __init__(self):
         super().__init__('fake_driver')
-        self.publisher = self.create_publisher(IlluminationState, 'illumination', 50)
-        self.create_service(ApplyPatterns, '~/apply_patterns', self.apply_patterns)
+        self.publisher = self.create_publisher(IlluminationState, '/illumination', 50)
+        self.create_service(ApplyPatterns, '/lightstage/apply_patterns', self.apply_patterns)
+        self.frame_id = self.declare_parameter('frame_id', 'lightstage').value
         self.next_request_id = 1
         self.next_sequence = 0
 
     def apply_patterns(self, request, response):
         for i, p in enumerate(request.patterns):
             values = np.asarray(p.intensities)
-            if not np.all((values >= 0) & (values <= 1)):
+            outside = np.flatnonzero((values < 0) | (values > 1))
+            if outside.size:
+                led = int(outside[0])
                 response.success = False
-                response.message = (f'pattern {i}: intensities must lie in 0..1, got '
-                                    f'{values.min():g}..{values.max():g}; scale the pattern')
+                response.message = (f'pattern {i}, LED {led} (site {led // 4}, channel {led % 4}) is '
+                                    f'{values[led]:g}, outside 0..1; scale the pattern')
                 return response
         response.request_id = self.next_request_id
         self.next_request_id += 1
@@ -39,7 +42,7 @@ class FakeDriver(Node):
         for i, p in enumerate(request.patterns):
             msg = IlluminationState()
             msg.header.stamp = self.get_clock().now().to_msg()
-            msg.header.frame_id = 'rig'
+            msg.header.frame_id = self.frame_id
             msg.sequence = self.next_sequence
             msg.request_id = response.request_id
             msg.index_in_request = i

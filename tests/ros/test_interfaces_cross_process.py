@@ -1,30 +1,44 @@
 """The custom interfaces across processes: a message, a service call and an action with
 feedback between node processes started through the supervisor (as `lightstage up` does).
 
-The node processes are stand-ins (ros_fake_driver_node.py, ros_fake_trainer_node.py) until
-the real driver and trainer nodes exist; switching is a change of NODES and the names below.
+The driver side runs twice: with a stand-in (ros_fake_driver_node.py) and with the real
+lightstage_driver node on its Python firmware simulator. The trainer is a stand-in
+(ros_fake_trainer_node.py) until mux_trainer.trainer_node exists; switching is a change
+of TRAINER (and, for the real one, its parameters).
 """
 import math
 
 import numpy as np
 import pytest
+import yaml
 
 from ros_helpers import RosClient, fresh_domain_id, running_nodes
 
 pytestmark = pytest.mark.ros
 
-# ros node name -> module whose main() runs it
-NODES = {'driver': 'ros_fake_driver_node', 'trainer': 'ros_fake_trainer_node'}
-APPLY_PATTERNS = '/driver/apply_patterns'
+# driver implementations: module whose main() runs it, its parameters
+DRIVERS = {
+    'stand-in': ('ros_fake_driver_node', {'frame_id': 'rig'}),
+    # pwm_bits=8: a dimming rig, so IlluminationState carries the requested intensities
+    'lightstage_driver': ('lightstage_driver.driver_node', {'frame_id': 'rig', 'port': 'sim://?pwm_bits=8'}),
+}
+TRAINER = ('ros_fake_trainer_node', {})
+APPLY_PATTERNS = '/lightstage/apply_patterns'
 ILLUMINATION = '/illumination'
 TRAIN = '/trainer/train'
 
 
-@pytest.fixture(scope='module')
-def graph():
-    """Both node processes and a client node, shared by this module's tests."""
+@pytest.fixture(scope='module', params=list(DRIVERS))
+def graph(request, tmp_path_factory):
+    """The driver and trainer node processes and a client node, shared by this module's tests."""
+    driver_module, driver_params = DRIVERS[request.param]
+    trainer_module, trainer_params = TRAINER
+    params = tmp_path_factory.mktemp('params') / 'params.yaml'
+    params.write_text(yaml.safe_dump({'driver': {'ros__parameters': driver_params},
+                                      'trainer': {'ros__parameters': trainer_params}}))
     domain_id = fresh_domain_id()
-    with running_nodes(NODES, domain_id) as sup:
+    with running_nodes({'driver': driver_module, 'trainer': trainer_module}, domain_id,
+                       params_file=str(params)) as sup:
         client = RosClient(domain_id)
         try:
             yield sup, client
@@ -93,7 +107,7 @@ def test_bad_request_is_refused_with_a_message_and_publishes_nothing(graph):
     bad[1].intensities[5] = 1.5
     resp = c.result(cli.call_async(ApplyPatterns.Request(patterns=bad, trigger=True)))
     assert not resp.success
-    assert 'pattern 1' in resp.message and '0..1' in resp.message
+    assert 'pattern 1, LED 5' in resp.message
     assert len(resp.sequences) == 0
     c.spin_for(0.5)  # a message published by mistake would arrive within this
     assert received == []

@@ -100,32 +100,38 @@ def test_sockets_of_finds_a_socket_this_test_binds():
 
 
 # -- ROS processes -------------------------------------------------------------------
-def _whitelisted_profile(tmp_path):
-    """The project's profile with its UDPv4 transport restricted to 127.0.0.1."""
-    text = ros_env.fastdds_profile_path().read_text()
-    text = text.replace('<type>UDPv4</type>', '<type>UDPv4</type>\n        '
-                        '<interfaceWhiteList><address>127.0.0.1</address></interfaceWhiteList>')
-    path = tmp_path / 'profile_loopback.xml'
+def _profile_without_whitelist(tmp_path):
+    """The project's profile with the loopback whitelist taken out (the state before it was
+    added): the negative control that shows the socket check can fail."""
+    text = re.sub(r'<interfaceWhiteList>.*?</interfaceWhiteList>', '',
+                  ros_env.fastdds_profile_path().read_text(), flags=re.S)
+    assert '<type>UDPv4</type>' in text and 'interfaceWhiteList>' not in text
+    path = tmp_path / 'profile_no_whitelist.xml'
     path.write_text(text)
     return str(path)
 
 
-@pytest.mark.ros
-@pytest.mark.parametrize('profile', [
-    'project',
-    'project+loopback-whitelist',
-])
-def test_ros_node_process_binds_no_port_beyond_loopback(profile, tmp_path):
-    domain_id = fresh_domain_id()
-    overrides = {}
-    if profile != 'project':
-        overrides['FASTRTPS_DEFAULT_PROFILES_FILE'] = _whitelisted_profile(tmp_path)
-    with running_nodes(DRIVER, domain_id, **overrides) as sup:
+def _driver_sockets(domain_id: int, **env_overrides):
+    with running_nodes(DRIVER, domain_id, **env_overrides) as sup:
         sockets = sockets_of(sup['driver'].pid)
     rtps_ports = [s for s in sockets if 7400 + 250 * domain_id <= s.port < 7400 + 250 * (domain_id + 1)]
     assert rtps_ports, f'no DDS ports found among {[str(s) for s in sockets]}: nothing was checked'
+    return sockets
+
+
+@pytest.mark.ros
+def test_ros_node_process_binds_no_port_beyond_loopback():
+    sockets = _driver_sockets(fresh_domain_id())
     bad = listening_beyond_loopback(sockets, ephemeral_port_low())
     assert not bad, f'listening beyond loopback: {[str(s) for s in bad]}'
+
+
+@pytest.mark.ros
+def test_socket_check_flags_a_profile_without_the_loopback_whitelist(tmp_path):
+    sockets = _driver_sockets(fresh_domain_id(),
+                              FASTRTPS_DEFAULT_PROFILES_FILE=_profile_without_whitelist(tmp_path))
+    bad = listening_beyond_loopback(sockets, ephemeral_port_low())
+    assert bad and all(str(s.address) == '0.0.0.0' for s in bad), [str(s) for s in sockets]
 
 
 def _strace_works() -> bool:
@@ -147,7 +153,7 @@ def test_ros_node_process_sends_only_to_loopback(tmp_path):
     with running_nodes(DRIVER, domain_id, wrap=wrap):
         c = RosClient(domain_id)
         try:
-            cli = c.node.create_client(ApplyPatterns, '/driver/apply_patterns')
+            cli = c.node.create_client(ApplyPatterns, '/lightstage/apply_patterns')
             c.spin_until(cli.service_is_ready, 20, 'the driver service')
             c.call_until_answered(cli, ApplyPatterns.Request(patterns=[Pattern()], trigger=False))
             resp = c.result(cli.call_async(ApplyPatterns.Request(patterns=[Pattern()] * 4, trigger=True)), 20)
