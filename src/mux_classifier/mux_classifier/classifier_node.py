@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 import rclpy
+from builtin_interfaces.msg import Time
 from lightstage_interfaces.msg import ClassificationResult, Pattern
 from lightstage_interfaces.srv import ApplyPatterns, Classify
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -27,7 +28,6 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
-from builtin_interfaces.msg import Time
 
 from .inference import (AcquisitionPlan, ImageMatcher, InferenceError, classify_on_stage,
                         image_from_buffer)
@@ -115,6 +115,9 @@ class ClassifierNode(Node):
             self.get_logger().error(self.artifact_error)
             return
         a = self.artifact
+        # first use of the HOG/linear code costs tens of ms: pay it now, not in a request
+        size = a.hog_config.image_size
+        a.predict_stack(np.zeros((a.n_images[-1], size, size), np.float32))
         self.get_logger().info(f'loaded {path}: {len(a.class_names)} classes, {a.mode} patterns, '
                                f'classifiers for {a.n_images} images, noise {a.noise.get("name")}')
 
