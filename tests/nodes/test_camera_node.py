@@ -142,3 +142,16 @@ def test_a_missing_capture_leaves_the_node_up_reporting_the_error(harness_factor
     (bad,) = h.set(capture_dir=str(missing))
     assert not bad.successful and 'not a directory' in bad.reason
     assert h.last_status().level == OK  # the working capture was kept
+
+
+def test_an_unknown_start_sample_is_reported_and_fixing_it_starts_the_camera(harness_factory,
+                                                                             stage_capture):
+    h = harness_factory(capture_dir=str(stage_capture), sample='kiwi-real/s0/p00')
+    status = h.last_status()
+    assert status.level == ERROR and "unknown sample 'kiwi-real/s0/p00'" in status.message
+    (ok,) = h.set(sample='banana-fake/s1/p01')  # accepted while down, and retried
+    assert ok.successful
+    status = h.last_status()
+    assert status.level == OK and 'banana-fake/s1/p01' in status.message
+    h.trigger(1, 3_000_000_000, np.ones(32))
+    assert h.spin_until(lambda: len(h.images) == 1)

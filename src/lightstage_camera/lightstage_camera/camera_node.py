@@ -135,7 +135,11 @@ class CameraNode(Node):
 
     # ------------------------------------------------------------------ backend
     def _make_backend(self, s: dict) -> SimCameraBackend:
-        """A backend for the settings `s`; raises ValueError/OSError saying what is wrong."""
+        """A backend for the settings `s`; raises ValueError/OSError saying what is wrong.
+
+        A real camera backend (its own module implementing `CameraBackend`) is chosen here by
+        the `backend` parameter; the `sim`-only settings would then not apply to it.
+        """
         backend = self.p('backend')
         if backend not in BACKENDS:
             raise ValueError(f'unknown backend {backend!r}; this node has {", ".join(BACKENDS)}')
@@ -168,29 +172,30 @@ class CameraNode(Node):
             return SetParametersResult(successful=True)
         s = self._settings(changes)
         try:
-            if 'capture_dir' in changes or self.backend is None:
-                if self.backend is None and 'capture_dir' not in changes:
-                    # no capture to check a sample against: keep the value for the next load
-                    parse_noise(s['noise'])
-                    return SetParametersResult(successful=True)
-                new = self._make_backend(s)
-                if self.backend is not None:
-                    self.backend.close()
+            parse_noise(s['noise'])
+            if self.backend is None:
+                # not running: take the value and retry, so settings can be fixed one by one
+                # (the remaining problem, if any, goes to the log and /diagnostics)
+                self._start_backend(s)
+                return SetParametersResult(successful=True)
+            if 'capture_dir' in changes:
+                new = self._make_backend(s)  # the working backend stays if this fails
+                self.backend.close()
                 self.backend, self.error = new, ''
-            else:
-                cam = self.backend.camera
-                # validate everything first, so a rejected call changes nothing
-                index = resolve_sample(cam.modelset, s['sample'])
-                noise = parse_noise(s['noise'])
-                cam.sample_index, cam.noise = index, noise
-                cam.dimmer = float(s['dimmer'])
-                cam.default_gain_db = float(s['default_gain_db'])
-                if 'seed' in changes:
-                    cam.rng = np.random.default_rng(None if int(s['seed']) < 0 else int(s['seed']))
+                self.get_logger().info(f'loaded {s["capture_dir"]}; sample {new.camera.sample_name} '
+                                       'on the stage')
+                return SetParametersResult(successful=True)
+            cam = self.backend.camera
+            index = resolve_sample(cam.modelset, s['sample'])  # validate before changing anything
+            cam.sample_index, cam.noise = index, parse_noise(s['noise'])
+            cam.dimmer = float(s['dimmer'])
+            cam.default_gain_db = float(s['default_gain_db'])
+            if 'seed' in changes:
+                cam.rng = np.random.default_rng(None if int(s['seed']) < 0 else int(s['seed']))
         except (ValueError, OSError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        self.get_logger().info(f'sample {self.backend.camera.sample_name} on the stage'
-                               if 'sample' in changes else f'camera settings changed: {changes}')
+        if 'sample' in changes:
+            self.get_logger().info(f'sample {cam.sample_name} on the stage')
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ frames
