@@ -18,7 +18,7 @@ What makes it fast (see ``benchmarks/bench_hog.py`` for the figures):
   (no floating-point ``% 180``, no ``rad2deg``) and a single ``np.bincount`` over
   (image, cell, signed bin) builds every histogram of the chunk; the two signed halves
   are then folded into the 9 unsigned bins;
-- the magnitude is ``sqrt(x*x + y*y)``, not ``np.hypot``.
+- the magnitude is ``sqrt(x*x + y*y)`` in float32, not ``np.hypot`` in float64.
 
 skimage details reproduced on purpose: central differences computed in the input's
 float precision (float32 here) with zero gradient on the border rows/columns; a pixel
@@ -180,11 +180,20 @@ class _Binner:
         # (an angle that rounds to +180 with g_row != 0 needs a subnormal g_row; keep it in range)
         np.minimum(signed_bin, self.n_bins_signed - 1, out=signed_bin)
         signed_bin += self._offsets(n)
-        magnitude = np.multiply(g_row, g_row, dtype=np.float64)
-        magnitude += np.multiply(g_col, g_col, dtype=np.float64)
-        np.sqrt(magnitude, out=magnitude)  # sqrt(x*x + y*y): faster than np.hypot
-        hist = np.bincount(signed_bin.ravel(), weights=magnitude.ravel(),
+        # sqrt(x*x + y*y) in float32 (SIMD; 5x faster than float64 or np.hypot here, and
+        # within ~1e-7 relative of skimage's float64 hypot); bincount sums in float64.
+        with np.errstate(over="ignore"):  # handled below
+            magnitude = g_row * g_row
+            magnitude += g_col * g_col
+        np.sqrt(magnitude, out=magnitude)
+        hist = np.bincount(signed_bin.ravel(), weights=magnitude.ravel().astype(np.float64),
                            minlength=n * self.per_image)
+        if not np.isfinite(hist).all():
+            # |gradient| > ~1.8e19 overflows float32 squares: redo this chunk in float64
+            # (float32 underflow of tiny gradients is harmless: eps dominates the norm)
+            magnitude = np.hypot(g_row.astype(np.float64), g_col.astype(np.float64))
+            hist = np.bincount(signed_bin.ravel(), weights=magnitude.ravel(),
+                               minlength=n * self.per_image)
         hist = hist.reshape(n, cfg.n_cells, cfg.n_cells, 2, cfg.orientations)
         # Fold signed bins: angle a and a + 180 are the same unsigned orientation.
         unsigned = hist[:, :, :, 0, :] + hist[:, :, :, 1, :]
