@@ -174,3 +174,13 @@ def test_classify_on_stage_reports_driver_failures_and_short_answers(stage_artif
     with pytest.raises(MissingImagesError, match='4 of 4 images did not arrive within'):
         classify_on_stage(stage_artifact, lambda plan, t: ([1, 2, 3, 4], [1, 2, 3, 4]),
                           ImageMatcher(), max_images=4, timeout_s=0.3)
+
+
+def test_the_cores_do_not_load_rclpy():
+    import subprocess
+    import sys
+    code = ('import sys, lightstage_camera.sim_camera, lightstage_camera.camera_backend, '
+            'mux_classifier.inference; print("rclpy" in sys.modules)')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == 'False'
