@@ -1,4 +1,9 @@
-"""The decoder takes anything: random and mutated frames raise only the protocol's errors."""
+"""The decoder takes anything: random and mutated frames raise only the protocol's errors.
+
+LIGHTSTAGE_FUZZ_EXAMPLES=5000 runs a longer fuzz (default 300 examples per test).
+"""
+import os
+
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -35,7 +40,7 @@ def mutated_frames(draw):
     return bytes(frame)
 
 
-FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+FUZZ = settings(max_examples=int(os.environ.get('LIGHTSTAGE_FUZZ_EXAMPLES', 300)), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 PARSERS = [p.Identity.unpack, p.Status.unpack, p.Nak.unpack, p.TriggerEvent.unpack, p.SequenceDone.unpack,
            p.unpack_set_pattern, p.unpack_set_levels, p.unpack_sequence_header,
