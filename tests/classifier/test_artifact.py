@@ -171,3 +171,13 @@ def test_noise_from_object():
 
     assert noise_to_dict(Model(), name="sigma1") == {
         "name": "sigma1", "sigma_p2": 0.25, "sigma_r2": 8.35, "gain_db": 6.0, "exposure_ms": 84.0}
+
+
+def test_corrupted_bytes_are_refused(artifact, tmp_path):
+    artifact.save(tmp_path / "a.npz")
+    data = bytearray((tmp_path / "a.npz").read_bytes())
+    middle = len(data) // 3
+    data[middle:middle + 64] = bytes(64)          # zero a stretch inside a compressed member
+    (tmp_path / "c.npz").write_bytes(bytes(data))
+    with pytest.raises(ArtifactError, match="not a readable lightstage classifier file"):
+        TrainedArtifact.load(tmp_path / "c.npz")
