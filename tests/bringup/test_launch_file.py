@@ -34,6 +34,21 @@ def test_launch_file_compiles_and_defines_generate_launch_description(tmp_path):
     assert {'LaunchDescription', 'Node', 'DeclareLaunchArgument'} <= imported
 
 
+def test_launch_file_keeps_discovery_on_this_machine():
+    tree = ast.parse(LAUNCH.read_text())
+    env = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and getattr(node.func, 'id', None) == 'SetEnvironmentVariable':
+            name = ast.literal_eval(node.args[0])
+            env[name] = ast.unparse(node.args[1])
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == "'LOCALHOST'"
+    unset = [ast.literal_eval(n.args[0]) for n in ast.walk(tree) if isinstance(n, ast.Call)
+             and getattr(n.func, 'id', None) == 'UnsetEnvironmentVariable']
+    assert unset == ['ROS_STATIC_PEERS']
+    # the profile setup.py installs to share/lightstage_bringup/config
+    assert "'fastdds_profile.xml'" in env['FASTRTPS_DEFAULT_PROFILES_FILE']
+
+
 def test_launch_file_starts_the_registry_nodes_with_executables_that_exist():
     tree = ast.parse(LAUNCH.read_text())
     table = next(ast.literal_eval(n.value) for n in ast.walk(tree)

@@ -4,22 +4,22 @@
 
 The same nodes, names and parameters as `lightstage up` (lightstage_bringup.launcher), which
 is what runs where `launch` is not available (the pip-only setup). Node names are the keys
-of config/lightstage.yaml. Set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (and the Fast DDS
-profile) as `lightstage_bringup.ros_env` does, or run through `lightstage up`.
+of config/lightstage.yaml. Like `lightstage_bringup.ros_env`, it keeps discovery on this
+machine and uses the project's Fast DDS profile (large shared-memory segment for images).
 """
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable, UnsetEnvironmentVariable
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 
 def generate_launch_description():
-    default_params = os.path.join(get_package_share_directory('lightstage_bringup'),
-                                  'config', 'lightstage.yaml')
+    share = get_package_share_directory('lightstage_bringup')
+    default_params = os.path.join(share, 'config', 'lightstage.yaml')
     params_file = LaunchConfiguration('params_file')
     # (name, package, executable in lib/<package>/); names match the launcher's registry
     nodes = [
@@ -28,6 +28,11 @@ def generate_launch_description():
         ('classifier', 'mux_classifier', 'classifier_node'),
     ]
     actions = [
+        # the same settings as lightstage_bringup.ros_env.ros_environment()
+        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'),
+        UnsetEnvironmentVariable('ROS_STATIC_PEERS'),  # contacted even with LOCALHOST
+        SetEnvironmentVariable('FASTRTPS_DEFAULT_PROFILES_FILE',
+                               os.path.join(share, 'config', 'fastdds_profile.xml')),
         DeclareLaunchArgument('params_file', default_value=default_params,
                               description='ROS parameters YAML for all nodes'),
         DeclareLaunchArgument('use_trainer', default_value='false',
