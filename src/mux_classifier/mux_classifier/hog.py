@@ -8,8 +8,9 @@ per image. ``hog_batch`` computes exactly what
                         cells_per_block=(10, 10), block_norm="L2-Hys",
                         feature_vector=True)
 
-computes (to ~1e-6 per value), but for a whole batch of images at once and about ten
-times faster, because the greedy search extracts HOG from millions of images.
+computes (to ~1e-6 per value), but for a whole batch of images at once and 6-10 times
+faster (benchmarks/bench_hog.py), because the greedy search extracts HOG from millions
+of images.
 
 What makes it fast (see ``benchmarks/bench_hog.py`` for the figures):
 
@@ -169,7 +170,8 @@ class _Binner:
         g_row = g_row.reshape(n, -1)
         g_col = g_col.reshape(n, -1)
         # Signed bin = floor(angle_deg / width) + orientations, in 0 .. 2*orientations-1;
-        # all terms are >= 0 so truncation is floor. The angle is computed in float64 from
+        # the value is >= 0 (up to rounding, which truncation sends to bin 0), so truncation
+        # is floor. The angle is computed in float64 from
         # the float32 gradients, as skimage does.
         angle = np.arctan2(g_row, g_col, dtype=np.float64)
         angle *= self.bins_per_radian
