@@ -87,6 +87,8 @@ class PtyFirmware:
         self.outgoing: list[tuple[float, bytes]] = []
         self.reconnect_at: float | None = None
         self._tx_free_at = 0.0
+        self._rx_free_at = 0.0
+        self.incoming: list[tuple[float, bytes]] = []   # bytes still on the wire (emulate_baud)
         self.model: FirmwareModel | None = None
 
     # ------------------------------------------------------------------ lifecycle
@@ -112,6 +114,7 @@ class PtyFirmware:
         self.master = self.slave = -1
         self.model = None
         self.outgoing = []
+        self.incoming = []
         self._emit({'ev': 'disconnected'})
         self.reconnect_at = None if reconnect_after_s is None else time.monotonic() + reconnect_after_s
 
@@ -159,21 +162,30 @@ class PtyFirmware:
         data[index] ^= 1 << self.rng.randrange(8)
         return bytes(data)
 
-    def _queue(self, frames: list[bytes], now: float, rx_bytes: int = 0) -> None:
+    def _queue(self, frames: list[bytes], now: float) -> None:
         for frame in frames:
             send_at = now + self.faults.latency_ms / 1000.0
             baud = self.faults.emulate_baud
             if baud:
-                # the command had to arrive first; frames leave one after another
-                send_at = max(send_at + p.line_seconds(rx_bytes, baud), self._tx_free_at) \
-                    + p.line_seconds(len(frame), baud)
+                # frames leave one after another, each taking its wire time
+                send_at = max(send_at, self._tx_free_at) + p.line_seconds(len(frame), baud)
                 self._tx_free_at = send_at
             self.outgoing.append((send_at, self._corrupt(frame)))
+
+    def _arrive(self, data: bytes, now: float) -> None:
+        """Received bytes reach the firmware after their wire time (with emulate_baud)."""
+        baud = self.faults.emulate_baud
+        if not baud:
+            self._queue(self.model.receive(data, now), now)
+            return
+        for i in range(len(data)):   # byte by byte, as a UART delivers them
+            self._rx_free_at = max(now, self._rx_free_at) + p.line_seconds(1, baud)
+            self.incoming.append((self._rx_free_at, data[i:i + 1]))
 
     # ------------------------------------------------------------------ loop
     def step(self, timeout: float, control_fd: int | None = None, on_control=None) -> None:
         now = time.monotonic()
-        deadlines = [t for t, _ in self.outgoing[:1]]
+        deadlines = [t for t, _ in self.outgoing[:1] + self.incoming[:1]]
         if self.model is not None and (d := self.model.next_deadline()) is not None:
             deadlines.append(d)
         if self.reconnect_at is not None:
@@ -193,8 +205,11 @@ class PtyFirmware:
                 data = b''
             data = self._filter_rx(data)
             if data:
-                self._queue(self.model.receive(data, now), now, len(data))
+                self._arrive(data, now)
         if self.model is not None:
+            while self.incoming and self.incoming[0][0] <= now:
+                arrived, byte = self.incoming.pop(0)
+                self._queue(self.model.receive(byte, arrived), now)
             self._queue(self.model.poll(now), now)
             self._flush(now)
         if self.reconnect_at is not None and now >= self.reconnect_at:

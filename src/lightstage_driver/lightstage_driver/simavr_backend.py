@@ -114,6 +114,8 @@ class SimavrBackend(FirmwareBackend):
         self._pulses: list[TriggerPulse] = []
         self._pulse_cycles: list[tuple[int, int]] = []
         self._resets = 0
+        self._syncs = 0
+        self._stdin_lock = threading.Lock()
         self._recording = False
         self._crashed = ''
         self.frequency_hz = 16_000_000
@@ -189,6 +191,8 @@ class SimavrBackend(FirmwareBackend):
                     self.frequency_hz = int(fields[1])
                 elif kind == 'R':
                     self._resets += 1
+                elif kind == 'S':
+                    self._syncs += 1
                 elif kind == 'X':
                     self._crashed = ' '.join(fields[1:])
                 self._lock.notify_all()
@@ -201,9 +205,8 @@ class SimavrBackend(FirmwareBackend):
             return
         if proc.poll() is None:
             try:
-                proc.stdin.write(b'quit\n')
-                proc.stdin.flush()
-            except OSError:
+                self._command(b'quit')
+            except (OSError, ValueError):
                 pass
             try:
                 proc.wait(5)
@@ -247,11 +250,27 @@ class SimavrBackend(FirmwareBackend):
             raise RuntimeError('the simavr harness is not running')
         with self._lock:
             before = self._resets
-        self._proc.stdin.write(b'reset\n')
-        self._proc.stdin.flush()
+        self._command(b'reset')
         with self._lock:
             if not self._lock.wait_for(lambda: self._resets > before, timeout_s):
                 raise RuntimeError('the simavr harness did not acknowledge the reset')
+
+    def _command(self, line: bytes) -> None:
+        with self._stdin_lock:
+            self._proc.stdin.write(line + b'\n')
+            self._proc.stdin.flush()
+
+    def sync(self, timeout_s: float = 5.0) -> None:
+        """Return once every pin event up to the harness's present has been collected (a
+        reply read from the port may otherwise arrive before the events that preceded it)."""
+        if not self.running:
+            raise RuntimeError('the simavr harness is not running')
+        with self._lock:
+            before = self._syncs
+        self._command(b'sync')
+        with self._lock:
+            if not self._lock.wait_for(lambda: self._syncs > before or not self.running, timeout_s):
+                raise RuntimeError(f'the simavr harness did not answer sync within {timeout_s} s')
 
     @property
     def port(self) -> str:
@@ -268,20 +287,34 @@ class SimavrBackend(FirmwareBackend):
             return self._crashed
 
     # ------------------------------------------------------------------ observations
+    def _sync_if_running(self) -> None:
+        if self.running:
+            try:
+                self.sync()
+            except (RuntimeError, OSError):
+                pass    # the harness went away: report what was collected
+
     def led_words(self) -> list[LatchedWord]:
+        """Every word latched up to now (the harness is synced first)."""
+        self._sync_if_running()
         with self._lock:
             return list(self._words)
 
     def trigger_pulses(self) -> list[TriggerPulse]:
+        self._sync_if_running()
         with self._lock:
             return list(self._pulses)
 
     def trigger_pulse_cycles(self) -> list[tuple[int, int]]:
         """Trigger pulses as (rising, falling) simulated CPU cycles, for exact widths."""
+        self._sync_if_running()
         with self._lock:
             return list(self._pulse_cycles)
 
     def reset_observations(self) -> None:
+        """Forget what was observed up to now (the harness is synced first, so an event
+        from before this call cannot turn up afterwards)."""
+        self._sync_if_running()
         with self._lock:
             self._words.clear()
             self._pulses.clear()

@@ -12,10 +12,11 @@
  *   T <rise> <fall>          a trigger pulse: rising and falling edge cycles
  *   R <cycle>                the MCU was reset (stdin "reset")
  *   X <cycle> <state>        the simulated CPU stopped (crashed or done)
+ *   S <cycle>                answer to stdin "sync": all earlier events are out
  * Cycles count from power-up at the simulated clock (exact widths: fall - rise).
  *
  * Commands on stdin, one per line: "reset" (pulse the reset line, as DTR does on an Uno),
- * "status" (harness state to stderr),
+ * "sync" (answered by an S line), "status" (harness state to stderr),
  * "run" (start the CPU when started with --hold), "quit".  End of input also quits, so
  * the harness never outlives the process that started it.
  *
@@ -76,10 +77,11 @@ static size_t rx_head, rx_tail;
 static int uart_xoff;
 
 /* firmware -> host bytes waiting for the pty; written when the simulated line has been
- * idle for TX_IDLE_CYCLES (a bit over two byte times), so that a frame reaches the host in
- * one write even if this process is descheduled between two of its bytes (the host's
- * decoder drops a frame that stalls for 10 ms between bytes). */
-#define TX_IDLE_CYCLES 2000
+ * idle for TX_IDLE_CYCLES, so that a frame reaches the host in one write even if this
+ * process is descheduled between two of its bytes (a host decoder may drop a frame that
+ * stalls for 10 ms between reads).  A byte takes 1496 cycles; the firmware may hold its
+ * transmit interrupt off for up to ~2000 cycles while it starts a short exposure. */
+#define TX_IDLE_CYCLES 5000
 static uint8_t tx_queue[65536];
 static size_t tx_len;
 static avr_cycle_count_t tx_last_cycle;
@@ -246,6 +248,9 @@ static int read_commands(int *hold)
             return 0;
         if (!strcmp(line, "run"))
             *hold = 0;
+        else if (!strcmp(line, "sync"))
+            /* a barrier: every event up to now has been written before this line */
+            fprintf(events, "S %llu\n", (unsigned long long)avr->cycle);
         else if (!strcmp(line, "status")) {
             fprintf(stderr,
                     "lightstage_simavr: cycle %llu state %d pc 0x%x sreg 0x%02x ucsr0a 0x%02x "
@@ -372,9 +377,9 @@ int main(int argc, char **argv)
                 }
             }
         }
+        fflush(events); /* pin events first: a reply never overtakes the events before it */
         if (tx_len && (avr->cycle - tx_last_cycle > TX_IDLE_CYCLES || tx_len > 4096 || hold))
             flush_tx();
-        fflush(events);
 
         int timeout_ms = 0;
         int64_t wall = now_ns() - wall0;
