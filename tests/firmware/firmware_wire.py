@@ -17,7 +17,9 @@ from lightstage_driver import protocol as p
 class Wire:
     def __init__(self, port: str):
         self.serial = serial.Serial(port, 115200, timeout=0)
-        self.decoder = p.FrameDecoder()
+        # the host reads when it is scheduled: judging the firmware's 10 ms inter-byte
+        # timeout by read times would drop frames whenever this process is descheduled
+        self.decoder = p.FrameDecoder(inter_byte_timeout_s=1.0)
         self.frames: list[p.Frame | p.BadFrame] = []   # received, not yet taken
         self.seq = 0
 
