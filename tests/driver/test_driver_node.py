@@ -251,3 +251,24 @@ def test_a_configure_failure_leaves_the_node_up_unconfigured_with_the_reason(por
     finally:
         client.close()
         assert stop_node(proc) == 0
+
+
+def test_a_crashed_driver_does_not_leave_the_leds_on():
+    backend = PythonSimBackend()
+    backend.start()
+    proc = start_node(backend.port, 'stage_driver_crash', 'watchdog_ms:=300', 'heartbeat_period_s:=0.1',
+                      domain_id=own_domain(4))
+    client = Client('stage_driver_crash', own_domain(4))
+    try:
+        assert client.apply([eye(12)], trigger=False).success
+        time.sleep(0.6)                    # heartbeats keep the pattern lit past the watchdog time
+        assert backend.current_word() == 1 << 12
+        proc.kill()                        # no shutdown handler runs
+        proc.wait()
+        killed_at = time.monotonic()
+        assert wait_until(lambda: backend.current_word() == 0, 2.0)
+        assert time.monotonic() - killed_at < 0.3 + 0.3   # the firmware watchdog, not luck
+    finally:
+        client.close()
+        stop_node(proc)
+        backend.close()
