@@ -57,12 +57,8 @@ uint32_t clock_ticks(void)
 
 uint32_t clock_ticks_to_us(uint32_t ovf, uint16_t tcnt)
 {
-    /* ticks / TICKS_PER_US with ticks = ovf * 65536 + tcnt, modulo 2^32 */
-#if TICKS_PER_US == 2
+    /* ticks / 2 with ticks = ovf * 65536 + tcnt, modulo 2^32 */
     return (ovf << 15) + (tcnt >> 1);
-#else
-    return (ovf << 16) + tcnt;
-#endif
 }
 
 uint32_t clock_us(void)
