@@ -129,7 +129,9 @@ def test_a_lost_sequence_event_is_an_error_and_leds_end_dark(sim, stage):
 
 def test_disconnect_mid_use_then_replug_recovers(sim, stage):
     stage.set_pattern(one_hot(9))
+    assert wait_until(lambda: sim.current_word() == 1 << 9, 1.0)
     sim.disconnect(reconnect_after_s=0.3)
+    assert sim.current_word() == 0
     with pytest.raises(DisconnectedError, match='went away'):
         stage.heartbeat()
     status = stage.heartbeat()                 # reopens (waits for the re-plug) and re-identifies

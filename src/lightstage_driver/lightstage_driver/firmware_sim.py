@@ -108,6 +108,8 @@ class PtyFirmware:
 
     def disconnect(self, reconnect_after_s: float | None) -> None:
         """Close the pty like a pulled cable; come back (reset) after a delay if given."""
+        if self.model is not None and self.model.lit_word:
+            self.model._latch(time.monotonic(), 0)    # a USB-powered board loses power: dark
         for fd in (self.master, self.slave):
             if fd >= 0:
                 os.close(fd)

@@ -69,6 +69,9 @@ def build_firmware(directory: Path | None = None, build_dir: Path | None = None,
     if missing:
         raise SimavrUnavailable(f'cannot build the AVR firmware: missing {", ".join(missing)}; '
                                 f'install the Debian packages {DEBIAN_PACKAGES}')
+    if not (directory / 'Makefile').exists():
+        raise SimavrUnavailable(f'no firmware Makefile in {directory}; set LIGHTSTAGE_FIRMWARE_DIR to the '
+                                f'lightstage_driver/firmware directory of a source checkout')
     unknown = set(pins or {}) - set(PIN_NAMES)
     if unknown:
         raise ValueError(f'unknown pin name(s) {sorted(unknown)}; the wiring has {list(PIN_NAMES)}')
@@ -118,6 +121,7 @@ class SimavrBackend(FirmwareBackend):
         self._stdin_lock = threading.Lock()
         self._recording = False
         self._crashed = ''
+        self._output_ended = False
         self.frequency_hz = 16_000_000
         self.pty_path = ''
 
@@ -132,6 +136,7 @@ class SimavrBackend(FirmwareBackend):
             self.pty_path = ''
             self._recording = False
             self._crashed = ''
+            self._output_ended = False
         log = open(self._log_path, 'ab')
         try:
             self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
@@ -143,18 +148,18 @@ class SimavrBackend(FirmwareBackend):
         self._reader.start()
         with self._lock:
             # up = the pty exists and the firmware has cleared the chain at power-up
-            up = self._lock.wait_for(lambda: self._recording or self._proc.poll() is not None,
-                                     self.start_timeout_s)
-            if not up or not self._recording:
-                self.kill()
-                raise SimavrUnavailable(
-                    f'the simavr harness did not come up within {self.start_timeout_s} s '
-                    f'(command: {" ".join(cmd)}; log: {self._log_path}: {self._log_tail()})')
-            tmp = self._link + '.new'
-            if os.path.lexists(tmp):
-                os.unlink(tmp)
-            os.symlink(self.pty_path, tmp)
-            os.replace(tmp, self._link)
+            self._lock.wait_for(lambda: self._recording or self._output_ended, self.start_timeout_s)
+            up, pty_path = self._recording, self.pty_path
+        if not up:
+            self.kill()
+            raise SimavrUnavailable(
+                f'the simavr harness did not come up within {self.start_timeout_s} s '
+                f'(command: {" ".join(cmd)}; log: {self._log_path}: {self._log_tail()})')
+        tmp = self._link + '.new'
+        if os.path.lexists(tmp):
+            os.unlink(tmp)
+        os.symlink(pty_path, tmp)
+        os.replace(tmp, self._link)
 
     @property
     def log_path(self) -> str:
@@ -197,6 +202,7 @@ class SimavrBackend(FirmwareBackend):
                     self._crashed = ' '.join(fields[1:])
                 self._lock.notify_all()
         with self._lock:
+            self._output_ended = True
             self._lock.notify_all()
 
     def stop(self) -> None:

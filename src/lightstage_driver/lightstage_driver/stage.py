@@ -240,9 +240,6 @@ class LightStage:
             finally:
                 self._running_seq = -1
                 self._seq_on_trigger = None
-        self._seq_entries: list[p.SequenceEntry] = []
-        self._seq_first = 0
-        self._seq_on_trigger: Callable[[Trigger], None] | None = None
         done = self._seq_done
         if done.status != p.SequenceStatus.COMPLETE:
             why = p.SequenceStatus(done.status).name if done.status in tuple(p.SequenceStatus) else done.status
