@@ -90,3 +90,18 @@ def test_bad_pin_choice_is_refused_at_build_time(tmp_path):
                             capture_output=True, text=True, timeout=120)
     assert result.returncode != 0
     assert 'four different pins' in result.stderr
+
+
+def test_missing_sources_and_bad_firmware_are_reported_clearly(tmp_path):
+    from lightstage_driver.simavr_backend import SimavrUnavailable, build_firmware
+    with pytest.raises(SimavrUnavailable, match='no firmware Makefile'):
+        SimavrBackend(directory=tmp_path).start()
+    assert list(tmp_path.iterdir()) == []          # nothing created there
+    harness, _ = build_firmware()
+    bad = tmp_path / 'bad.elf'
+    bad.write_bytes(b'not an ELF file')
+    result = subprocess.run([str(harness), str(bad)], capture_output=True, text=True, timeout=10,
+                            stdin=subprocess.DEVNULL)
+    assert result.returncode == 1
+    assert f"cannot read firmware '{bad}'" in result.stderr
+    assert 'PTY' not in result.stdout
