@@ -168,3 +168,11 @@ def test_pwm_levels():
     levels[7] = 4096
     nak = nak_of(h.send(p.Command.SET_LEVELS, p.pack_set_levels(levels, True)))
     assert (nak.reason, nak.value) == (p.NakReason.LEVEL_RANGE, 7 << 16 | 4096)
+
+
+def test_rx_errors_count_every_dropped_frame():
+    h = Harness()
+    h.model.receive(bytes([p.SOF, 200]), 0.0)                   # LEN too big
+    h.model.receive(p.encode_frame(1, p.Command.HEARTBEAT)[:3], 0.1)   # stalls...
+    status = p.Status.unpack(h.send(p.Command.HEARTBEAT, now=0.5)[0].payload)   # ...dropped at 10 ms
+    assert status.rx_errors == 2

@@ -60,7 +60,7 @@ class FirmwareModel:
         self.armed_levels: tuple[int, ...] = (0,) * p.LED_COUNT
         self.lit_word = 0
         self.trigger_high = False
-        self.rx_errors = 0
+        self.rx_errors = 0      # frames NAKed for a bad CRC (length / timeout drops: decoder)
         self.watchdog_tripped_flag = False
         self._tripped_this_silence = False
         self._last_activity = boot_time
@@ -177,8 +177,9 @@ class FirmwareModel:
         if cmd == p.Command.HEARTBEAT:
             if payload:
                 raise PayloadError('HEARTBEAT takes no payload')
+            dropped = self.rx_errors + self.decoder.length_errors + self.decoder.timeouts
             status = p.Status(self.t_us(now), self.lit_word != 0, self._seq is not None,
-                              self.watchdog_tripped_flag, self.rx_errors)
+                              self.watchdog_tripped_flag, min(dropped, 0xFFFF))
             self.watchdog_tripped_flag = False
             return [self._reply(frame, status.pack())]
         if cmd in (p.Command.SET_PATTERN, p.Command.SET_LEVELS):
