@@ -42,7 +42,6 @@ def test_fire_latch_edges_coincide_with_trigger_edges(avr, wire):
     both: the LEDs are lit for exactly the trigger pulse."""
     wire.set_pattern(0x1234_5678, show_now=False)
     wire.fire(1000)
-    words = avr.led_words()
     assert avr.wait_for(lambda w, pl: len(w) >= 2 and len(pl) >= 1, 1.0)
     words = avr.led_words()
     (rise, fall), = avr.trigger_pulse_cycles()
