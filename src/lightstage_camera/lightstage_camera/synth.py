@@ -78,51 +78,51 @@ def _m(**kw) -> Material:
 # shallower or coarser moulded relief. Visible albedo is nudged so the all-LED sum matches.
 MATERIALS: dict[str, dict[str, Material]] = {
     "green_apple": {
-        "real": _m(albedo=(0.30, 0.50, 0.12, 0.70), pigment_contrast=(0.12, 0.12, 0.14, 0.01),
+        "real": _m(albedo=(0.30, 0.50, 0.12, 0.70), pigment_contrast=(0.14, 0.14, 0.16, 0.00),
                    pigment_scale_mm=4.0, specular=0.05, shininess=25,
                    sss=(0.55, 0.45, 0.25, 0.65), sss_radius_mm=(3.0, 2.5, 1.5, 4.0),
                    relief_mm=0.05, relief_scale_mm=3.0),
-        "fake": _m(albedo=(0.33, 0.54, 0.13, 0.62), pigment_contrast=(0.06, 0.06, 0.07, 0.14),
+        "fake": _m(albedo=(0.33, 0.54, 0.13, 0.62), pigment_contrast=(0.05, 0.05, 0.06, 0.25),
                    pigment_scale_mm=4.0, specular=0.06, shininess=60,
                    sss=(0.15, 0.15, 0.10, 0.15), sss_radius_mm=(1.0, 1.0, 0.8, 1.0),
                    relief_mm=0.20, relief_scale_mm=4.0),
     },
     "red_apple": {
-        "real": _m(albedo=(0.55, 0.12, 0.10, 0.72), pigment_contrast=(0.10, 0.35, 0.30, 0.01),
+        "real": _m(albedo=(0.55, 0.12, 0.10, 0.72), pigment_contrast=(0.10, 0.40, 0.35, 0.00),
                    pigment_scale_mm=3.0, specular=0.06, shininess=30,
                    sss=(0.60, 0.30, 0.25, 0.65), sss_radius_mm=(3.5, 2.0, 1.5, 4.0),
                    relief_mm=0.05, relief_scale_mm=3.0),
-        "fake": _m(albedo=(0.57, 0.13, 0.11, 0.66), pigment_contrast=(0.12, 0.20, 0.18, 0.22),
+        "fake": _m(albedo=(0.57, 0.13, 0.11, 0.66), pigment_contrast=(0.12, 0.22, 0.20, 0.35),
                    pigment_scale_mm=3.0, specular=0.07, shininess=70,
                    sss=(0.20, 0.15, 0.15, 0.20), sss_radius_mm=(1.0, 0.8, 0.8, 1.0),
                    relief_mm=0.05, relief_scale_mm=3.0),
     },
     "grape": {
-        "real": _m(albedo=(0.16, 0.26, 0.10, 0.60), pigment_contrast=(0.05, 0.05, 0.05, 0.02),
+        "real": _m(albedo=(0.16, 0.26, 0.10, 0.60), pigment_contrast=(0.05, 0.05, 0.05, 0.00),
                    pigment_scale_mm=3.0, specular=0.03, shininess=12,
                    sss=(0.70, 0.65, 0.50, 0.80), sss_radius_mm=(3.0, 2.5, 2.0, 4.0),
                    relief_mm=0.02, relief_scale_mm=2.0),
-        "fake": _m(albedo=(0.18, 0.28, 0.11, 0.52), pigment_contrast=(0.04, 0.04, 0.04, 0.04),
+        "fake": _m(albedo=(0.18, 0.28, 0.11, 0.52), pigment_contrast=(0.03, 0.03, 0.03, 0.20),
                    pigment_scale_mm=3.0, specular=0.09, shininess=110,
                    sss=(0.20, 0.20, 0.15, 0.20), sss_radius_mm=(1.0, 1.0, 0.8, 1.0),
                    relief_mm=0.02, relief_scale_mm=2.0),
     },
     "banana": {
-        "real": _m(albedo=(0.62, 0.55, 0.10, 0.74), pigment_contrast=(0.22, 0.26, 0.12, 0.02),
+        "real": _m(albedo=(0.62, 0.55, 0.10, 0.74), pigment_contrast=(0.25, 0.30, 0.14, 0.00),
                    pigment_scale_mm=3.0, specular=0.03, shininess=20,
                    sss=(0.35, 0.30, 0.20, 0.45), sss_radius_mm=(2.0, 1.5, 1.0, 2.5),
                    relief_mm=0.08, relief_scale_mm=3.0),
-        "fake": _m(albedo=(0.64, 0.57, 0.11, 0.68), pigment_contrast=(0.12, 0.14, 0.07, 0.16),
+        "fake": _m(albedo=(0.64, 0.57, 0.11, 0.68), pigment_contrast=(0.12, 0.14, 0.07, 0.30),
                    pigment_scale_mm=3.0, specular=0.05, shininess=45,
                    sss=(0.10, 0.10, 0.08, 0.10), sss_radius_mm=(0.6, 0.6, 0.5, 0.6),
                    relief_mm=0.25, relief_scale_mm=4.0),
     },
     "orange": {
-        "real": _m(albedo=(0.66, 0.36, 0.06, 0.74), pigment_contrast=(0.04, 0.06, 0.05, 0.02),
+        "real": _m(albedo=(0.66, 0.36, 0.06, 0.74), pigment_contrast=(0.06, 0.08, 0.06, 0.00),
                    pigment_scale_mm=4.0, specular=0.06, shininess=50,
                    sss=(0.50, 0.40, 0.30, 0.60), sss_radius_mm=(2.5, 2.0, 1.5, 3.0),
                    relief_mm=0.35, relief_scale_mm=2.0),
-        "fake": _m(albedo=(0.68, 0.37, 0.07, 0.68), pigment_contrast=(0.04, 0.06, 0.05, 0.06),
+        "fake": _m(albedo=(0.68, 0.37, 0.07, 0.68), pigment_contrast=(0.03, 0.04, 0.03, 0.18),
                    pigment_scale_mm=4.0, specular=0.05, shininess=40,
                    sss=(0.12, 0.12, 0.10, 0.12), sss_radius_mm=(0.8, 0.8, 0.6, 0.8),
                    relief_mm=0.12, relief_scale_mm=3.0),
@@ -345,9 +345,11 @@ def _instance_params(kind: str, seed: tuple) -> dict:
 
 
 def _pose_params(seed: tuple) -> dict:
+    # objects are placed roughly the same way up on the stage: +-35 deg about a canonical
+    # orientation, +-8 mm off centre, tilted up to ~30 deg
     rng = np.random.default_rng(np.random.SeedSequence(seed))
     return {"cx": rng.uniform(-8, 8), "cy": rng.uniform(-8, 8),
-            "rotation": rng.uniform(0, 2 * math.pi), "tilt": rng.uniform(0, 0.5)}
+            "rotation": rng.uniform(-0.6, 0.6), "tilt": rng.uniform(0, 0.5)}
 
 
 def render_job(job: SampleJob, rig: Rig, strength: float, model_noise: float) -> np.ndarray:
