@@ -9,7 +9,7 @@ accuracy of a linear SVM over repeated 75 / 25 pose splits (the same pose indice
 every class), plus the held-out-instance accuracy (train on some physical samples, test on
 the others; the paper's captured-imagery experiment).
 
-    PYTHONPATH=src/lightstage_camera .venv/bin/python benchmarks/synth_difficulty.py [CAPTURE]
+    PYTHONPATH=src/lightstage_camera:src/mux_classifier .venv/bin/python benchmarks/synth_difficulty.py [CAPTURE]
 """
 from __future__ import annotations
 
@@ -30,8 +30,14 @@ from lightstage_camera.rig import led_index
 
 
 def hog_features(images: np.ndarray) -> np.ndarray:
-    """(n, k, 120, 120) -> (n, k * 900)."""
+    """(n, k, 120, 120) -> (n, k * 900). mux_classifier's batched HOG when importable
+    (equal to skimage to ~1e-6, ~8x faster), else skimage.feature.hog."""
     n, k = images.shape[:2]
+    try:
+        from mux_classifier.hog import hog_batch
+        return hog_batch(images.reshape(n * k, *images.shape[2:])).reshape(n, -1)
+    except ImportError:
+        pass
     feats = [hog(im, orientations=9, pixels_per_cell=(12, 12), cells_per_block=(10, 10),
                  block_norm="L2-Hys", feature_vector=True) for im in images.reshape(n * k, *images.shape[2:])]
     return np.asarray(feats, np.float32).reshape(n, -1)
