@@ -84,6 +84,10 @@ def patterns():
     out["all sites NIR only, one image"] = ("led", P)
     out["sites 0 & 2 alone, per colour (8 images)"] = ("site", np.eye(8)[:, [0, 2]])
     out["sites 0,1,2,3 alone, per colour (16 images)"] = ("site", np.eye(8)[:, :4])
+    out["[all sites | site 4], per colour (8 images)"] = (
+        "site", np.c_[np.ones(8), np.eye(8)[:, 4]])
+    out["[all | site 4 | site 1 | upper 4-7], per colour (16)"] = (
+        "site", np.c_[np.ones(8), np.eye(8)[:, 4], np.eye(8)[:, 1], np.r_[np.zeros(4), np.ones(4)]])
     return out
 
 
@@ -94,6 +98,7 @@ def main(argv=None) -> int:
     parser.add_argument("--splits", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--C", type=float, default=1.0)
+    parser.add_argument("--only", default="", help="comma-separated substrings of pattern names")
     args = parser.parse_args(argv)
     if args.capture is None:
         from lightstage_camera.synth import generate
@@ -110,7 +115,10 @@ def main(argv=None) -> int:
     print(f"noise {args.noise}; {args.splits} pose splits 75/25; LinearSVC(C={args.C})")
     print(f"{'pattern':<46} {'pose-split acc %':>17} {'held-out instance %':>20}")
     rng = np.random.default_rng(args.seed)
+    wanted = [w.strip() for w in args.only.split(",") if w.strip()]
     for name, (mode, matrix) in patterns().items():
+        if wanted and not any(w in name for w in wanted):
+            continue
         images = render_noisy(ms, matrix, noise, rng, mode=mode)
         X = hog_features(images)
         mean, std = pose_split_accuracy(X, ms.labels, ms.pose_index, args.splits,
