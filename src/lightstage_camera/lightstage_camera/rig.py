@@ -8,6 +8,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 CHANNELS: tuple[str, ...] = ("red", "green", "blue", "nir")
@@ -96,8 +97,8 @@ class Rig:
     def exposure_ms(self) -> float:
         return self.exposure_us / 1000.0
 
-    def site_positions_mm(self):
-        import numpy as np
+    def site_positions_mm(self) -> np.ndarray:
+        """(n_sites, 3) positions in mm."""
         return np.array([s.position_mm for s in self.sites], dtype=np.float64)
 
     @classmethod

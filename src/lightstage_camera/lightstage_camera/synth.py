@@ -168,7 +168,7 @@ def _dome(x, y, cx, cy, r, squash=1.0):
     return z, inside
 
 
-def _shape(kind: str, x, y, shape_params: dict, pose: dict, rng):
+def _shape(kind: str, x, y, shape_params: dict, pose: dict):
     """Height field (mm) and object mask for one object type in one pose."""
     cx, cy, rot, tilt = pose["cx"], pose["cy"], pose["rotation"], pose["tilt"]
     scale = shape_params["scale"]
@@ -271,7 +271,7 @@ def render_pose(kind: str, material: Material, shape_params: dict, pose: dict, r
     """The 32 single-LED images ``(4, sites, H, W)`` of one pose, in gray levels."""
     size = rig.image_size[0]
     x, y, px = _grid(size, rig.field_of_view_mm)
-    z_obj, mask = _shape(kind, x, y, shape_params, pose, rng)
+    z_obj, mask = _shape(kind, x, y, shape_params, pose)
     mask_f = mask.astype(np.float64)
     # micro-relief: pores are dimples (negative), ridges for the banana come from the shape
     relief = _smooth_noise(rng, x.shape, material.relief_scale_mm / px)
