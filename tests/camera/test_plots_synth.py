@@ -72,6 +72,11 @@ def test_synth_cli(tmp_path, capsys):
     assert len(load_capture(tmp_path / "d", cache=False)) == 2
     with pytest.raises(SystemExit):
         synth.main([str(tmp_path / "e"), "--types", "kiwi"])
+    args = [str(tmp_path / "d"), "--size", "24", "--poses", "1", "--samples", "1",
+            "--types", "grape", "--jobs", "1", "--quiet"]
+    assert synth.main(args) == 2  # refuses to write into a non-empty folder
+    assert "not empty" in capsys.readouterr().err
+    assert synth.main(args + ["--force"]) == 0
 
 
 def test_plots_write_pngs(tiny_synth, tmp_path):

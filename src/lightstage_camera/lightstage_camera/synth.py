@@ -387,13 +387,16 @@ def _write_job(out_dir: Path, job: SampleJob, rig: Rig, strength: float, model_n
 def generate(out_dir, image_size: int = DEFAULT_SIZE, n_samples_per_class: int = DEFAULT_SAMPLES,
              n_poses: int = DEFAULT_POSES, seed: int = DEFAULT_SEED,
              object_types=OBJECT_TYPES, n_jobs: int = 2, strength: float = 1.0,
-             model_noise: float = 0.1, compress_level: int = 4, progress=None) -> Path:
+             model_noise: float = 0.1, compress_level: int = 4, progress=None,
+             overwrite: bool = False) -> Path:
     """Write the synthetic dataset as a capture folder; returns its path.
 
     Every class gets `n_samples_per_class` instances x `n_poses` poses (20 pose indices per
     class by default). `strength` scales the real/fake material differences (1 = tabled).
     `model_noise` is the residual noise (std, gray levels) of the averaged model captures.
-    Deterministic for a seed, whatever `n_jobs`.
+    Deterministic for a seed, whatever `n_jobs`. A non-empty `out_dir` is refused unless
+    `overwrite` (files of the same names are then replaced; other folders are left alone
+    and would be loaded as extra classes, so prefer a fresh folder).
     """
     from joblib import Parallel, delayed
 
@@ -403,6 +406,9 @@ def generate(out_dir, image_size: int = DEFAULT_SIZE, n_samples_per_class: int =
         raise ValueError("need at least one sample and one pose per class")
     object_types = tuple(object_types)
     out_dir = Path(out_dir)
+    if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
+        raise ValueError(f"{out_dir} is not empty; choose a new folder or pass overwrite "
+                         "(--force)")
     out_dir.mkdir(parents=True, exist_ok=True)
     rig = Rig.paper_default(image_size)
     # Gray levels are stated at the noise model's reference setting (15 dB, 30 ms); the
@@ -441,6 +447,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--strength", type=float, default=1.0,
                         help="scale of the real/fake differences (default 1)")
     parser.add_argument("--jobs", type=int, default=2, help="parallel processes (default 2)")
+    parser.add_argument("--force", action="store_true",
+                        help="write into a non-empty folder (same-named files are replaced)")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
     types = [t.strip() for t in args.types.split(",") if t.strip()]
@@ -456,7 +464,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         out = generate(args.out_dir, args.size, args.samples, args.poses, args.seed, types,
-                       n_jobs=args.jobs, strength=args.strength, progress=progress)
+                       n_jobs=args.jobs, strength=args.strength, progress=progress,
+                       overwrite=args.force)
     except ValueError as exc:
         print(f"lightstage synth: {exc}", file=sys.stderr)
         return 2
