@@ -209,7 +209,8 @@ def _read_cache(cache_dir: Path, fingerprint: str, n: int, rig: Rig):
         info = json.loads(index.read_text())
         if info.get("version") != CACHE_VERSION or info.get("fingerprint") != fingerprint:
             return None
-        raw = np.load(data, allow_pickle=False)
+        # memory-mapped: a downscaling load then never holds the full-resolution set
+        raw = np.load(data, allow_pickle=False, mmap_mode="r")
     except (OSError, ValueError):
         return None
     if raw.shape != (n, len(CHANNELS), rig.n_sites, *rig.image_size) or raw.dtype != np.uint16:
