@@ -16,10 +16,11 @@ LOG="$LOG_DIR/bootstrap.log"
 mkdir -p "$LOG_DIR"
 : > "$LOG"
 
-# Debian packages: the interface build (cmake, ninja), the AVR firmware build and its
-# simulator (gcc-avr, avr-libc, simavr), and what the simavr harness links against.
-APT_PACKAGES=(cmake ninja-build g++ make pkg-config gcc-avr binutils-avr avr-libc
-              simavr libsimavr-dev libsimavrparts1 libelf-dev)
+# Debian packages: the interface build (cmake, ninja, g++), the AVR firmware build
+# (gcc-avr, binutils-avr, avr-libc), the simavr harness it is tested in (libsimavr-dev,
+# libelf-dev), and strace, with which a test checks that ROS traffic stays on loopback.
+APT_PACKAGES=(cmake ninja-build gcc g++ make pkg-config gcc-avr binutils-avr avr-libc
+              libsimavr-dev libelf-dev strace)
 PROJECT_PACKAGES=(lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_bringup)
 
 step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }

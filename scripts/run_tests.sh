@@ -6,6 +6,10 @@ cd "$ROOT"
 # Discovery never leaves this machine; tests/conftest.py gives the run its own domain id
 # and tests that start processes pick theirs.
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+# The installed lightstage_driver does not carry the firmware sources; the AVR tests build
+# and run the checkout's firmware, and must not be skipped here.
+export LIGHTSTAGE_FIRMWARE_DIR="$ROOT/src/lightstage_driver/firmware"
+export LIGHTSTAGE_REQUIRE_AVR=1
 .venv/bin/python -m pytest "$@"
 rc=$?
 if [ $rc -eq 5 ]; then

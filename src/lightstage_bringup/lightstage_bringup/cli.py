@@ -14,6 +14,8 @@ import sys
 VERBS: dict[str, tuple[str, str, str]] = {
     'up': ('lightstage_bringup.launcher', 'main',
            'start project nodes as separate processes, wait until discoverable, forward logs'),
+    'classify': ('lightstage_bringup.classify_cli', 'main',
+                 'classify the sample on the stage through /lightstage/classify'),
     'synth': ('lightstage_camera.synth', 'main',
               'write the synthetic light-stage dataset (a capture folder)'),
     'train': ('mux_trainer.cli', 'train_main',

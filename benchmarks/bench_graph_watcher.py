@@ -1,16 +1,18 @@
 """Time from starting two node processes to "all spinning" as seen by GraphWatcher, with
 and without renewing the watcher's participant (side by side, alternating, one run).
 
-    PYTHONPATH=src/lightstage_bringup:tests/bringup .venv/bin/python tests/bringup/bench_graph_watcher.py [rounds]
+    .venv/bin/python benchmarks/bench_graph_watcher.py [rounds]   (after make test / make demo)
 
-Belongs in benchmarks/ (not owned by the bring-up helper); not collected by pytest.
 """
 import io
 import statistics
 import sys
 import time
 
-from bringup_helpers import child_environment
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'tests' / 'bringup'))
+from bringup_helpers import child_environment  # noqa: E402  (the tests' fake-node environment)
 from lightstage_bringup.launcher import GraphWatcher, node_command
 from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 
