@@ -12,6 +12,8 @@ import sys
 
 # verb -> (module, function, one-line help)
 VERBS: dict[str, tuple[str, str, str]] = {
+    'demo': ('lightstage_bringup.demo', 'main',
+             'the whole method on the simulated light stage: synthesise, train, classify on the stage'),
     'up': ('lightstage_bringup.launcher', 'main',
            'start project nodes as separate processes, wait until discoverable, forward logs'),
     'classify': ('lightstage_bringup.classify_cli', 'main',

@@ -1,0 +1,295 @@
+"""`lightstage demo`: the whole method on the bundled simulated light stage, no hardware.
+
+1. Synthesise a capture folder (relightable models of 5 fruit types x real/fake).
+2. Train on the models of some physical samples per class: the greedy illumination
+   search (the paper's method) and the naive all-LEDs-on baseline, at noise setting Sigma3.
+3. Bring up the graph (driver on the simulated firmware, simulated camera, classifier) as
+   separate processes, put each held-out sample -- a physical sample never seen in
+   training, the paper's captured-imagery experiment -- on the stage, and classify it
+   through `/lightstage/classify`, with the greedy patterns and then the naive one.
+4. Print accuracy, images used and timings per method; write them to `OUT/demo_results.json`.
+
+Steps 1 and 2 are cached in OUT (delete it or pass --fresh to redo them).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
+
+NOISE = 'sigma3'
+NODES = ('driver', 'camera', 'classifier')
+
+
+def _say(text: str) -> None:
+    print(f'[demo] {text}', flush=True)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog='lightstage demo', description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('--out', default='out/demo', help='working folder (default: out/demo)')
+    p.add_argument('--size', type=int, default=None,
+                   help='synthetic image size in px (default: the generator\'s)')
+    p.add_argument('--repeats', type=int, default=400,
+                   help='random pose splits per candidate in the search (default: 400, the paper)')
+    p.add_argument('--per-class', type=int, default=3,
+                   help='held-out poses per class put on the stage (default: 3)')
+    p.add_argument('--jobs', type=int, default=2, help='worker processes (default: 2)')
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--domain-id', type=int, default=None,
+                   help='ROS_DOMAIN_ID of the demo graph (default: $ROS_DOMAIN_ID, else 42)')
+    p.add_argument('--fresh', action='store_true', help='redo the dataset and the training')
+    return p
+
+
+# ----------------------------------------------------------------------------- offline part
+def _dataset(out: Path, args) -> Path:
+    from lightstage_camera import synth
+
+    capture = out / 'capture'
+    if (capture / 'rig.yaml').is_file() and not args.fresh:
+        _say(f'dataset: reusing {capture}')
+        return capture
+    kwargs = {'n_jobs': args.jobs, 'seed': args.seed, 'overwrite': True}
+    if args.size:
+        kwargs['image_size'] = args.size
+    _say('dataset: synthesising relightable models (5 fruit types x real/fake, 32 LEDs each)...')
+    t0 = time.perf_counter()
+    synth.generate(capture, **kwargs)
+    _say(f'dataset: {capture} written in {time.perf_counter() - t0:.0f} s')
+    return capture
+
+
+def _split_by_instance(modelset):
+    """Train on every physical sample but the last of each class; hold that one out."""
+    import numpy as np
+
+    last = np.zeros(len(modelset), dtype=bool)
+    for c in range(modelset.n_classes):
+        in_class = modelset.labels == c
+        last |= in_class & (modelset.instance == modelset.instance[in_class].max())
+    return np.flatnonzero(~last), np.flatnonzero(last)
+
+
+def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
+    from lightstage_camera.capture_format import load_capture
+    from mux_trainer.baselines import NaiveClassifier
+    from mux_trainer.greedy import GreedyPatternSelector
+
+    modelset = load_capture(capture, downscale_to=120)
+    train_idx, test_idx = _split_by_instance(modelset)
+    held_out = [modelset.sample_names[i] for i in test_idx]
+    artifacts = {'greedy': out / f'greedy_{NOISE}.npz', 'naive': out / f'naive_{NOISE}.npz'}
+    summary_path = out / 'training.json'
+    if all(p.is_file() for p in artifacts.values()) and summary_path.is_file() and not args.fresh:
+        _say(f'training: reusing {", ".join(str(p) for p in artifacts.values())}')
+        return json.loads(summary_path.read_text()), held_out
+    train = modelset.subset(train_idx)
+    n_samples = len({name.rsplit('/', 1)[0] for name in train.sample_names})
+    _say(f'training on {len(train)} models ({n_samples} physical samples, {train.n_classes} classes); '
+         f'{len(test_idx)} models of unseen samples held out for the stage')
+    summary = {}
+    common = dict(noise=NOISE, n_repeats=args.repeats, seed=args.seed, n_jobs=args.jobs)
+    for name, model in (('greedy', GreedyPatternSelector(progress=True, **common)),
+                        ('naive', NaiveClassifier(**common))):
+        t0 = time.perf_counter()
+        model.fit(train)
+        seconds = time.perf_counter() - t0
+        model.to_artifact(provenance={'capture': str(capture.resolve()), 'train_seconds': seconds,
+                                      'demo_held_out_instance': 'last per class'}
+                          ).save(artifacts[name])
+        per_pattern = int(model.images_per_pattern)
+        best_images = int(model.best_n_patterns_) * per_pattern
+        summary[name] = {'artifact': str(artifacts[name]), 'train_seconds': seconds,
+                         'best_n_images': best_images,
+                         'patterns': model.patterns_.astype(int).tolist(),
+                         'split_accuracy_by_images': {str(k * per_pattern): float(v) for k, v
+                                                      in model.accuracy_by_images_.items()}}
+        _say(f'training: {name}: {seconds:.0f} s, split accuracy by image count '
+             + ', '.join(f'{k}: {100 * v:.1f} %' for k, v in summary[name]['split_accuracy_by_images'].items()))
+        if name == 'greedy':
+            for j in range(model.patterns_.shape[1]):
+                lit = [s for s in range(model.patterns_.shape[0]) if model.patterns_[s, j] > 0.5]
+                _say(f'  pattern {j + 1}: sites {lit} lit, each colour in turn (4 images)')
+    summary_path.write_text(json.dumps(summary, indent=2))
+    return summary, held_out
+
+
+def _choose_on_stage(held_out: list[str], per_class: int) -> list[str]:
+    by_class: dict[str, list[str]] = {}
+    for name in held_out:
+        by_class.setdefault(name.split('/')[0], []).append(name)
+    return [n for names in by_class.values() for n in names[:per_class]]
+
+
+# ----------------------------------------------------------------------------- on the stage
+class _GraphClient:
+    """The demo's own rclpy node: sets node parameters and calls the classify service."""
+
+    def __init__(self, domain_id: int):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+
+        self._rclpy = rclpy
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id, args=[])
+        self.node = rclpy.create_node('lightstage_demo', context=self.context,
+                                      start_parameter_services=False)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._clients = {}
+
+    def close(self) -> None:
+        self._rclpy.shutdown(context=self.context)
+
+    def _call(self, srv_type, name: str, request, timeout_s: float, attempts: int = 3):
+        client = self._clients.get(name)
+        if client is None:
+            client = self._clients[name] = self.node.create_client(srv_type, name)
+        if not client.wait_for_service(timeout_sec=10.0):
+            raise RuntimeError(f'service {name} is not available')
+        for _ in range(attempts):
+            # a request sent while the service's reply path is still matching can be lost:
+            # resend after the timeout (both calls used here are idempotent)
+            future = client.call_async(request)
+            self.executor.spin_until_future_complete(future, timeout_sec=timeout_s)
+            if future.done():
+                return future.result()
+            client.remove_pending_request(future)
+        raise RuntimeError(f'no answer from {name} after {attempts} attempts of {timeout_s:g} s')
+
+    def set_parameter(self, node: str, name: str, value: str) -> None:
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+
+        request = SetParameters.Request(parameters=[Parameter(
+            name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))])
+        result = self._call(SetParameters, f'/{node}/set_parameters', request, 10.0).results[0]
+        if not result.successful:
+            raise RuntimeError(f'{node} refused {name}={value!r}: {result.reason}')
+
+    def classify(self, max_images: int):
+        from lightstage_interfaces.srv import Classify
+
+        return self._call(Classify, '/lightstage/classify',
+                          Classify.Request(max_images=max_images, timeout_s=10.0), 15.0)
+
+
+def _write_params(out: Path, capture: Path, artifact: str, first_sample: str) -> Path:
+    import yaml
+
+    params = {
+        'driver': {'ros__parameters': {'port': 'sim'}},
+        'camera': {'ros__parameters': {'backend': 'sim', 'capture_dir': str(capture.resolve()),
+                                       'sample': first_sample, 'noise': 'auto'}},
+        'classifier': {'ros__parameters': {'artifact_path': str(Path(artifact).resolve())}},
+    }
+    path = out / 'demo_params.yaml'
+    path.write_text(yaml.safe_dump(params, sort_keys=False))
+    return path
+
+
+def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domain_id: int) -> dict:
+    from lightstage_bringup.launcher import NODE_REGISTRY, GraphWatcher, node_command
+    from lightstage_bringup.supervisor import ProcessSpec, Supervisor
+
+    params = _write_params(out, capture, summary['greedy']['artifact'], samples[0])
+    env = ros_environment(domain_id)
+    log_dir = out / 'logs'
+    results = {}
+    with open(os.devnull, 'w') as quiet, \
+            Supervisor(stdout=quiet, stderr=quiet, log_dir=log_dir) as supervisor:
+        t0 = time.monotonic()
+        for name in NODES:
+            supervisor.start(ProcessSpec(name, node_command(NODE_REGISTRY[name].module, name, params), env))
+        with GraphWatcher(domain_id) as graph:
+            missing, dead = graph.wait_for(list(NODES), 60.0, supervisor)
+        if missing or dead:
+            raise RuntimeError(f'the graph did not come up (missing {missing}, died {dead}); '
+                               f'see the node logs in {log_dir}')
+        _say(f'graph up in {time.monotonic() - t0:.1f} s (ROS_DOMAIN_ID={domain_id}): driver on the '
+             f'simulated firmware, simulated camera, classifier; node logs in {log_dir}')
+        client = _GraphClient(domain_id)
+        try:
+            for method in ('greedy', 'naive'):
+                client.set_parameter('classifier', 'artifact_path', summary[method]['artifact'])
+                n_images = summary[method]['best_n_images']
+                rows = []
+                for sample in samples:
+                    client.set_parameter('camera', 'sample', sample)
+                    r = client.classify(n_images)
+                    if not r.success:
+                        raise RuntimeError(f'classify failed for {sample}: {r.message}')
+                    rows.append({'sample': sample, 'true': sample.split('/')[0], 'label': r.label,
+                                 'images_used': int(r.images_used),
+                                 'acquisition_ms': float(r.acquisition_ms),
+                                 'compute_ms': float(r.compute_ms)})
+                results[method] = rows
+                correct = sum(row['true'] == row['label'] for row in rows)
+                _say(f'{method}: {correct}/{len(rows)} unseen samples right on the stage')
+        finally:
+            client.close()
+    return results
+
+
+def _report(results: dict, summary: dict) -> dict:
+    import numpy as np
+
+    report = {}
+    print()
+    print('On the simulated stage, physical samples never seen in training (noise Sigma3):')
+    print(f'  {"method":<8} {"accuracy":>9} {"images":>7} {"acquisition ms":>15} {"compute ms":>11}')
+    for method, rows in results.items():
+        accuracy = float(np.mean([r['true'] == r['label'] for r in rows]))
+        acq = float(np.median([r['acquisition_ms'] for r in rows]))
+        comp = float(np.median([r['compute_ms'] for r in rows]))
+        images = rows[0]['images_used']
+        report[method] = {'accuracy': accuracy, 'images_used': images,
+                          'acquisition_ms_median': acq, 'compute_ms_median': comp,
+                          'train_seconds': summary[method]['train_seconds'], 'calls': rows}
+        print(f'  {method:<8} {100 * accuracy:8.1f} % {images:>7d} {acq:>15.1f} {comp:>11.1f}')
+    print()
+    return report
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
+    for name in ('repeats', 'per_class', 'jobs'):
+        if getattr(args, name) < 1:
+            print(f'lightstage demo: --{name.replace("_", "-")} must be >= 1', file=sys.stderr)
+            return 2
+    domain_id = args.domain_id
+    if domain_id is None:
+        domain_id = int(os.environ.get('ROS_DOMAIN_ID') or 42)
+    try:
+        apply_ros_environment(domain_id)  # before rclpy loads: LOCALHOST discovery, the profile
+    except ValueError as exc:
+        print(f'lightstage demo: {exc}', file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    try:
+        capture = _dataset(out, args)
+        summary, held_out = _train(out, capture, args)
+        samples = _choose_on_stage(held_out, args.per_class)
+        results = _on_stage(out, capture, summary, samples, domain_id)
+    except (RuntimeError, ValueError, OSError) as exc:
+        print(f'lightstage demo: {exc}', file=sys.stderr)
+        return 1
+    report = _report(results, summary)
+    path = out / 'demo_results.json'
+    path.write_text(json.dumps({'noise': NOISE, 'training': summary, 'on_stage': report}, indent=2))
+    _say(f'done in {time.perf_counter() - t0:.0f} s; results in {path}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
