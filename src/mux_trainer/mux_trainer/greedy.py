@@ -56,6 +56,10 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     noise, dimmer, hog_config : rendering, used when `fit` is given a ModelSet.
     beam_width, max_lit_leds : joint mode only (see module docstring).
     seed, n_jobs, chunk_size, progress : reproducibility and execution.
+    callback : None, or a callable given one dict per event of the search, for progress
+        reports (the trainer node's action feedback): {'event': 'column_start', 'column'
+        (1-based), 'of'} before a column is searched and {'event': 'column_done', 'column',
+        'of', 'candidates' (evaluated), 'accuracy', 'improved', 'best_accuracy'} after.
 
     Fitted attributes
     -----------------
@@ -72,7 +76,8 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
                  n_repeats=400, test_fraction=0.25, inner_classifier='ridge', alpha=0.1,
                  C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
                  noise='sigma3', dimmer=0.45, hog_config=None, beam_width=1,
-                 max_lit_leds=N_LEDS, seed=0, n_jobs=1, chunk_size=32, progress=False):
+                 max_lit_leds=N_LEDS, seed=0, n_jobs=1, chunk_size=32, progress=False,
+                 callback=None):
         self.mode = mode
         self.n_patterns = n_patterns
         self.max_patterns = max_patterns
@@ -94,6 +99,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         self.n_jobs = n_jobs
         self.chunk_size = chunk_size
         self.progress = progress
+        self.callback = callback
 
     # ------------------------------------------------------------------ fit
     def _data(self, X) -> SearchData:
@@ -126,6 +132,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         bar = _progress(int(target), f'greedy {self.mode}', self.progress)
         with Parallel(n_jobs=self.n_jobs) as parallel:
             for col in range(int(target)):
+                self._notify(event='column_start', column=col + 1, of=int(target))
                 ctx = ev.prepare_column(columns if col else None)
                 if self.mode == 'per_colour':
                     record = self._search_site_column(ev, ctx, parallel, data.n_sites)
@@ -134,6 +141,9 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
                 acc = record['accuracy']
                 did_improve = bool(acc > best_so_far + self.tol)
                 record['improved'] = did_improve
+                self._notify(event='column_done', column=col + 1, of=int(target),
+                             candidates=int(len(record['scores'])), accuracy=float(acc),
+                             improved=did_improve, best_accuracy=float(max(best_so_far, acc)))
                 if not did_improve and self.n_patterns is None:
                     record['kept'] = False
                     self.history_.append(record)
@@ -156,6 +166,10 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         return self
 
     method_name = 'greedy'
+
+    def _notify(self, **event) -> None:
+        if self.callback is not None:
+            self.callback(event)
 
     def _search_site_column(self, ev, ctx, parallel, n_sites):
         cands = site_pattern_candidates(n_sites)
