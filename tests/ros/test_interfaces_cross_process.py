@@ -2,9 +2,8 @@
 feedback between node processes started through the supervisor (as `lightstage up` does).
 
 The driver side runs twice: with a stand-in (ros_fake_driver_node.py) and with the real
-lightstage_driver node on its Python firmware simulator. The trainer is a stand-in
-(ros_fake_trainer_node.py) until mux_trainer.trainer_node exists; switching is a change
-of TRAINER (and, for the real one, its parameters).
+lightstage_driver node on its Python firmware simulator. The trainer is the real
+mux_trainer node, training on a tiny synthetic capture folder.
 """
 import math
 
@@ -22,10 +21,10 @@ DRIVERS = {
     # pwm_bits=8: a dimming rig, so IlluminationState carries the requested intensities
     'lightstage_driver': ('lightstage_driver.driver_node', {'frame_id': 'rig', 'port': 'sim://?pwm_bits=8'}),
 }
-TRAINER = ('ros_fake_trainer_node', {})
+TRAINER = ('mux_trainer.trainer_node', {'n_jobs': 1})
 APPLY_PATTERNS = '/lightstage/apply_patterns'
 ILLUMINATION = '/illumination'
-TRAIN = '/trainer/train'
+TRAIN = '/lightstage/train'
 
 
 @pytest.fixture(scope='module', params=list(DRIVERS))
@@ -114,27 +113,48 @@ def test_bad_request_is_refused_with_a_message_and_publishes_nothing(graph):
     c.node.destroy_subscription(sub)
 
 
-def test_train_action_streams_feedback_and_returns_a_result(graph):
+@pytest.fixture(scope='module')
+def tiny_capture(tmp_path_factory):
+    """2 classes (banana real/fake) x 4 poses at the classifier's 120 px: trains in seconds."""
+    from lightstage_camera import synth
+    out = tmp_path_factory.mktemp('capture') / 'c'
+    synth.generate(out, image_size=120, n_samples_per_class=1, n_poses=4,
+                   object_types=('banana',), n_jobs=1)
+    return out
+
+
+def test_train_action_streams_feedback_and_returns_a_result(graph, tiny_capture, tmp_path):
     from lightstage_interfaces.action import Train
+    from mux_classifier.model import TrainedArtifact
     from rclpy.action import ActionClient
     _sup, c = graph
     client = ActionClient(c.node, Train, TRAIN)
     c.spin_until(client.server_is_ready, 10, 'the Train action server')
     feedback = []
-    goal = Train.Goal(capture_dir='/data/capture', output_path='/tmp/artifact.npz',
-                      method='greedy', mode='per_colour', noise='sigma2', max_images=4,
-                      repeats=3, seed=7)
+    artifact = tmp_path / 'artifact.npz'
+    goal = Train.Goal(capture_dir=str(tiny_capture), output_path=str(artifact),
+                      method='greedy', mode='per_colour', noise='sigma2', max_images=2,
+                      repeats=5, seed=7)
     handle = c.result(client.send_goal_async(goal, feedback_callback=lambda f: feedback.append(f.feedback)))
     assert handle.accepted
-    result = c.result(handle.get_result_async(), 15, 'the Train result').result
-    assert result.success
-    assert result.artifact_path == '/tmp/artifact.npz'
-    assert len(result.accuracy_by_images) == 4 and result.elapsed_s > 0
-    # feedback arrives in order, one per column (reliable, on the same connection)
-    assert [f.column for f in feedback] == [1, 2, 3, 4]
-    assert feedback[-1].stage == 'column 4' and feedback[-1].candidates_total == 40
-    np.testing.assert_allclose([f.best_accuracy for f in feedback], result.accuracy_by_images)
-    # a goal the server refuses
+    result = c.result(handle.get_result_async(), 60, 'the Train result').result
+    assert result.success, result.message
+    assert result.artifact_path == str(artifact)
+    assert 1 <= len(result.accuracy_by_images) <= 2 and result.elapsed_s > 0
+    assert TrainedArtifact.load(artifact).class_names == ['banana-fake', 'banana-real']
+    # feedback arrives in order (reliable, on the same connection): loading, then per column
+    assert feedback[0].stage == 'loading models'
+    columns = [f.column for f in feedback[1:]]
+    assert columns == sorted(columns) and columns[0] == 1
+    done = [f for f in feedback if f.candidates_done]
+    assert done and all(f.candidates_done == f.candidates_total == 254 for f in done)
+    assert done[-1].best_accuracy == pytest.approx(max(result.accuracy_by_images))
+    # a goal the server refuses, and one it accepts but cannot carry out
     refused = c.result(client.send_goal_async(Train.Goal(max_images=0)))
     assert not refused.accepted
+    bad = c.result(client.send_goal_async(Train.Goal(capture_dir=str(tmp_path / 'missing'),
+                                                     output_path=str(tmp_path / 'x.npz'))))
+    assert bad.accepted
+    bad_result = c.result(bad.get_result_async(), 30, 'the failed Train result').result
+    assert not bad_result.success and 'no such capture folder' in bad_result.message
     client.destroy()

@@ -1,0 +1,129 @@
+"""The trainer node: the Train action (`/lightstage/train`) around `training.train_from_capture`.
+
+One goal at a time (a second is rejected while one runs: the search uses every core it is
+given). Feedback is sent when each pattern column starts and when it is chosen; a cancel
+request stops the search at the next column boundary. Empty/zero goal fields take the
+paper's defaults (greedy, per-colour, Sigma3, 8 columns, 400 splits).
+"""
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import rclpy
+from lightstage_interfaces.action import Train
+from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+
+from .training import train_from_capture
+
+ACTION_NAME = '/lightstage/train'
+NODE_NAME = 'mux_trainer'
+SITE_CANDIDATES = 254  # per-colour mode: patterns with 1..7 of 8 sites lit
+
+
+class _Cancelled(Exception):
+    pass
+
+
+def goal_options(goal, n_jobs: int) -> dict:
+    """Train goal fields -> `train_from_capture` options, with the documented defaults."""
+    return dict(method=goal.method or 'greedy', mode=goal.mode or 'per_colour',
+                noise=goal.noise or 'sigma3', max_images=int(goal.max_images) or 8,
+                repeats=int(goal.repeats) or 400, seed=int(goal.seed), n_jobs=n_jobs)
+
+
+class TrainerNode(Node):
+    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+        super().__init__(node_name, **kwargs)
+        self.declare_parameter('n_jobs', 2, ParameterDescriptor(
+            type=ParameterType.PARAMETER_INTEGER,
+            description='joblib workers for candidate evaluation (-1 = all cores)',
+            integer_range=[IntegerRange(from_value=-1, to_value=256, step=1)]))
+        self._busy = threading.Lock()
+        self._server = ActionServer(self, Train, ACTION_NAME, execute_callback=self._execute,
+                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel,
+                                    callback_group=ReentrantCallbackGroup())
+
+    def _on_goal(self, goal) -> GoalResponse:
+        if not goal.capture_dir or not goal.output_path:
+            self.get_logger().error('Train goal rejected: capture_dir and output_path are required')
+            return GoalResponse.REJECT
+        if self._busy.locked():
+            self.get_logger().warning('Train goal rejected: a training run is in progress')
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _on_cancel(self, _goal_handle) -> CancelResponse:
+        return CancelResponse.ACCEPT
+
+    def _execute(self, goal_handle):
+        goal = goal_handle.request
+        result = Train.Result()
+        t0 = time.perf_counter()
+        with self._busy:
+            options = goal_options(goal, int(self.get_parameter('n_jobs').value))
+            total = SITE_CANDIDATES if options['mode'] == 'per_colour' else 0
+            best = [0.0]
+
+            def on_event(event: dict) -> None:
+                if goal_handle.is_cancel_requested:
+                    raise _Cancelled()
+                done = event['event'] == 'column_done'
+                if done:
+                    best[0] = event['best_accuracy']
+                goal_handle.publish_feedback(Train.Feedback(
+                    column=event['column'], candidates_done=event.get('candidates', 0) if done else 0,
+                    candidates_total=total, best_accuracy=best[0],
+                    stage=(f'column {event["column"]} of at most {event["of"]}: '
+                           + (f'accuracy {event["accuracy"]:.3f}' if done else 'searching'))))
+
+            goal_handle.publish_feedback(Train.Feedback(stage='loading models'))
+            self.get_logger().info(f'training {options} on {goal.capture_dir}')
+            try:
+                summary = train_from_capture(goal.capture_dir, goal.output_path,
+                                             callback=on_event, **options)
+            except _Cancelled:
+                goal_handle.canceled()
+                result.message = 'canceled at a column boundary; no artifact written'
+                result.elapsed_s = time.perf_counter() - t0
+                return result
+            except (ValueError, OSError) as exc:  # bad options, unreadable capture, unwritable output
+                goal_handle.abort()
+                result.message = f'training failed: {exc}'
+                result.elapsed_s = time.perf_counter() - t0
+                self.get_logger().error(result.message)
+                return result
+        accuracy = summary['accuracy_by_images']
+        result.success = True
+        result.artifact_path = summary['artifact']
+        result.accuracy_by_images = [float(accuracy[k]) for k in sorted(accuracy, key=int)]
+        result.elapsed_s = time.perf_counter() - t0
+        result.message = (f'{summary["method"]}: {len(summary["patterns"][0]) if summary["patterns"] else 0} '
+                          f'pattern column(s), best at {summary["best_n_images"]}')
+        goal_handle.succeed()
+        self.get_logger().info(f'wrote {result.artifact_path} ({result.message})')
+        return result
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    node = TrainerNode()
+    executor = MultiThreadedExecutor(num_threads=2)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

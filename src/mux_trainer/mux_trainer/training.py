@@ -1,0 +1,91 @@
+"""One training run: capture folder in, trained-classifier artifact out.
+
+Shared by `lightstage train` (cli.py) and the trainer node's Train action, so that both
+build the same estimator from the same options and write the same artifact.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from .data import NOISE_SETTINGS
+
+METHODS = ('greedy', 'snr_optimal', 'naive')
+MODES = ('per_colour', 'joint')
+
+
+def check_options(method: str, mode: str, noise: str, max_images: int, repeats: int) -> None:
+    """Raise ValueError naming the first bad option and the allowed values."""
+    if method not in METHODS:
+        raise ValueError(f'unknown method {method!r}; use one of {", ".join(METHODS)}')
+    if mode not in MODES:
+        raise ValueError(f'unknown mode {mode!r}; use one of {", ".join(MODES)}')
+    if noise not in NOISE_SETTINGS:
+        raise ValueError(f'unknown noise setting {noise!r}; use one of {", ".join(NOISE_SETTINGS)}')
+    if max_images < 1 or repeats < 1:
+        raise ValueError(f'max_images and repeats must be >= 1, got {max_images} and {repeats}')
+
+
+def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8, repeats=400,
+                seed=0, n_jobs=1, hog_config=None, fixed_count=False, inner_classifier='ridge',
+                final_classifier='linear_svm', beam_width=1, progress=False, callback=None):
+    """The unfitted estimator for these options (greedy search or a baseline)."""
+    from .baselines import NaiveClassifier, SnrOptimalClassifier
+    from .greedy import GreedyPatternSelector
+
+    check_options(method, mode, noise, max_images, repeats)
+    common = dict(n_repeats=repeats, seed=seed, n_jobs=n_jobs, noise=noise, hog_config=hog_config,
+                  inner_classifier=inner_classifier, final_classifier=final_classifier)
+    if method == 'greedy':
+        return GreedyPatternSelector(mode=mode, max_patterns=max_images,
+                                     n_patterns=max_images if fixed_count else None,
+                                     beam_width=beam_width, progress=progress,
+                                     callback=callback, **common)
+    if method == 'snr_optimal':
+        return SnrOptimalClassifier(n_images=max_images, **common)
+    return NaiveClassifier(**common)
+
+
+def load_training_set(capture_dir, image_size: int = 120):
+    """The capture folder's models, downscaled to the classifier's image size."""
+    from lightstage_camera.capture_format import load_capture
+
+    path = Path(capture_dir)
+    if not path.is_dir():
+        raise ValueError(f'{capture_dir}: no such capture folder (write one with '
+                         '`lightstage synth OUT_DIR`)')
+    return load_capture(path, downscale_to=image_size)
+
+
+def train_from_capture(capture_dir, out_path, *, image_size: int = 120, **options) -> dict:
+    """Fit `build_model(**options)` on a capture folder and save its artifact to `out_path`.
+
+    Returns a JSON-ready summary: method, mode, noise, artifact path, class names, patterns,
+    images per pattern, split accuracy by column count, best column count, seconds.
+    """
+    hog_config = options.get('hog_config')
+    if hog_config is not None:
+        image_size = hog_config.image_size
+    model = build_model(**options)  # options are checked before the (slow) load
+    modelset = load_training_set(capture_dir, image_size)
+    t0 = time.perf_counter()
+    model.fit(modelset)
+    seconds = time.perf_counter() - t0
+    artifact = model.to_artifact(provenance={'capture': str(Path(capture_dir).resolve()),
+                                             'train_seconds': seconds})
+    out = Path(out_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    artifact.save(out)
+    summary = {
+        'method': options.get('method', 'greedy'), 'mode': model.mode,
+        'noise': options.get('noise', 'sigma3'), 'artifact': str(out),
+        'class_names': list(model.class_names_),
+        'patterns': model.patterns_.astype(int).tolist(),
+        'images_per_pattern': int(model.images_per_pattern),
+        'accuracy_by_images': {str(k): float(v) for k, v in model.accuracy_by_images_.items()},
+        'best_n_images': int(model.best_n_patterns_),
+        'train_seconds': seconds,
+    }
+    if hasattr(model, 'improved_'):
+        summary['improved'] = [bool(v) for v in model.improved_]
+    return summary
