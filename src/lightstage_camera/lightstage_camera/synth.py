@@ -211,7 +211,7 @@ def _shape(kind: str, x, y, shape_params: dict, pose: dict):
 
 
 def _instance_shape(kind: str, rng) -> dict:
-    params = {"scale": rng.uniform(0.88, 1.12), "squash": rng.uniform(0.8, 1.0)}
+    params = {"scale": rng.uniform(0.92, 1.08), "squash": rng.uniform(0.85, 1.0)}
     if kind == "grape":
         grapes = []
         for _ in range(int(rng.integers(9, 15))):
@@ -339,7 +339,7 @@ class SampleJob:
 def _instance_params(kind: str, seed: tuple) -> dict:
     rng = np.random.default_rng(np.random.SeedSequence(seed))
     params = _instance_shape(kind, rng)
-    overall = rng.uniform(0.85, 1.15)  # overall albedo varies between instances...
+    overall = rng.uniform(0.9, 1.1)  # overall albedo varies between instances...
     params["tint"] = tuple(overall * rng.uniform(0.95, 1.05, 4))  # ...and a little per colour
     return params
 
