@@ -86,3 +86,19 @@ def test_render_noisy_clips_and_is_seeded(small_modelset):
     assert a.min() >= 0 and a.max() <= 1023
     clean = render_noisy(small_modelset, W, None, np.random.default_rng(3))
     np.testing.assert_allclose(clean, np.clip(render_site_patterns(small_modelset, W), 0, 1023))
+
+
+def test_render_noisy_modes_and_noise_scale(small_modelset):
+    P = np.ones((32, 2))
+    led = render_noisy(small_modelset, P, None, np.random.default_rng(0), mode="led")
+    assert led.shape == (len(small_modelset), 2, 24, 24)
+    with pytest.raises(ValueError, match="mode"):
+        render_noisy(small_modelset, P, None, np.random.default_rng(0), mode="joint")
+    # a downscaled ModelSet carries its noise_scale into the noise
+    small = small_modelset.downscaled(12)
+    flat = small.subset([0])
+    flat.models[:] = 100.0
+    x = render_noisy(flat, np.ones((8, 1)), PRESETS["sigma3"], np.random.default_rng(1),
+                     dimmer=1 / 8)
+    expected = PRESETS["sigma3"].variance(100.0) / 4
+    assert x.var() == pytest.approx(expected, rel=0.2)
