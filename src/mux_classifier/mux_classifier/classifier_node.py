@@ -92,7 +92,8 @@ class ClassifierNode(Node):
         group = ReentrantCallbackGroup()
         self._apply_client = self.create_client(ApplyPatterns, APPLY_SERVICE, callback_group=group)
         self._result_pub = self.create_publisher(ClassificationResult, RESULT_TOPIC, 10)
-        self.create_subscription(Image, IMAGE_TOPIC, self._on_image, IMAGE_QOS, callback_group=group)
+        self._image_sub = self.create_subscription(Image, IMAGE_TOPIC, self._on_image, IMAGE_QOS,
+                                                   callback_group=group)
         self.create_service(Classify, CLASSIFY_SERVICE, self._on_classify, callback_group=group)
 
     def p(self, name: str):
@@ -150,6 +151,14 @@ class ClassifierNode(Node):
             raise InferenceError(
                 f'the light stage driver\'s service {APPLY_SERVICE} is not available (waited '
                 f'{timeout_s:g} s); start the driver, e.g. `lightstage up driver camera classifier`')
+        # Images published before the camera's publisher has matched this subscription are
+        # lost (reliable, volatile): right after start-up, wait for the match, not the graph.
+        while self._image_sub.get_publisher_count() == 0:
+            if time.monotonic() >= deadline:
+                raise InferenceError(
+                    f'no camera is publishing {IMAGE_TOPIC} to this node; start the camera '
+                    '(`lightstage up driver camera classifier`) and check its /diagnostics')
+            time.sleep(0.01)
         request = ApplyPatterns.Request(trigger=True)
         for column in plan.led_patterns.T:
             request.patterns.append(Pattern(intensities=np.asarray(column, dtype=np.float32),
