@@ -13,6 +13,7 @@ Pulse widths are in microseconds as measured on the pins (simulated cycles for s
 from __future__ import annotations
 
 import abc
+import subprocess
 from dataclasses import dataclass
 
 
@@ -102,3 +103,57 @@ class FirmwareBackend(abc.ABC):
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+class ChildProcessBackend(FirmwareBackend):
+    """A backend whose firmware runs in a child process (`_proc`) read by a thread (`_reader`).
+
+    Subclasses start both in `start()` and say how to ask the child to exit politely
+    (`_request_exit`); stopping, killing and reaping are the same for every such backend.
+    """
+
+    _proc = None
+    _reader = None
+
+    def _request_exit(self, proc) -> None:
+        proc.terminate()
+
+    def stop(self) -> None:
+        proc = self._proc
+        if proc is None:
+            return
+        if proc.poll() is None:
+            self._request_exit(proc)
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        self._reap(proc)
+
+    def kill(self) -> None:
+        proc = self._proc
+        if proc is None:
+            return
+        if proc.poll() is None:
+            proc.kill()  # SIGKILL: an abrupt disconnect, as a pulled USB cable
+        proc.wait()
+        self._reap(proc)
+
+    def _reap(self, proc) -> None:
+        if self._reader is not None:
+            self._reader.join(5)
+        for stream in (proc.stdin, proc.stdout):
+            if stream:
+                try:
+                    stream.close()
+                except OSError:
+                    pass
+        self._proc = None
+
+    def close(self) -> None:
+        """Stop the child and remove what the backend created."""
+        self.stop()
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -16,13 +16,13 @@ import threading
 import weakref
 from pathlib import Path
 
-from .firmware_backend import FirmwareBackend, LatchedWord, TriggerPulse
+from .firmware_backend import ChildProcessBackend, LatchedWord, TriggerPulse
 from .firmware_model import FirmwareLimits
 
 _PACKAGE_PARENT = str(Path(__file__).resolve().parent.parent)
 
 
-class PythonSimBackend(FirmwareBackend):
+class PythonSimBackend(ChildProcessBackend):
     name = 'python'
     supports_faults = True
     pulse_tolerance_us = 1.0   # the model's timer is exact on the firmware clock
@@ -93,46 +93,10 @@ class PythonSimBackend(FirmwareBackend):
                     self._acks[record['id']] = record
                 self._lock.notify_all()
 
-    def stop(self) -> None:
-        proc = self._proc
-        if proc is None:
-            return
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        self._reap(proc)
-
-    def kill(self) -> None:
-        proc = self._proc
-        if proc is None:
-            return
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait()
-        self._reap(proc)
-
-    def _reap(self, proc: subprocess.Popen) -> None:
-        if self._reader is not None:
-            self._reader.join(5)
-        for stream in (proc.stdin, proc.stdout):
-            if stream:
-                try:
-                    stream.close()
-                except OSError:
-                    pass
-        self._proc = None
-
     def close(self) -> None:
         """Stop and remove the temp dir holding the port link."""
         self.stop()
         self._cleanup()
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     @property
     def port(self) -> str:

@@ -16,13 +16,12 @@ from __future__ import annotations
 import fcntl
 import os
 import shutil
-import signal
 import subprocess
 import tempfile
 import threading
 from pathlib import Path
 
-from .firmware_backend import FirmwareBackend, LatchedWord, TriggerPulse
+from .firmware_backend import ChildProcessBackend, LatchedWord, TriggerPulse
 
 #: where the firmware sources and Makefile live (override with LIGHTSTAGE_FIRMWARE_DIR)
 DEFAULT_FIRMWARE_DIR = Path(__file__).resolve().parent.parent / 'firmware'
@@ -88,7 +87,7 @@ def build_firmware(directory: Path | None = None, build_dir: Path | None = None,
     return build / 'lightstage_simavr', build / 'lightstage.elf'
 
 
-class SimavrBackend(FirmwareBackend):
+class SimavrBackend(ChildProcessBackend):
     name = 'avr'
     supports_faults = False
     #: one Timer1 tick (0.5 us at 16 MHz): both edges sit on tick boundaries
@@ -205,49 +204,16 @@ class SimavrBackend(FirmwareBackend):
             self._output_ended = True
             self._lock.notify_all()
 
-    def stop(self) -> None:
-        proc = self._proc
-        if proc is None:
-            return
-        if proc.poll() is None:
-            try:
-                self._command(b'quit')
-            except (OSError, ValueError):
-                pass
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        self._reap(proc)
-
-    def kill(self) -> None:
-        proc = self._proc
-        if proc is None:
-            return
-        if proc.poll() is None:
-            os.kill(proc.pid, signal.SIGKILL)
-        proc.wait()
-        self._reap(proc)
-
-    def _reap(self, proc: subprocess.Popen) -> None:
-        if self._reader is not None:
-            self._reader.join(5)
-        for stream in (proc.stdin, proc.stdout):
-            if stream:
-                try:
-                    stream.close()
-                except OSError:
-                    pass
-        self._proc = None
+    def _request_exit(self, proc) -> None:
+        try:
+            self._command(b'quit')
+        except (OSError, ValueError):
+            pass
 
     def close(self) -> None:
         """Stop and remove the temp dir holding the port link and the harness log."""
         self.stop()
         shutil.rmtree(self._dir, ignore_errors=True)
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def reset(self, timeout_s: float = 5.0) -> None:
         """Pulse the MCU's reset line (what opening the port does to a real Uno): state is
