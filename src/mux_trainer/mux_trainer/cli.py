@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 from .data import NOISE_SETTINGS
@@ -48,13 +47,9 @@ def _positive(args, *names):
 
 
 def _load(capture_dir: str, hog_config):
-    from lightstage_camera.capture_format import load_capture
-    path = Path(capture_dir)
-    if not path.is_dir():
-        raise SystemExit(f'lightstage: {capture_dir}: no such capture folder '
-                         '(write one with `lightstage synth OUT_DIR`)')
+    from .training import load_training_set
     try:
-        return load_capture(path, downscale_to=hog_config.image_size)
+        return load_training_set(capture_dir, hog_config.image_size)
     except ValueError as exc:
         hint = ''
         if 'larger size' in str(exc):
@@ -85,46 +80,21 @@ def train_main(argv: list[str] | None = None) -> int:
     _positive(args, 'repeats', 'max_images', 'beam_width')
     hog_config = _hog_config(args)
     modelset = _load(args.capture_dir, hog_config)
-    from .baselines import NaiveClassifier, SnrOptimalClassifier
-    from .greedy import GreedyPatternSelector
-    common = dict(n_repeats=args.repeats, seed=args.seed, n_jobs=args.jobs, noise=args.noise,
-                  hog_config=hog_config, inner_classifier=args.inner_classifier,
-                  final_classifier=args.classifier)
-    if args.method == 'greedy':
-        model = GreedyPatternSelector(mode=args.mode, max_patterns=args.max_images,
-                                      n_patterns=args.max_images if args.fixed_count else None,
-                                      beam_width=args.beam_width, progress=not args.quiet,
-                                      **common)
-    elif args.method == 'snr_optimal':
-        model = SnrOptimalClassifier(n_images=args.max_images, **common)
-    else:
-        model = NaiveClassifier(**common)
-    t0 = time.perf_counter()
+    from .training import train_modelset
     try:
-        model.fit(modelset)
+        doc = train_modelset(
+            modelset, args.out, capture=args.capture_dir, method=args.method, mode=args.mode, noise=args.noise,
+            max_images=args.max_images, repeats=args.repeats, seed=args.seed, n_jobs=args.jobs,
+            hog_config=hog_config, fixed_count=args.fixed_count,
+            inner_classifier=args.inner_classifier, final_classifier=args.classifier,
+            beam_width=args.beam_width, progress=not args.quiet)
     except ValueError as exc:
         raise SystemExit(f'lightstage train: {exc}') from None
-    seconds = time.perf_counter() - t0
-    artifact = model.to_artifact(provenance={'capture': str(Path(args.capture_dir).resolve()),
-                                             'train_seconds': seconds})
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    artifact.save(out)
-    doc = {
-        'method': args.method, 'mode': model.mode, 'noise': args.noise,
-        'artifact': str(out), 'class_names': list(model.class_names_),
-        'patterns': model.patterns_.astype(int).tolist(),
-        'images_per_pattern': int(model.images_per_pattern),
-        'accuracy_by_images': {str(k): float(v) for k, v in model.accuracy_by_images_.items()},
-        'best_n_images': int(model.best_n_patterns_),
-        'train_seconds': seconds,
-    }
-    if hasattr(model, 'improved_'):
-        doc['improved'] = [bool(v) for v in model.improved_]
+    out, seconds = doc['artifact'], doc['train_seconds']
     if args.json:
         print(json.dumps(doc))
     elif not args.quiet:
-        print(f'wrote {out}: {model.patterns_.shape[1]} pattern column(s), split accuracy by '
+        print(f'wrote {out}: {len(doc["patterns"][0])} pattern column(s), split accuracy by '
               f'image count {doc["accuracy_by_images"]}, best at {doc["best_n_images"]}; '
               f'{seconds:.1f} s')
     return 0

@@ -58,21 +58,31 @@ def load_training_set(capture_dir, image_size: int = 120):
 
 
 def train_from_capture(capture_dir, out_path, *, image_size: int = 120, **options) -> dict:
-    """Fit `build_model(**options)` on a capture folder and save its artifact to `out_path`.
+    """Load a capture folder and `train_modelset` on it (options are checked before the load)."""
+    hog_config = options.get('hog_config')
+    if hog_config is not None:
+        image_size = hog_config.image_size
+    check_options(options.get('method', 'greedy'), options.get('mode', 'per_colour'),
+                  options.get('noise', 'sigma3'), options.get('max_images', 8),
+                  options.get('repeats', 400))
+    modelset = load_training_set(capture_dir, image_size)
+    return train_modelset(modelset, out_path, capture=capture_dir, **options)
+
+
+def train_modelset(modelset, out_path, *, capture=None, **options) -> dict:
+    """Fit `build_model(**options)` on a ModelSet and save its artifact to `out_path`.
 
     Returns a JSON-ready summary: method, mode, noise, artifact path, class names, patterns,
     images per pattern, split accuracy by column count, best column count, seconds.
     """
-    hog_config = options.get('hog_config')
-    if hog_config is not None:
-        image_size = hog_config.image_size
-    model = build_model(**options)  # options are checked before the (slow) load
-    modelset = load_training_set(capture_dir, image_size)
+    model = build_model(**options)
     t0 = time.perf_counter()
     model.fit(modelset)
     seconds = time.perf_counter() - t0
-    artifact = model.to_artifact(provenance={'capture': str(Path(capture_dir).resolve()),
-                                             'train_seconds': seconds})
+    provenance = {'train_seconds': seconds}
+    if capture is not None:
+        provenance['capture'] = str(Path(capture).resolve())
+    artifact = model.to_artifact(provenance=provenance)
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
     artifact.save(out)
