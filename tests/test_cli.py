@@ -1,5 +1,7 @@
 """The `lightstage` dispatcher: help, unknown verbs, and that every verb resolves."""
 import importlib
+import re
+from pathlib import Path
 
 import pytest
 
@@ -31,3 +33,17 @@ def test_unknown_verb_is_a_clear_error(capsys):
 def test_every_verb_points_at_a_callable(verb):
     module, function, _ = cli.VERBS[verb]
     assert callable(getattr(importlib.import_module(module), function))
+
+
+def _ros_run_wrappers():
+    root = Path(__file__).resolve().parents[1] / 'src'
+    return sorted(root.glob('*/scripts/*'))
+
+
+@pytest.mark.parametrize('wrapper', _ros_run_wrappers(), ids=lambda p: f'{p.parts[-3]}/{p.name}')
+def test_every_ros_run_executable_has_its_main(wrapper):
+    """Each lib/<pkg>/<exe> wrapper (what `ros2 run` starts) imports an existing main()."""
+    match = re.search(r'^from ([\w.]+) import main$', wrapper.read_text(), re.M)
+    assert match, f'{wrapper}: no `from MODULE import main` line'
+    assert callable(importlib.import_module(match.group(1)).main)
+    assert wrapper.stat().st_mode & 0o111, f'{wrapper} is not executable'

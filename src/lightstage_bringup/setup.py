@@ -15,20 +15,16 @@ setup(
         ('share/' + package_name + '/config', ['lightstage_bringup/config/fastdds_profile.xml',
                                                'config/lightstage.yaml']),
         ('share/' + package_name + '/launch', ['launch/lightstage.launch.py']),
-        # `ros2 run lightstage_bringup EXE` looks for an executable at <prefix>/lib/<pkg>/EXE;
-        # pip puts console_scripts in bin/, so small wrappers are installed there as data.
-        ('lib/' + package_name, ['scripts/recorder_node'])
     ],
     install_requires=['setuptools'],
     zip_safe=False,
     maintainer='lightstage maintainers',
     maintainer_email='maintainers@lightstage.invalid',
-    description='Bring-up of the whole graph: the lightstage CLI, ROS environment, launch files, configuration, recording and replay.',
+    description='Bring-up of the whole graph: the lightstage CLI, ROS environment, launch files, configuration.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
             'lightstage = lightstage_bringup.cli:main',
-            'lightstage-recorder-node = lightstage_bringup.recorder_node:main'
         ],
     },
 )
