@@ -70,12 +70,18 @@ class Client:
         self.apply_client = self.node.create_client(ApplyPatterns, '/lightstage/apply_patterns')
         self.lifecycle = self.node.create_client(ChangeState, f'/{node_name}/change_state')
 
-    def call(self, client, request, timeout_s=10.0):
+    def call(self, client, request, timeout_s=10.0, attempts=1):
+        # service_is_ready() covers the request direction only: a reply sent before the
+        # node's reply writer has matched this client is lost. Idempotent requests may be
+        # resent (attempts > 1); the others wait the whole timeout once.
         assert client.wait_for_service(timeout_sec=20.0), 'service did not appear'
-        future = client.call_async(request)
-        self.executor.spin_until_future_complete(future, timeout_sec=timeout_s)
-        assert future.done(), 'no response'
-        return future.result()
+        for _ in range(attempts):
+            future = client.call_async(request)
+            self.executor.spin_until_future_complete(future, timeout_sec=timeout_s / attempts)
+            if future.done():
+                return future.result()
+            client.remove_pending_request(future)
+        raise AssertionError(f'no response in {timeout_s} s ({attempts} attempt(s))')
 
     def apply(self, patterns, trigger=True, exposure_us=1000):
         request = ApplyPatterns.Request(trigger=trigger)
@@ -85,7 +91,8 @@ class Client:
             msg.exposure_us = exposure_us
             msg.gain_db = 12.0
             request.patterns.append(msg)
-        return self.call(self.apply_client, request)
+        # setting LEDs without a trigger is idempotent: safe to resend
+        return self.call(self.apply_client, request, attempts=1 if trigger else 3)
 
     def transition(self, transition_id):
         request = ChangeState.Request()
