@@ -158,3 +158,26 @@ def test_train_action_streams_feedback_and_returns_a_result(graph, tiny_capture,
     bad_result = c.result(bad.get_result_async(), 30, 'the failed Train result').result
     assert not bad_result.success and 'no such capture folder' in bad_result.message
     client.destroy()
+
+
+def test_train_action_cancel_stops_at_a_column_boundary(graph, tiny_capture, tmp_path):
+    from action_msgs.msg import GoalStatus
+    from lightstage_interfaces.action import Train
+    from rclpy.action import ActionClient
+    _sup, c = graph
+    client = ActionClient(c.node, Train, TRAIN)
+    c.spin_until(client.server_is_ready, 10, 'the Train action server')
+    feedback = []
+    artifact = tmp_path / 'never.npz'
+    goal = Train.Goal(capture_dir=str(tiny_capture), output_path=str(artifact), noise='sigma2',
+                      max_images=8, repeats=5, seed=7)
+    handle = c.result(client.send_goal_async(goal, feedback_callback=lambda f: feedback.append(f.feedback)))
+    assert handle.accepted
+    c.spin_until(lambda: any(f.column >= 1 for f in feedback), 30, 'the first column to start')
+    cancel = c.result(handle.cancel_goal_async(), 10, 'the cancel response')
+    assert len(cancel.goals_canceling) == 1
+    outcome = c.result(handle.get_result_async(), 60, 'the canceled Train result')
+    assert outcome.status == GoalStatus.STATUS_CANCELED
+    assert not outcome.result.success and 'canceled' in outcome.result.message
+    assert not artifact.exists()
+    client.destroy()
