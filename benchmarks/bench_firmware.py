@@ -29,6 +29,7 @@ from lightstage_driver import protocol as p
 from lightstage_driver.sim_backend import PythonSimBackend
 from lightstage_driver.simavr_backend import SimavrBackend, missing_tools
 from lightstage_driver.stage import LightStage
+from bench_driver import timed  # noqa: E402  (the same per-call timer as the driver benchmark)
 
 BAUD = 115200
 EXPOSURE_US = 20
@@ -42,15 +43,6 @@ def backends():
         return
     yield 'avr', lambda: SimavrBackend()
     yield 'avr-unthrottled', lambda: SimavrBackend(throttle=False)
-
-
-def timed(fn, n: int) -> np.ndarray:
-    out = np.empty(n)
-    for i in range(n):
-        t0 = time.perf_counter()
-        fn(i)
-        out[i] = time.perf_counter() - t0
-    return out
 
 
 def line_per_s(*frames: tuple[int, int], exposure_us: float = 0.0) -> float:
