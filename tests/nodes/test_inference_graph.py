@@ -123,7 +123,9 @@ def test_error_paths_missing_artifact_no_driver_no_camera(stage_artifact_path, t
             # 3. driver but no camera: refused before any LED is lit (images that do not
             #    arrive from a running camera are named: test_inference.py)
             start_nodes(supervisor, client, ['driver'], domain_id, params)
-            r = classify(client, max_images=4, timeout_s=2.0)
+            # the classifier's own participant can take ~3.5 s to discover a node started
+            # after it (Fast DDS announces every 3 s): give the call time to see the driver
+            r = classify(client, max_images=4, timeout_s=6.0)
             assert not r.success
             assert 'no camera is publishing /image_raw' in r.message
         finally:
