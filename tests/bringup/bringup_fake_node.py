@@ -33,6 +33,11 @@ def main() -> int:
                 return exit_code
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # a signal that lands inside spin_once can shut the context down under it, which
+        # surfaces as an rcl error instead of ExternalShutdownException: that is a stop too
+        if rclpy.ok():
+            raise
     print('fake node stopped', flush=True)
     return exit_code_on_stop
 
