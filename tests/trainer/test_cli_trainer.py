@@ -91,5 +91,7 @@ def test_bad_input_fails_clearly(capture, tmp_path, capsys):
         eval_main([str(capture), '--noise', 'sigma9', *TINY])
     with pytest.raises(SystemExit, match='--repeats must be >= 1'):
         eval_main([str(capture), '--repeats', '0', *TINY])
+    with pytest.raises(SystemExit, match='--refine-top must be >= 0'):
+        train_main([str(capture), '--out', str(tmp_path / 'a.npz'), '--refine-top', '-1', *TINY])
     with pytest.raises(SystemExit, match='cannot downscale 24x24 .* --image-size'):
         train_main([str(capture), '--out', str(tmp_path / 'a.npz'), '--quiet'])

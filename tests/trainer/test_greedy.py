@@ -9,10 +9,11 @@ from mux_trainer.patterns import pattern_code
 from mux_trainer.reference import reference_candidate_scores
 
 
-def brute_force_greedy(data, n_columns, n_repeats, seed):
+def brute_force_greedy(data, n_columns, n_repeats, seed, classifier='linear_svm'):
     """The paper's loop written plainly: every pattern in natural binary order, each
-    scored by the straightforward reference (per-image render, skimage HOG, a ridge fit
-    per split); returns the chosen columns and each column's {code: score}."""
+    scored by the straightforward reference (per-image render, skimage HOG, a classifier
+    fitted per split: LinearSVC as in the paper, or ridge); returns the chosen columns and
+    each column's {code: score}."""
     n = data.n_sites
     patterns = np.array([[(code >> i) & 1 for i in range(n)]
                          for code in range(1, 2 ** n - 1)], np.float32).T
@@ -21,16 +22,37 @@ def brute_force_greedy(data, n_columns, n_repeats, seed):
     for _ in range(n_columns):
         acc = reference_candidate_scores(data, 'per_colour', columns if columns.shape[1] else None,
                                          patterns, seed=seed, n_repeats=n_repeats,
-                                         classifier='ridge').mean(axis=1)
+                                         classifier=classifier).mean(axis=1)
         scores_by_column.append({pattern_code(p): a for p, a in zip(patterns.T, acc)})
         columns = np.hstack([columns, patterns[:, [int(np.argmax(acc))]]])
     return columns, scores_by_column
 
 
 def test_greedy_selects_the_brute_force_patterns(tiny4_data):
+    """Default search (ridge screen, exact SVM on the screen's top 16, here all 14) against
+    the paper's loop with one LinearSVC per split: the same columns, the same SVM scores."""
     sel = GreedyPatternSelector(n_patterns=3, n_repeats=20, seed=11).fit(tiny4_data)
     ref_cols, ref_scores = brute_force_greedy(tiny4_data, 3, 20, 11)
     for j, record in enumerate(sel.history_):
+        assert len(record['refined']) == 14
+        svm = {pattern_code(record['candidates'][:, i]): s
+               for i, s in zip(record['refined'], record['refined_scores'])}
+        assert svm.keys() == ref_scores[j].keys()
+        assert all(svm[c] == ref_scores[j][c] for c in svm)
+        best = max(ref_scores[j].values())
+        assert record['accuracy'] == best
+        assert [c for c, s in ref_scores[j].items() if s == best] == \
+            [pattern_code(record['pattern'])], 'a unique winner per column, the same'
+    np.testing.assert_array_equal(sel.patterns_, ref_cols)
+    assert list(sel.accuracy_by_images_) == [1, 2, 3]
+
+
+def test_ridge_screen_alone_selects_the_brute_force_ridge_patterns(tiny4_data):
+    sel = GreedyPatternSelector(n_patterns=3, n_repeats=20, seed=11,
+                                refine_top=0).fit(tiny4_data)
+    ref_cols, ref_scores = brute_force_greedy(tiny4_data, 3, 20, 11, classifier='ridge')
+    for j, record in enumerate(sel.history_):
+        assert 'refined' not in record
         fast = {pattern_code(p): s for p, s in zip(record['candidates'].T, record['scores'])}
         assert fast.keys() == ref_scores[j].keys()  # all 14 patterns with 1..3 of 4 sites
         assert all(fast[c] == ref_scores[j][c] for c in fast)
@@ -77,7 +99,7 @@ def test_same_seed_same_result_other_seed_other_noise(tiny_data):
 
 def test_joint_mode_beam_search_over_led_additions(tiny_data):
     sel = GreedyPatternSelector(mode='joint', n_patterns=2, n_repeats=10, seed=0,
-                                beam_width=2).fit(tiny_data)
+                                beam_width=2, refine_top=0).fit(tiny_data)
     assert sel.patterns_.shape == (32, 2)
     first = sel.history_[0]
     singles = first['candidates'][:, :32]
@@ -127,3 +149,37 @@ def test_bad_parameters_fail_clearly(tiny_data):
         GreedyPatternSelector(mode='diagonal').fit(tiny_data)
     with pytest.raises(ValueError, match='at least one pattern column'):
         GreedyPatternSelector(n_patterns=0).fit(tiny_data)
+
+
+def test_refinement_picks_the_svm_best_of_the_screens_top(tiny_data):
+    sel = GreedyPatternSelector(n_patterns=2, n_repeats=12, seed=2, refine_top=5).fit(tiny_data)
+    ridge_only = GreedyPatternSelector(n_patterns=1, n_repeats=12, seed=2,
+                                       refine_top=0).fit(tiny_data)
+    first = sel.history_[0]
+    # the screen is the ridge search itself; its five best were re-scored
+    np.testing.assert_array_equal(first['scores'], ridge_only.history_[0]['scores'])
+    np.testing.assert_array_equal(first['refined'],
+                                  np.argsort(-first['scores'], kind='stable')[:5])
+    svm = GreedyPatternSelector(n_patterns=1, n_repeats=12, seed=2,
+                                inner_classifier='squared_hinge').fit(tiny_data)
+    exact = svm.history_[0]['scores']
+    np.testing.assert_array_equal(first['refined_scores'], exact[first['refined']])
+    assert first['best'] == first['refined'][np.argmax(exact[first['refined']])]
+    assert first['accuracy'] == sel.accuracy_by_images_[1] == exact[first['best']]
+    assert 'refined' not in svm.history_[0]  # nothing to refine with the SVM as the screen
+    with pytest.raises(ValueError, match='refine_top'):
+        GreedyPatternSelector(refine_top=-1).fit(tiny_data)
+
+
+def test_joint_mode_refines_among_every_pattern_the_beam_evaluated(tiny_data):
+    common = dict(mode='joint', n_patterns=1, n_repeats=6, seed=0, max_lit_leds=3)
+    screen = GreedyPatternSelector(refine_top=0, **common).fit(tiny_data).history_[0]
+    sel = GreedyPatternSelector(refine_top=4, **common).fit(tiny_data)
+    record = sel.history_[0]
+    # ridge drives the beam, so the same patterns were evaluated with the same scores
+    np.testing.assert_array_equal(record['candidates'], screen['candidates'])
+    np.testing.assert_array_equal(record['scores'], screen['scores'])
+    np.testing.assert_array_equal(record['refined'], np.argsort(-screen['scores'], kind='stable')[:4])
+    assert record['best'] in record['refined']
+    assert record['accuracy'] == record['refined_scores'].max() == sel.accuracy_by_images_[1]
+    np.testing.assert_array_equal(sel.patterns_[:, 0], record['candidates'][:, record['best']])

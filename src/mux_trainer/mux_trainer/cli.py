@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from .data import NOISE_SETTINGS
+from .greedy import REFINE_TOP
 from .report import DEFAULT_METHODS, METHODS
 
 
@@ -71,13 +72,23 @@ def train_main(argv: list[str] | None = None) -> int:
     p.add_argument('--noise', choices=NOISE_SETTINGS, default='sigma3')
     p.add_argument('--fixed-count', action='store_true',
                    help='greedy: select --max-images columns even when accuracy stops improving')
-    p.add_argument('--inner-classifier', choices=('ridge', 'linear_svm'), default='ridge',
-                   help='classifier used to score candidates (default: ridge, fast)')
+    p.add_argument('--inner-classifier', choices=('ridge', 'squared_hinge', 'linear_svm'),
+                   help='classifier of the split accuracies: ridge (fast screen), '
+                        'squared_hinge (the linear SVM solved exactly in kernel form) or '
+                        'linear_svm (one LinearSVC per split, slowest; docs/SEARCH.md has the '
+                        'timings). Default: ridge screen for greedy, squared_hinge for the '
+                        'baselines')
+    p.add_argument('--refine-top', type=int, default=REFINE_TOP,
+                   help='greedy with the ridge screen: re-score its best N candidates per '
+                        f'column with the exact linear SVM, which picks the column (default: '
+                        f'{REFINE_TOP}; 0 = the screen picks)')
     p.add_argument('--classifier', choices=('linear_svm', 'ridge'), default='linear_svm',
                    help='classifier stored in the artifact (default: linear_svm, the paper)')
     p.add_argument('--beam-width', type=int, default=1, help='joint mode: beam width')
     args = p.parse_args(argv)
     _positive(args, 'repeats', 'max_images', 'beam_width')
+    if args.refine_top < 0:
+        raise SystemExit(f'lightstage: --refine-top must be >= 0, got {args.refine_top}')
     hog_config = _hog_config(args)
     modelset = _load(args.capture_dir, hog_config)
     from .training import train_modelset
@@ -87,7 +98,7 @@ def train_main(argv: list[str] | None = None) -> int:
             max_images=args.max_images, repeats=args.repeats, seed=args.seed, n_jobs=args.jobs,
             hog_config=hog_config, fixed_count=args.fixed_count,
             inner_classifier=args.inner_classifier, final_classifier=args.classifier,
-            beam_width=args.beam_width, progress=not args.quiet)
+            beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet)
     except ValueError as exc:
         raise SystemExit(f'lightstage train: {exc}') from None
     out, seconds = doc['artifact'], doc['train_seconds']

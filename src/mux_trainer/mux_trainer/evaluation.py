@@ -20,6 +20,7 @@ through the kernel `K_prev = X_prev X_prev^T`, computed once per column.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -142,8 +143,10 @@ class CandidateEvaluator:
     mode : 'per_colour' (8-site patterns, 4 images each) or 'joint' (32-LED patterns).
     n_repeats : random pose splits per candidate (the paper: 400).
     test_fraction : share of the pose indices held out per split (the paper: 0.25).
-    inner_classifier : 'ridge' (kernel shared by all splits; fast) or 'linear_svm'.
-    alpha, C : ridge penalty / LinearSVC C.
+    inner_classifier : 'ridge' (kernel shared by all splits; fast), 'squared_hinge' (the exact
+        linear SVM in kernel form) or 'linear_svm' (one LinearSVC per split, slowest). See
+        `split_scoring`; timings in docs/SEARCH.md.
+    alpha, C : ridge penalty / the linear SVM's C.
     seed : seeds splits and noise.
     n_jobs : joblib workers; chunk_size : candidates per task (fixed, so that results do not
         depend on n_jobs).
@@ -200,11 +203,22 @@ class CandidateEvaluator:
                              n_classes=self.n_classes)
 
     def score(self, ctx: ColumnContext, candidates: np.ndarray,
-              parallel: Parallel | None = None) -> np.ndarray:
-        """Split accuracies `(n_candidates, n_splits)` for candidate columns `(rows, c)`."""
+              parallel: Parallel | None = None, scorer=None,
+              chunk_size: int | None = None) -> np.ndarray:
+        """Split accuracies `(n_candidates, n_splits)` for candidate columns `(rows, c)`.
+
+        scorer: another split scorer than the evaluator's (it must work from the kernel, as
+        `ColumnContext` carries no earlier features for it); chunk_size: candidates per task
+        instead of the evaluator's (fixed by the caller, so results do not depend on n_jobs).
+        """
         candidates = np.asarray(candidates, dtype=np.float32)
-        bounds = range(0, candidates.shape[1], self.chunk_size)
-        chunks = [candidates[:, b:b + self.chunk_size] for b in bounds]
+        if scorer is not None:
+            if scorer.needs_features and ctx.X_prev is None and ctx.column > 0:
+                raise ValueError(f'{type(scorer).__name__} needs features; this column context '
+                                 'holds only the kernel of the earlier columns')
+            ctx = dataclasses.replace(ctx, scorer=scorer)
+        size = self.chunk_size if chunk_size is None else int(chunk_size)
+        chunks = [candidates[:, b:b + size] for b in range(0, candidates.shape[1], size)]
         if parallel is None:
             parallel = Parallel(n_jobs=self.n_jobs)
         parts = parallel(delayed(score_candidate_chunk)(self.data, ctx, chunk) for chunk in chunks)

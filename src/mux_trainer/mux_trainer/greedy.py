@@ -6,6 +6,14 @@ kept. The search stops when the best candidate no longer improves the accuracy (
 `n_patterns` set, continues to that many columns as the paper does for its figures, marking
 the columns that did not improve). A classifier is trained for every column count.
 
+Screen, then refine: every candidate is scored with a fast inner classifier (ridge with one
+kernel for all splits), then the `refine_top` best are re-scored with the paper's classifier,
+the linear SVM, solved exactly (`split_scoring.SquaredHingeSplitScorer`), on the same noise
+draw and splits (each re-rendered on its own rather than incrementally, which changes only
+float32 rounding), and the column is the SVM's best. The winner is thus the SVM's winner
+whenever it is among ridge's top `refine_top`; benchmarks/rank_agreement.py measures how far
+down ridge's ranking the SVM's winner falls on our data (docs/SEARCH.md).
+
 Two modes:
 - 'per_colour' (the paper's): each column is one of the 254 site patterns (1..7 of 8 sites
   lit), applied to each colour in turn, so it gives 4 images (R, G, B, NIR). Exhaustive.
@@ -19,6 +27,7 @@ Two modes:
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 from joblib import Parallel
@@ -29,6 +38,11 @@ from .evaluation import CandidateEvaluator, images_per_column
 from .pattern_model import PatternModelMixin
 from .patterns import N_LEDS, site_pattern_candidates
 from .rendering import SearchData
+from .split_scoring import SquaredHingeSplitScorer
+
+# candidates per column the ridge screen passes to the exact SVM: on the default dataset the
+# SVM's winner was at worst ridge's #5 over 8 columns (benchmarks/rank_agreement.py)
+REFINE_TOP = 16
 
 
 def _progress(total, desc, enabled):
@@ -49,8 +63,12 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     max_patterns : upper bound on the columns in early-termination mode.
     tol : minimum improvement of the mean accuracy that counts as an improvement.
     n_repeats, test_fraction : random pose splits per candidate (the paper: 400, 0.25).
-    inner_classifier : 'ridge' (fast, shared kernel) or 'linear_svm' (one LinearSVC per split).
-    alpha, C : parameters of the inner classifier.
+    inner_classifier : the screening classifier: 'ridge' (fast, shared kernel),
+        'squared_hinge' (the exact linear SVM) or 'linear_svm' (one LinearSVC per split).
+    refine_top : with inner_classifier 'ridge', how many of the screen's best candidates per
+        column are re-scored with the exact linear SVM, which then picks the column (0: the
+        screen picks). Ignored for the SVM inner classifiers.
+    alpha : ridge penalty; C : the linear SVM's C (refinement and the SVM inner classifiers).
     final_classifier : estimator of the kept classifiers ('linear_svm', the paper's, or 'ridge').
     final_C, final_alpha : their regularisation.
     noise, dimmer, hog_config : rendering, used when `fit` is given a ModelSet.
@@ -68,13 +86,16 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     improved_ : bool (m,), whether each column improved on the best accuracy before it.
     best_n_patterns_ : the column count with the highest accuracy.
     classifiers_ : {column count: fitted MuxClassifier on that many columns' images}.
-    history_ : one dict per column: 'candidates' (rows, c), 'scores' (c,), 'score_std' (c,),
-        'best' index, 'accuracy', 'improved'.
+    history_ : one dict per column: 'candidates' (rows, c), 'scores' (c,) and 'score_std' (c,)
+        of the inner classifier, 'refined' (indices of the re-scored candidates, best screen
+        score first) with 'refined_scores' and 'refined_std' of the linear SVM, 'best' (index
+        of the chosen candidate), 'accuracy' (its score by the classifier that chose it),
+        'improved', 'kept', 'screen_seconds' and 'refine_seconds' (wall time of each stage).
     """
 
     def __init__(self, mode='per_colour', n_patterns=None, max_patterns=8, tol=0.0,
-                 n_repeats=400, test_fraction=0.25, inner_classifier='ridge', alpha=0.1,
-                 C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
+                 n_repeats=400, test_fraction=0.25, inner_classifier='ridge', refine_top=REFINE_TOP,
+                 alpha=0.1, C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
                  noise='sigma3', dimmer=0.45, hog_config=None, beam_width=1,
                  max_lit_leds=N_LEDS, seed=0, n_jobs=1, chunk_size=32, progress=False,
                  callback=None):
@@ -85,6 +106,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         self.n_repeats = n_repeats
         self.test_fraction = test_fraction
         self.inner_classifier = inner_classifier
+        self.refine_top = refine_top
         self.alpha = alpha
         self.C = C
         self.final_classifier = final_classifier
@@ -110,6 +132,8 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     def fit(self, X, y=None):
         """Search patterns on a ModelSet (or a prepared SearchData); returns self."""
         images_per_column(self.mode)
+        if int(self.refine_top) < 0:
+            raise ValueError(f'refine_top must be >= 0, got {self.refine_top}')
         target = self.n_patterns if self.n_patterns is not None else self.max_patterns
         if target is None or int(target) < 1:
             raise ValueError(f'need at least one pattern column, got n_patterns={self.n_patterns}, '
@@ -172,19 +196,42 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
             self.callback(event)
 
     def _search_site_column(self, ev, ctx, parallel, n_sites):
+        t0 = time.perf_counter()
         cands = site_pattern_candidates(n_sites)
         acc = ev.score(ctx, cands, parallel)
+        return self._choose(ev, ctx, parallel, cands, acc, time.perf_counter() - t0)
+
+    def _choose(self, ev, ctx, parallel, cands, acc, screen_seconds):
+        """The column's record: the screen's best, or the linear SVM's best of its top."""
         scores = acc.mean(axis=1)
-        best = int(np.argmax(scores))
-        return {'candidates': cands, 'scores': scores, 'score_std': acc.std(axis=1),
-                'best': best, 'accuracy': float(scores[best]), 'pattern': cands[:, best].copy()}
+        record = {'candidates': cands, 'scores': scores, 'score_std': acc.std(axis=1),
+                  'screen_seconds': screen_seconds, 'refine_seconds': 0.0}
+        top = int(self.refine_top) if self.inner_classifier == 'ridge' else 0
+        t0 = time.perf_counter()
+        if top == 0:
+            best = int(np.argmax(scores))
+            record.update(best=best, accuracy=float(scores[best]))
+        else:
+            refined = np.argsort(-scores, kind='stable')[:top]
+            svm = ev.score(ctx, cands[:, refined], parallel,
+                           scorer=SquaredHingeSplitScorer(C=self.C), chunk_size=1)
+            svm_scores = svm.mean(axis=1)
+            pick = int(np.argmax(svm_scores))
+            best = int(refined[pick])
+            record.update(refined=refined, refined_scores=svm_scores,
+                          refined_std=svm.std(axis=1), best=best,
+                          accuracy=float(svm_scores[pick]),
+                          refine_seconds=time.perf_counter() - t0)
+        record['pattern'] = cands[:, best].copy()
+        return record
 
     def _search_led_column(self, ev, ctx, parallel):
+        t0 = time.perf_counter()
         n_leds = ev.data.n_sites * ev.data.n_channels
         beam = [np.zeros(n_leds, dtype=np.float32)]
         seen = set()
         all_cands, all_acc = [], []
-        best_pattern, best_score = None, -np.inf
+        best_score = -np.inf
         for _ in range(min(int(self.max_lit_leds), n_leds)):
             cands = []
             for parent in beam:
@@ -206,11 +253,8 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
             if scores[order[0]] <= best_score + self.tol:
                 break  # lighting one more LED does not help this column
             best_score = float(scores[order[0]])
-            best_pattern = cands[:, order[0]].copy()
             beam = [cands[:, i] for i in order[:int(self.beam_width)]]
-        cands = np.hstack(all_cands)
-        acc = np.vstack(all_acc)
-        scores = acc.mean(axis=1)
-        best = int(np.flatnonzero(np.all(cands == best_pattern[:, None], axis=0))[0])
-        return {'candidates': cands, 'scores': scores, 'score_std': acc.std(axis=1),
-                'best': best, 'accuracy': float(scores[best]), 'pattern': best_pattern}
+        # the beam's steps ranked by the screen; the column is then chosen among every
+        # pattern it evaluated
+        return self._choose(ev, ctx, parallel, np.hstack(all_cands), np.vstack(all_acc),
+                            time.perf_counter() - t0)

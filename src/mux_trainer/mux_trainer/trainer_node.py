@@ -19,6 +19,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
+from .greedy import REFINE_TOP
 from .training import train_from_capture
 
 ACTION_NAME = '/lightstage/train'
@@ -30,11 +31,12 @@ class _Cancelled(Exception):
     pass
 
 
-def goal_options(goal, n_jobs: int) -> dict:
+def goal_options(goal, n_jobs: int, refine_top: int = REFINE_TOP) -> dict:
     """Train goal fields -> `train_from_capture` options, with the documented defaults."""
     return dict(method=goal.method or 'greedy', mode=goal.mode or 'per_colour',
                 noise=goal.noise or 'sigma3', max_images=int(goal.max_images) or 8,
-                repeats=int(goal.repeats) or 400, seed=int(goal.seed), n_jobs=n_jobs)
+                repeats=int(goal.repeats) or 400, seed=int(goal.seed), n_jobs=n_jobs,
+                refine_top=refine_top)
 
 
 class TrainerNode(Node):
@@ -44,6 +46,11 @@ class TrainerNode(Node):
             type=ParameterType.PARAMETER_INTEGER,
             description='joblib workers for candidate evaluation (-1 = all cores)',
             integer_range=[IntegerRange(from_value=-1, to_value=256, step=1)]))
+        self.declare_parameter('refine_top', REFINE_TOP, ParameterDescriptor(
+            type=ParameterType.PARAMETER_INTEGER,
+            description='greedy: candidates per column re-scored with the exact linear SVM '
+                        'after the ridge screen (0 = the screen picks)',
+            integer_range=[IntegerRange(from_value=0, to_value=SITE_CANDIDATES, step=1)]))
         self._busy = threading.Lock()
         self._server = ActionServer(self, Train, ACTION_NAME, execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
@@ -66,7 +73,8 @@ class TrainerNode(Node):
         result = Train.Result()
         t0 = time.perf_counter()
         with self._busy:
-            options = goal_options(goal, int(self.get_parameter('n_jobs').value))
+            options = goal_options(goal, int(self.get_parameter('n_jobs').value),
+                                   int(self.get_parameter('refine_top').value))
             total = SITE_CANDIDATES if options['mode'] == 'per_colour' else 0
             best = [0.0]
 

@@ -27,20 +27,30 @@ def check_options(method: str, mode: str, noise: str, max_images: int, repeats: 
 
 
 def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8, repeats=400,
-                seed=0, n_jobs=1, hog_config=None, fixed_count=False, inner_classifier='ridge',
-                final_classifier='linear_svm', beam_width=1, progress=False, callback=None):
-    """The unfitted estimator for these options (greedy search or a baseline)."""
+                seed=0, n_jobs=1, hog_config=None, fixed_count=False, inner_classifier=None,
+                final_classifier='linear_svm', beam_width=1, progress=False, callback=None,
+                refine_top=None):
+    """The unfitted estimator for these options (greedy search or a baseline).
+
+    inner_classifier: the classifier of the split accuracies; None = the method's default
+    (greedy: the ridge screen with `refine_top` candidates re-scored by the exact SVM;
+    baselines, which score one matrix per image count: the exact SVM). refine_top: greedy
+    only; None = `greedy.REFINE_TOP`.
+    """
     from .baselines import NaiveClassifier, SnrOptimalClassifier
-    from .greedy import GreedyPatternSelector
+    from .greedy import REFINE_TOP, GreedyPatternSelector
 
     check_options(method, mode, noise, max_images, repeats)
     common = dict(n_repeats=repeats, seed=seed, n_jobs=n_jobs, noise=noise, hog_config=hog_config,
-                  inner_classifier=inner_classifier, final_classifier=final_classifier)
+                  final_classifier=final_classifier)
     if method == 'greedy':
         return GreedyPatternSelector(mode=mode, max_patterns=max_images,
                                      n_patterns=max_images if fixed_count else None,
                                      beam_width=beam_width, progress=progress,
-                                     callback=callback, **common)
+                                     callback=callback, inner_classifier=inner_classifier or 'ridge',
+                                     refine_top=REFINE_TOP if refine_top is None else refine_top,
+                                     **common)
+    common['inner_classifier'] = inner_classifier or 'squared_hinge'
     if method == 'snr_optimal':
         return SnrOptimalClassifier(n_images=max_images, **common)
     return NaiveClassifier(**common)
