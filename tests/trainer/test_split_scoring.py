@@ -95,7 +95,8 @@ def test_squared_hinge_handles_unequal_test_sizes_in_split_order():
 
 def test_squared_hinge_terminates_on_an_ill_conditioned_kernel():
     """Few features (a rank-deficient kernel) and a large C: the finite termination (a full
-    step that leaves the margin violators unchanged) ends it, with no warning."""
+    step that leaves the margin violators unchanged) or, where rounding leaves no descent
+    direction, the stall check ends it; no warning, no spinning to max_iter."""
     rng = np.random.default_rng(6)
     y = np.repeat(np.arange(4), 10)
     X = rng.normal(size=(y.size, 3)) + np.eye(4)[y][:, :3]

@@ -36,7 +36,7 @@ class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
     method_name = 'fixed'
 
     def __init__(self, patterns=None, mode='per_colour', n_repeats=400, test_fraction=0.25,
-                 inner_classifier='squared_hinge', alpha=0.1, C=1.0, final_classifier='linear_svm',
+                 inner_classifier='squared_hinge', alpha=0.5, C=1.0, final_classifier='linear_svm',
                  final_C=1.0, final_alpha=0.1, noise='sigma3', dimmer=0.45, hog_config=None,
                  seed=0, n_jobs=1):
         self.patterns = patterns
@@ -95,7 +95,7 @@ class SnrOptimalClassifier(FixedPatternClassifier):
     method_name = 'snr_optimal'
 
     def __init__(self, n_images=None, n_iter=20000, mode='per_colour', n_repeats=400,
-                 test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.1, C=1.0,
+                 test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5, C=1.0,
                  final_classifier='linear_svm', final_C=1.0, final_alpha=0.1, noise='sigma3',
                  dimmer=0.45, hog_config=None, seed=0, n_jobs=1):
         super().__init__(patterns=None, mode=mode, n_repeats=n_repeats,
@@ -130,7 +130,7 @@ class NaiveClassifier(FixedPatternClassifier):
 
     method_name = 'naive'
 
-    def __init__(self, n_repeats=400, test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.1,
+    def __init__(self, n_repeats=400, test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5,
                  C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
                  noise='sigma3', dimmer=0.45, hog_config=None, seed=0, n_jobs=1):
         super().__init__(patterns=None, mode='joint', n_repeats=n_repeats,

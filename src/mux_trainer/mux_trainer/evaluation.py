@@ -154,7 +154,7 @@ class CandidateEvaluator:
 
     def __init__(self, data: SearchData, mode: str = 'per_colour', n_repeats: int = 400,
                  test_fraction: float = 0.25, inner_classifier: str = 'ridge',
-                 alpha: float = 0.1, C: float = 1.0, seed: int = 0, n_jobs: int = 1,
+                 alpha: float = 0.5, C: float = 1.0, seed: int = 0, n_jobs: int = 1,
                  chunk_size: int = 32):
         images_per_column(mode)
         self.data = data

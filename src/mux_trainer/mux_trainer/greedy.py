@@ -68,7 +68,8 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     refine_top : with inner_classifier 'ridge', how many of the screen's best candidates per
         column are re-scored with the exact linear SVM, which then picks the column (0: the
         screen picks). Ignored for the SVM inner classifiers.
-    alpha : ridge penalty; C : the linear SVM's C (refinement and the SVM inner classifiers).
+    alpha : ridge penalty (0.5 = 1 / (2 C): the SVM's first Newton step); C : the linear SVM's
+        C (refinement and the SVM inner classifiers).
     final_classifier : estimator of the kept classifiers ('linear_svm', the paper's, or 'ridge').
     final_C, final_alpha : their regularisation.
     noise, dimmer, hog_config : rendering, used when `fit` is given a ModelSet.
@@ -95,7 +96,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
 
     def __init__(self, mode='per_colour', n_patterns=None, max_patterns=8, tol=0.0,
                  n_repeats=400, test_fraction=0.25, inner_classifier='ridge', refine_top=REFINE_TOP,
-                 alpha=0.1, C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
+                 alpha=0.5, C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
                  noise='sigma3', dimmer=0.45, hog_config=None, beam_width=1,
                  max_lit_leds=N_LEDS, seed=0, n_jobs=1, chunk_size=32, progress=False,
                  callback=None):

@@ -60,7 +60,7 @@ def reference_features(data: SearchData, images: np.ndarray) -> np.ndarray:
         for i in range(n)])
 
 
-def reference_split_accuracies(X, labels, masks, classifier='linear_svm', alpha=0.1, C=1.0):
+def reference_split_accuracies(X, labels, masks, classifier='linear_svm', alpha=0.5, C=1.0):
     labels = np.asarray(labels)
     n_classes = int(labels.max()) + 1
     acc = np.empty(len(masks))
@@ -84,7 +84,7 @@ def reference_split_accuracies(X, labels, masks, classifier='linear_svm', alpha=
 def reference_candidate_scores(data: SearchData, mode: str, columns: np.ndarray | None,
                                candidates: np.ndarray, *, seed: int = 0, n_repeats: int = 400,
                                test_fraction: float = 0.25, classifier: str = 'linear_svm',
-                               alpha: float = 0.1, C: float = 1.0, timings: dict | None = None):
+                               alpha: float = 0.5, C: float = 1.0, timings: dict | None = None):
     """Split accuracies `(n_candidates, n_repeats)`, the paper's loop written plainly.
 
     timings: if a dict, receives the seconds spent in 'render_noise', 'features',

@@ -43,12 +43,15 @@ class RidgeSplitScorer:
     """Kernel-shared ridge classifier over repeated splits.
 
     alpha: ridge penalty in the units of K (HOG descriptors have unit norm, so the diagonal
-    of K is about the number of images).
+    of K is about the number of images). The default 0.5 = 1 / (2 C) for LinearSVC's C = 1
+    makes this ridge the first Newton iterate of `SquaredHingeSplitScorer` (every sample a
+    margin violator), and it ranked candidates most like the SVM on our data
+    (benchmarks/rank_agreement.py).
     """
 
     needs_features = False
 
-    def __init__(self, alpha: float = 0.1):
+    def __init__(self, alpha: float = 0.5):
         if alpha <= 0:
             raise ValueError(f'alpha must be > 0, got {alpha}')
         self.alpha = alpha
@@ -136,6 +139,8 @@ class SquaredHingeSplitScorer:
         Y = _pm_one_targets(labels, n_classes)
         Kb = np.asarray(K, dtype=np.float64) + 1.0  # bias feature of value 1 (intercept_scaling)
         n = labels.size
+        lam = 1.0 / (2.0 * self.C)
+        G = np.linalg.inv(Kb + lam * np.eye(n))
         acc = np.empty(len(test_masks))
         sizes = np.array([int(np.sum(m)) for m in test_masks])
         for size, T_all in _group_by_size(test_masks).items():
@@ -145,32 +150,44 @@ class SquaredHingeSplitScorer:
                 keep = np.ones((T.shape[0], n), dtype=bool)
                 keep[np.arange(T.shape[0])[:, None], T] = False
                 train = np.nonzero(keep)[1].reshape(T.shape[0], n - size)
-                a = self.fit_kernels(Kb[train[:, :, None], train[:, None, :]], Y[train])
+                # each split's (Kt + lam I)^-1 from the inverse over all samples: the inverse of
+                # a principal block is G_TT - G_TS G_SS^-1 G_ST (a small solve over the test set)
+                G_TS = G[train[:, :, None], T[:, None, :]]
+                H = G[train[:, :, None], train[:, None, :]] - G_TS @ np.linalg.solve(
+                    G[T[:, :, None], T[:, None, :]], G_TS.transpose(0, 2, 1))
+                a = self.fit_kernels(Kb[train[:, :, None], train[:, None, :]], Y[train], H=H)
                 scores = Kb[T[:, :, None], train[:, None, :]] @ a   # (splits, test, classes)
                 group_acc.append(np.mean(np.argmax(scores, axis=2) == labels[T], axis=1))
             acc[sizes == size] = np.concatenate(group_acc)
         return acc
 
-    def fit_kernels(self, Kt: np.ndarray, Y: np.ndarray) -> np.ndarray:
-        """Coefficients a (S, m, c) for training kernels Kt (S, m, m), +-1 targets Y (S, m, c)."""
+    def fit_kernels(self, Kt: np.ndarray, Y: np.ndarray, H: np.ndarray | None = None) -> np.ndarray:
+        """Coefficients a (S, m, c) for training kernels Kt (S, m, m), +-1 targets Y (S, m, c);
+        H: (Kt + lam I)^-1 if already known."""
         lam = 1.0 / (2.0 * self.C)
         m = Kt.shape[1]
-        H = np.linalg.inv(Kt + lam * np.eye(m))
+        if H is None:
+            H = np.linalg.inv(Kt + lam * np.eye(m))
         a = H @ Y                                          # ridge: every sample a violator
         out = Kt @ a
         tol = self.tol * (1.0 + np.abs(Kt).sum(axis=2).max(axis=1) / lam)[:, None]   # (S, 1)
         solved_for = np.ones(Y.shape, dtype=bool)          # violators of the last full step
+        stalled = np.zeros((Y.shape[0], Y.shape[2]), dtype=bool)
         for _ in range(self.max_iter):
             viol = Y * out < 1
             grad = lam * a + np.where(viol, out - Y, 0.0)
             todo = ((np.abs(grad).max(axis=1) > tol)
-                    & ~np.all(viol == solved_for, axis=1))      # (S, c)
+                    & ~np.all(viol == solved_for, axis=1) & ~stalled)      # (S, c)
             if not todo.any():
                 return a
             target = self._newton_targets(Kt, H, Y, viol, todo, lam)
             d = np.where(todo[:, None, :], target - a, 0.0)
             Kd = Kt @ d
-            t = self._line_search(a, d, out, Kd, Y, lam)[:, None, :]
+            t = self._line_search(a, d, out, Kd, Y, lam)
+            # a Newton direction that does not descend means rounding dominates (an
+            # ill-conditioned kernel at a large C): the iterate is as good as it gets
+            stalled |= todo & (t == 0)
+            t = t[:, None, :]
             a += t * d
             out += t * Kd
             solved_for = np.where(t == 1.0, viol, ~viol)   # after a partial step: none known
@@ -217,7 +234,8 @@ class SquaredHingeSplitScorer:
         """The step t in (0, 1] minimising the objective along d, per problem (S, c).
 
         The objective is convex and piecewise quadratic in t, so its slope is increasing: a
-        full step is taken where the slope is still <= 0 at t = 1, the rest are bisected.
+        full step is taken where the slope is still <= 0 at t = 1, the rest are bisected; 0
+        where d does not descend at all.
         """
         def rows(x):                                       # (S, m, c) -> (S * c, m)
             return x.transpose(0, 2, 1).reshape(-1, x.shape[1])
@@ -239,7 +257,8 @@ class SquaredHingeSplitScorer:
                 up = slope(mid, p) > 0
                 hi = np.where(up, mid, hi)
                 lo = np.where(up, lo, mid)
-            t[p] = 0.5 * (lo + hi)
+            ascent = slope(np.zeros(p.size), p) >= 0         # not a descent direction: t = 0
+            t[p] = np.where(ascent, 0.0, 0.5 * (lo + hi))
         return t.reshape(a.shape[0], a.shape[2])
 
 
