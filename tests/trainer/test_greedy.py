@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from mux_classifier.model import ArtifactError, TrainedArtifact
 
-from mux_trainer.greedy import GreedyPatternSelector
+from mux_trainer.greedy import GreedyPatternSelector, could_still_win
 from mux_trainer.patterns import pattern_code
 from mux_trainer.reference import reference_candidate_scores
 
@@ -151,24 +151,41 @@ def test_bad_parameters_fail_clearly(tiny_data):
         GreedyPatternSelector(n_patterns=0).fit(tiny_data)
 
 
-def test_refinement_picks_the_svm_best_of_the_screens_top(tiny_data):
-    sel = GreedyPatternSelector(n_patterns=2, n_repeats=12, seed=2, refine_top=5).fit(tiny_data)
+def test_refinement_races_down_the_screens_order_and_picks_the_svm_best(tiny_data):
+    sel = GreedyPatternSelector(n_patterns=2, n_repeats=12, seed=2, refine_top=5,
+                                refine_max=40).fit(tiny_data)
     ridge_only = GreedyPatternSelector(n_patterns=1, n_repeats=12, seed=2,
                                        refine_top=0).fit(tiny_data)
-    first = sel.history_[0]
-    # the screen is the ridge search itself; its five best were re-scored
-    np.testing.assert_array_equal(first['scores'], ridge_only.history_[0]['scores'])
-    np.testing.assert_array_equal(first['refined'],
-                                  np.argsort(-first['scores'], kind='stable')[:5])
     svm = GreedyPatternSelector(n_patterns=1, n_repeats=12, seed=2,
                                 inner_classifier='squared_hinge').fit(tiny_data)
     exact = svm.history_[0]['scores']
+    first = sel.history_[0]
+    scores = first['scores']
+    # the screen is the ridge search itself
+    np.testing.assert_array_equal(scores, ridge_only.history_[0]['scores'])
+    # refined: a prefix of the screen's order, at least the first 5, grown 8 at a time
+    order = np.argsort(-scores, kind='stable')
+    k = len(first['refined'])
+    np.testing.assert_array_equal(first['refined'], order[:k])
+    assert k == 5 or (k - 5) % 8 == 0 or k == scores.size
     np.testing.assert_array_equal(first['refined_scores'], exact[first['refined']])
-    assert first['best'] == first['refined'][np.argmax(exact[first['refined']])]
+    # it stopped because no other candidate could still win, or at the cap
+    if k < min(40, scores.size):
+        assert not could_still_win(scores[order[:k]], first['refined_scores'], scores[order[k]],
+                                   sel.refine_slack)
+    assert first['best'] == first['refined'][np.argmax(first['refined_scores'])]
     assert first['accuracy'] == sel.accuracy_by_images_[1] == exact[first['best']]
     assert 'refined' not in svm.history_[0]  # nothing to refine with the SVM as the screen
     with pytest.raises(ValueError, match='refine_top'):
         GreedyPatternSelector(refine_top=-1).fit(tiny_data)
+
+
+def test_could_still_win_judges_by_how_far_the_svm_rose_above_the_screen():
+    screen = np.array([0.90, 0.89, 0.88])
+    svm = np.array([0.85, 0.88, 0.86])      # rises -0.05, -0.01, -0.02; best 0.88
+    assert could_still_win(screen, svm, 0.89, slack=0.0)        # 0.89 - 0.01 >= 0.88
+    assert not could_still_win(screen, svm, 0.885, slack=0.0)   # 0.875 < 0.88
+    assert could_still_win(screen, svm, 0.885, slack=1.0)       # + std of the rises
 
 
 def test_joint_mode_refines_among_every_pattern_the_beam_evaluated(tiny_data):
@@ -179,7 +196,9 @@ def test_joint_mode_refines_among_every_pattern_the_beam_evaluated(tiny_data):
     # ridge drives the beam, so the same patterns were evaluated with the same scores
     np.testing.assert_array_equal(record['candidates'], screen['candidates'])
     np.testing.assert_array_equal(record['scores'], screen['scores'])
-    np.testing.assert_array_equal(record['refined'], np.argsort(-screen['scores'], kind='stable')[:4])
+    order = np.argsort(-screen['scores'], kind='stable')
+    assert len(record['refined']) >= 4
+    np.testing.assert_array_equal(record['refined'], order[:len(record['refined'])])
     assert record['best'] in record['refined']
     assert record['accuracy'] == record['refined_scores'].max() == sel.accuracy_by_images_[1]
     np.testing.assert_array_equal(sel.patterns_[:, 0], record['candidates'][:, record['best']])

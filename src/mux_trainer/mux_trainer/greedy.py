@@ -6,13 +6,14 @@ kept. The search stops when the best candidate no longer improves the accuracy (
 `n_patterns` set, continues to that many columns as the paper does for its figures, marking
 the columns that did not improve). A classifier is trained for every column count.
 
-Screen, then refine: every candidate is scored with a fast inner classifier (ridge with one
-kernel for all splits), then the `refine_top` best are re-scored with the paper's classifier,
-the linear SVM, solved exactly (`split_scoring.SquaredHingeSplitScorer`), on the same noise
-draw and splits (each re-rendered on its own rather than incrementally, which changes only
-float32 rounding), and the column is the SVM's best. The winner is thus the SVM's winner
-whenever it is among ridge's top `refine_top`; benchmarks/rank_agreement.py measures how far
-down ridge's ranking the SVM's winner falls on our data (docs/SEARCH.md).
+Screen, then refine (a race): every candidate is scored with a fast inner classifier (ridge
+with one kernel for all splits); then the paper's classifier, the linear SVM solved exactly
+(`split_scoring.SquaredHingeSplitScorer`), re-scores the screen's best candidates on the same
+noise draw and splits (each re-rendered on its own rather than incrementally, which changes
+only float32 rounding): first `refine_top`, then more in the screen's order while one of the
+rest could still win (`could_still_win`), and the column is the SVM's best.
+benchmarks/rank_agreement.py scores all candidates with the SVM to check, column by column,
+that the race keeps the SVM's winner on our data (docs/SEARCH.md).
 
 Two modes:
 - 'per_colour' (the paper's): each column is one of the 254 site patterns (1..7 of 8 sites
@@ -40,9 +41,24 @@ from .patterns import N_LEDS, site_pattern_candidates
 from .rendering import SearchData
 from .split_scoring import SquaredHingeSplitScorer
 
-# candidates per column the ridge screen passes to the exact SVM: on the default dataset the
-# SVM's winner was at worst ridge's #5 over 8 columns (benchmarks/rank_agreement.py)
-REFINE_TOP = 16
+# refinement defaults (see `could_still_win`; benchmarks/rank_agreement.py measures them)
+REFINE_TOP = 16     # candidates the exact SVM scores first, in the screen's order
+REFINE_BATCH = 8    # then this many more at a time while one of the rest could still win
+REFINE_MAX = 64     # and never more than this many per column
+REFINE_SLACK = 1.0
+
+
+def could_still_win(screen_refined, svm_refined, screen_next, slack=REFINE_SLACK) -> bool:
+    """Could the best candidate not yet refined (screen score `screen_next`) beat the best
+    SVM score so far?
+
+    The refined candidates tell how far the SVM's score rises above the screen's: a
+    candidate is still in the race while `screen_next + max(rise) + slack * std(rise)`
+    reaches the best SVM score. Candidates are refined in the screen's order, so when the
+    next one is out, all the rest are too.
+    """
+    rise = np.asarray(svm_refined) - np.asarray(screen_refined)
+    return bool(screen_next + rise.max() + slack * rise.std() >= np.max(svm_refined))
 
 
 def _progress(total, desc, enabled):
@@ -65,9 +81,11 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     n_repeats, test_fraction : random pose splits per candidate (the paper: 400, 0.25).
     inner_classifier : the screening classifier: 'ridge' (fast, shared kernel),
         'squared_hinge' (the exact linear SVM) or 'linear_svm' (one LinearSVC per split).
-    refine_top : with inner_classifier 'ridge', how many of the screen's best candidates per
-        column are re-scored with the exact linear SVM, which then picks the column (0: the
-        screen picks). Ignored for the SVM inner classifiers.
+    refine_top, refine_max, refine_slack : with inner_classifier 'ridge', the exact linear SVM
+        re-scores the screen's best `refine_top` candidates per column, then more (in the
+        screen's order, 8 at a time, up to `refine_max`) while `could_still_win` says one of
+        the rest could still beat the SVM's best; the SVM's best is the column (refine_top 0:
+        the screen picks). Ignored for the SVM inner classifiers.
     alpha : ridge penalty (0.5 = 1 / (2 C): the SVM's first Newton step); C : the linear SVM's
         C (refinement and the SVM inner classifiers).
     final_classifier : estimator of the kept classifiers ('linear_svm', the paper's, or 'ridge').
@@ -96,6 +114,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
 
     def __init__(self, mode='per_colour', n_patterns=None, max_patterns=8, tol=0.0,
                  n_repeats=400, test_fraction=0.25, inner_classifier='ridge', refine_top=REFINE_TOP,
+                 refine_max=REFINE_MAX, refine_slack=REFINE_SLACK,
                  alpha=0.5, C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
                  noise='sigma3', dimmer=0.45, hog_config=None, beam_width=1,
                  max_lit_leds=N_LEDS, seed=0, n_jobs=1, chunk_size=32, progress=False,
@@ -108,6 +127,8 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         self.test_fraction = test_fraction
         self.inner_classifier = inner_classifier
         self.refine_top = refine_top
+        self.refine_max = refine_max
+        self.refine_slack = refine_slack
         self.alpha = alpha
         self.C = C
         self.final_classifier = final_classifier
@@ -203,23 +224,34 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         return self._choose(ev, ctx, parallel, cands, acc, time.perf_counter() - t0)
 
     def _choose(self, ev, ctx, parallel, cands, acc, screen_seconds):
-        """The column's record: the screen's best, or the linear SVM's best of its top."""
+        """The column's record: the screen's best, or the linear SVM's best after refining."""
         scores = acc.mean(axis=1)
         record = {'candidates': cands, 'scores': scores, 'score_std': acc.std(axis=1),
                   'screen_seconds': screen_seconds, 'refine_seconds': 0.0}
-        top = int(self.refine_top) if self.inner_classifier == 'ridge' else 0
         t0 = time.perf_counter()
-        if top == 0:
+        if self.inner_classifier != 'ridge' or int(self.refine_top) == 0:
             best = int(np.argmax(scores))
             record.update(best=best, accuracy=float(scores[best]))
         else:
-            refined = np.argsort(-scores, kind='stable')[:top]
-            svm = ev.score(ctx, cands[:, refined], parallel,
-                           scorer=SquaredHingeSplitScorer(C=self.C), chunk_size=1)
+            scorer = SquaredHingeSplitScorer(C=self.C)
+            order = np.argsort(-scores, kind='stable')
+            parts = []
+
+            def svm_mean():
+                return np.vstack(parts).mean(axis=1)
+
+            k = 0
+            while k == 0 or (k < min(int(self.refine_max), order.size) and could_still_win(
+                    scores[order[:k]], svm_mean(), scores[order[k]], self.refine_slack)):
+                step = int(self.refine_top) if k == 0 else REFINE_BATCH
+                parts.append(ev.score(ctx, cands[:, order[k:k + step]], parallel, scorer=scorer,
+                                      chunk_size=1))
+                k = min(k + step, order.size)
+            svm = np.vstack(parts)
             svm_scores = svm.mean(axis=1)
             pick = int(np.argmax(svm_scores))
-            best = int(refined[pick])
-            record.update(refined=refined, refined_scores=svm_scores,
+            best = int(order[pick])
+            record.update(refined=order[:k], refined_scores=svm_scores,
                           refined_std=svm.std(axis=1), best=best,
                           accuracy=float(svm_scores[pick]),
                           refine_seconds=time.perf_counter() - t0)
