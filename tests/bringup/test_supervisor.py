@@ -60,6 +60,9 @@ def test_a_dying_child_is_reported_with_its_exit_code():
     with Supervisor(stdout=out, stderr=io.StringIO()) as sup:
         sup.start(ProcessSpec('steady', sleeper()))
         sup.start(ProcessSpec('crasher', py('import sys, time; time.sleep(0.3); sys.exit(3)')))
+        # a SIGINT that lands while the child's interpreter is still starting can be lost
+        # (seen once under load): only stop it once it runs its code
+        wait_for_line(out, '[steady] ready')
         dead = sup.wait_for_exit(timeout_s=10)
         assert dead is not None and dead.name == 'crasher' and dead.returncode == 3
         assert sup['steady'].returncode is None
@@ -71,7 +74,9 @@ def test_a_dying_child_is_reported_with_its_exit_code():
 
 def test_shutdown_escalates_sigint_sigterm_sigkill():
     out = io.StringIO()
-    sup = Supervisor(stdout=out, stderr=io.StringIO(), sigint_timeout_s=0.5, sigterm_timeout_s=0.5)
+    # grace periods long enough for a Python child to unwind on a loaded 2-core machine
+    # (0.5 s was missed once with two CPU-bound benchmark workers running)
+    sup = Supervisor(stdout=out, stderr=io.StringIO(), sigint_timeout_s=2.0, sigterm_timeout_s=2.0)
     sup.start(ProcessSpec('polite', sleeper()))
     sup.start(ProcessSpec('deaf_to_int', sleeper('signal.signal(signal.SIGINT, signal.SIG_IGN)')))
     sup.start(ProcessSpec('stubborn', sleeper(
@@ -87,7 +92,7 @@ def test_shutdown_escalates_sigint_sigterm_sigkill():
     assert reports['deaf_to_int'].returncode == -signal.SIGTERM and reports['deaf_to_int'].clean
     assert reports['stubborn'].signal_sent == 'SIGKILL'
     assert reports['stubborn'].returncode == -signal.SIGKILL and not reports['stubborn'].clean
-    assert 0.9 < elapsed < 5.0  # waited out both grace periods, no more
+    assert 3.9 < elapsed < 10.0  # waited out both grace periods, no more
     assert not any(pid_alive(pid) for pid in pids)
 
 
