@@ -66,7 +66,7 @@ def test_eval_json_shape_and_outputs(capture, tmp_path, capsys):
         assert m['accuracy_by_images'] and all(0 <= v <= 1 for v in m['accuracy_by_images'].values())
     assert set(doc['methods']['greedy']['accuracy_by_images']) == {'1', '2'}
     for name in ('results.json', 'table1.csv', 'accuracy_vs_images.csv',
-                 'accuracy_vs_images.png', 'patterns.png'):
+                 'accuracy_vs_images.png', 'accuracy_vs_exposures.png', 'patterns.png'):
         assert (out_dir / name).stat().st_size > 0
     table = (out_dir / 'table1.csv').read_text().splitlines()
     assert table[0].startswith('noise,method,fruit0,fruit1,overall') and len(table) == 5
@@ -75,11 +75,15 @@ def test_eval_json_shape_and_outputs(capture, tmp_path, capsys):
 def test_eval_selects_methods_and_noises(capture, capsys):
     rc = eval_main([str(capture), '--repeats', '4', '--max-images', '1', '--renders', '1',
                     '--methods', 'naive,greedy_joint', '--noise', 'sigma1,sigma2', '--json',
-                    '--quiet', *TINY])
+                    '--joint-max-images', '3', '--quiet', *TINY])
     assert rc == 0
     doc = json.loads(capsys.readouterr().out)
     assert set(doc['methods']) == {'naive', 'greedy_joint'}
     assert doc['noise'] == 'sigma1' and set(doc['by_noise']) == {'sigma1', 'sigma2'}
+    # the joint mode's own column budget (one exposure per column)
+    joint = doc['methods']['greedy_joint']
+    assert set(joint['accuracy_by_images']) == {'1', '2', '3'}
+    assert joint['images_per_pattern'] == 1 and doc['settings']['joint_max_images'] == 3
 
 
 def test_bad_input_fails_clearly(capture, tmp_path, capsys):
@@ -91,7 +95,56 @@ def test_bad_input_fails_clearly(capture, tmp_path, capsys):
         eval_main([str(capture), '--noise', 'sigma9', *TINY])
     with pytest.raises(SystemExit, match='--repeats must be >= 1'):
         eval_main([str(capture), '--repeats', '0', *TINY])
+    with pytest.raises(SystemExit, match='--joint-max-images must be >= 1'):
+        eval_main([str(capture), '--joint-max-images', '0', *TINY])
     with pytest.raises(SystemExit, match='--refine-top must be >= 0'):
         train_main([str(capture), '--out', str(tmp_path / 'a.npz'), '--refine-top', '-1', *TINY])
     with pytest.raises(SystemExit, match='cannot downscale 24x24 .* --image-size'):
         train_main([str(capture), '--out', str(tmp_path / 'a.npz'), '--quiet'])
+
+
+def test_train_with_a_calibrated_noise_file(capture, tmp_path, capsys):
+    """A noise file of `lightstage calibrate` trains exactly like a preset with the same
+    numbers, NOISE.yaml@GAIN:EXPOSURE generalizes it, and the artifact carries the camera
+    setting the classifier node then asks the stage for."""
+    from lightstage_camera.noise import PAPER_CALIBRATION, preset, save_noise_file
+    sigma3 = preset('sigma3')
+
+    def train(noise, name):
+        out = tmp_path / name
+        assert train_main([str(capture), '--out', str(out), '--repeats', '6', '--max-images', '1',
+                           '--fixed-count', '--noise', noise, '--json', '--quiet', *TINY]) == 0
+        return json.loads(capsys.readouterr().out), TrainedArtifact.load(out)
+
+    doc, art = train(str(save_noise_file(tmp_path / 'sigma3.yaml', sigma3)), 'file.npz')
+    ref_doc, ref_art = train('sigma3', 'preset.npz')
+    assert doc['accuracy_by_images'] == ref_doc['accuracy_by_images']
+    np.testing.assert_array_equal(art.site_patterns, ref_art.site_patterns)
+    for key in ('sigma_p2', 'sigma_r2', 'gain_db', 'exposure_ms'):
+        assert art.noise[key] == ref_art.noise[key]
+    assert art.noise['name'].endswith('sigma3.yaml')
+    # the paper's 15 dB / 30 ms fit generalized to Sigma3's setting: Sigma3 to the rounding
+    # of that fit (docs/PHYSICS.md), at Sigma3's gain and exposure
+    paper = save_noise_file(tmp_path / 'paper.yaml', PAPER_CALIBRATION)
+    _, art = train(f'{paper}@17.5:22.5', 'paper.npz')
+    assert art.noise['name'].endswith('paper.yaml@17.5:22.5')
+    assert (art.noise['gain_db'], art.noise['exposure_ms']) == (17.5, 22.5)
+    assert art.noise['sigma_p2'] == pytest.approx(sigma3.sigma_p2, rel=0.01)
+    assert art.noise['sigma_r2'] == pytest.approx(sigma3.sigma_r2, rel=1e-3)
+    _, art = train(str(paper), 'own.npz')
+    assert (art.noise['gain_db'], art.noise['exposure_ms'], art.noise['sigma_p2']) == (15, 30, 0.7)
+
+
+def test_bad_noise_settings_fail_clearly(capture, tmp_path):
+    out = str(tmp_path / 'a.npz')
+    with pytest.raises(SystemExit, match="unknown noise setting 'sigma9'.*lightstage calibrate"):
+        train_main([str(capture), '--out', out, '--noise', 'sigma9', '--quiet', *TINY])
+    with pytest.raises(SystemExit, match='missing.yaml: cannot read the noise file'):
+        train_main([str(capture), '--out', out, '--noise', str(tmp_path / 'missing.yaml'),
+                    '--quiet', *TINY])
+    (tmp_path / 'other.yaml').write_text('kind: something_else\n')
+    with pytest.raises(SystemExit, match='not a noise calibration file'):
+        eval_main([str(capture), '--noise', f'sigma3,{tmp_path / "other.yaml"}', '--quiet', *TINY])
+    with pytest.raises(SystemExit, match=r"after the @ give GAIN_DB:EXPOSURE_MS.*not '17\.5'"):
+        train_main([str(capture), '--out', out, '--noise', 'noise.yaml@17.5', '--quiet', *TINY])
+    assert not (tmp_path / 'a.npz').exists()

@@ -5,7 +5,7 @@ from sklearn.base import clone
 
 from mux_trainer.snr_optimal import (SnrOptimalMultiplexer, compare_with_hadamard,
                                      hadamard_s_matrix, image_noise_variance, multiplexing_mse,
-                                     resolve_noise, s_matrix_for_sites)
+                                     noise_coefficients, s_matrix_for_sites)
 
 
 def test_mse_of_identity_is_the_single_image_variance():
@@ -114,12 +114,12 @@ def test_bad_arguments_are_explained():
     with pytest.raises(ValueError, match="mean_level"):
         SnrOptimalMultiplexer(noise=(0, 1)).fit(-1.0)
     with pytest.raises(ValueError, match="noise must be"):
-        resolve_noise(3.0)
+        noise_coefficients(3.0)
 
 
 def test_presets_resolve_to_the_papers_values():
-    assert resolve_noise("sigma3") == pytest.approx((0.94, 117.37))
-    assert resolve_noise({"sigma_p2": 0.25, "sigma_r2": 8.35}) == (0.25, 8.35)
+    assert noise_coefficients("sigma3") == pytest.approx((0.94, 117.37))
+    assert noise_coefficients({"sigma_p2": 0.25, "sigma_r2": 8.35}) == (0.25, 8.35)
 
 
 def test_compare_with_hadamard_reports_side_by_side():

@@ -9,7 +9,7 @@ import json
 import sys
 from pathlib import Path
 
-from .data import NOISE_SETTINGS
+from .data import NOISE_HELP, resolve_noise
 from .greedy import REFINE_TOP
 from .report import DEFAULT_METHODS, METHODS
 
@@ -69,7 +69,7 @@ def train_main(argv: list[str] | None = None) -> int:
     p.add_argument('--method', choices=('greedy', 'snr_optimal', 'naive'), default='greedy')
     p.add_argument('--mode', choices=('per_colour', 'joint'), default='per_colour',
                    help='greedy only: 8-site patterns per colour (paper) or 32-LED patterns')
-    p.add_argument('--noise', choices=NOISE_SETTINGS, default='sigma3')
+    p.add_argument('--noise', default='sigma3', help=f'{NOISE_HELP} (default: sigma3)')
     p.add_argument('--fixed-count', action='store_true',
                    help='greedy: select --max-images columns even when accuracy stops improving')
     p.add_argument('--inner-classifier', choices=('ridge', 'squared_hinge', 'linear_svm'),
@@ -120,7 +120,8 @@ def eval_main(argv: list[str] | None = None) -> int:
     _common(p)
     p.add_argument('--noise', default='sigma3',
                    help='comma-separated noise settings, e.g. sigma1,sigma2,sigma3 (default: '
-                        'sigma3); the JSON\'s top-level "methods" are those of the first')
+                        'sigma3); the JSON\'s top-level "methods" are those of the first. Each '
+                        f'is {NOISE_HELP}')
     p.add_argument('--methods', default=','.join(DEFAULT_METHODS),
                    help=f'comma-separated, from {",".join(METHODS)} (default: '
                         f'{",".join(DEFAULT_METHODS)})')
@@ -129,15 +130,25 @@ def eval_main(argv: list[str] | None = None) -> int:
     p.add_argument('--renders', type=int, default=4,
                    help='noisy renders of each held-out sample (default: 4)')
     p.add_argument('--beam-width', type=int, default=1, help='greedy_joint: beam width')
+    p.add_argument('--joint-max-images', type=int,
+                   help='greedy_joint: most 32-LED pattern columns, one exposure each (default: '
+                        '--max-images; 4 x --max-images matches the per-colour search\'s '
+                        'exposures)')
     p.add_argument('--out', metavar='DIR', help='write results.json, CSVs and PNG plots here')
     p.add_argument('--no-plots', action='store_true', help='with --out: skip the PNG plots')
     args = p.parse_args(argv)
     _positive(args, 'repeats', 'max_images', 'renders', 'beam_width')
-    noises = [n.strip().lower() for n in args.noise.split(',') if n.strip()]
-    bad = [n for n in noises if n not in NOISE_SETTINGS]
-    if not noises or bad:
-        raise SystemExit(f'lightstage eval: unknown noise setting(s) {bad}; use '
-                         f'{", ".join(NOISE_SETTINGS)}')
+    if args.joint_max_images is not None:
+        _positive(args, 'joint_max_images')
+    noises = [n.strip() for n in args.noise.split(',') if n.strip()]
+    if not noises:
+        raise SystemExit(f'lightstage eval: no noise setting given; use {NOISE_HELP}')
+    for n in noises:
+        try:
+            resolve_noise(n)
+        except ValueError as exc:
+            raise SystemExit(f'lightstage eval: {exc}') from None
+    noises = [resolve_noise(n)[0] for n in noises]
     methods = [m.strip() for m in args.methods.split(',') if m.strip()]
     bad = [m for m in methods if m not in METHODS]
     if not methods or bad:
@@ -152,11 +163,12 @@ def eval_main(argv: list[str] | None = None) -> int:
                                  max_images=args.max_images, holdout_fraction=args.holdout,
                                  n_renders=args.renders, seed=args.seed, n_jobs=args.jobs,
                                  hog_config=hog_config, beam_width=args.beam_width,
-                                 quiet=args.quiet, progress=not args.quiet)
+                                 joint_max_images=args.joint_max_images, quiet=args.quiet, progress=not args.quiet)
     except ValueError as exc:
         raise SystemExit(f'lightstage eval: {exc}') from None
     results['capture'] = str(Path(args.capture_dir).resolve())
     results['settings'] = {'repeats': args.repeats, 'max_images': args.max_images,
+                           'joint_max_images': args.joint_max_images or args.max_images,
                            'holdout': args.holdout, 'renders': args.renders, 'seed': args.seed,
                            'methods': methods, 'noise': noises}
     if args.out:

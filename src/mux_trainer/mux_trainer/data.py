@@ -1,13 +1,49 @@
 """From a capture (ModelSet) to the arrays the search works on, at the feature resolution."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
-from lightstage_camera.noise import preset
+from lightstage_camera.noise import NoiseModel, load_noise_file, preset
 from mux_classifier.hog import HogConfig
 
 from .rendering import DEFAULT_DIMMER, SearchData
 
 NOISE_SETTINGS = ('sigma1', 'sigma2', 'sigma3', 'none')
+NOISE_HELP = ('sigma1|sigma2|sigma3|none, or a noise file written by `lightstage calibrate` '
+              '(NOISE.yaml: its model at the gain and exposure it was measured at; '
+              'NOISE.yaml@GAIN_DB:EXPOSURE_MS: generalized to that setting, e.g. '
+              'noise.yaml@17.5:22.5)')
+_AT = re.compile(r'^(?P<path>.+\.ya?ml)@(?P<gain>[-+]?[\d.]+):(?P<exposure>[\d.]+)$', re.I)
+
+
+def resolve_noise(spec) -> tuple[str, NoiseModel | None]:
+    """A noise setting -> (its name, the camera's NoiseModel at full resolution or None).
+
+    spec: a preset name (NOISE_SETTINGS), a calibrated noise file (.yaml, written by
+    `lightstage calibrate`), a file generalized to another setting ('FILE.yaml@GAIN_DB:
+    EXPOSURE_MS', the affine model's gain/exposure rule), or a NoiseModel. ValueError (naming
+    the problem) otherwise.
+    """
+    if isinstance(spec, NoiseModel):
+        return 'calibrated', spec
+    text = str(spec).strip()
+    if text.lower() in NOISE_SETTINGS:
+        return text.lower(), preset(text.lower())
+    at = _AT.match(text)
+    if at:
+        model = load_noise_file(at['path'])
+        try:
+            return text, model.at(float(at['gain']), float(at['exposure']))
+        except ValueError as exc:
+            raise ValueError(f'noise {text!r}: {exc}') from None
+    if text.lower().endswith(('.yaml', '.yml')):
+        return text, load_noise_file(text)
+    path, sep, setting = text.rpartition('@')
+    if sep and path.lower().endswith(('.yaml', '.yml')):
+        raise ValueError(f'noise {text!r}: after the @ give GAIN_DB:EXPOSURE_MS, two numbers '
+                         f'(e.g. {path}@17.5:22.5), not {setting!r}')
+    raise ValueError(f'unknown noise setting {text!r}; use {NOISE_HELP}')
 
 
 def object_type_of(class_name: str) -> str:
@@ -15,9 +51,10 @@ def object_type_of(class_name: str) -> str:
     return str(class_name).split('-', 1)[0]
 
 
-def search_data(modelset, noise: str = 'sigma3', *, hog_config: HogConfig | None = None,
+def search_data(modelset, noise='sigma3', *, hog_config: HogConfig | None = None,
                 dimmer: float = DEFAULT_DIMMER) -> SearchData:
-    """A ModelSet -> SearchData at the HOG configuration's image size with a noise setting.
+    """A ModelSet -> SearchData at the HOG configuration's image size with a noise setting
+    (anything `resolve_noise` takes).
 
     The models are downscaled (area mean) if they are larger than the feature resolution;
     the noise variance is scaled by the downscale's factor (`ModelSet.noise_scale`), which
@@ -32,7 +69,7 @@ def search_data(modelset, noise: str = 'sigma3', *, hog_config: HogConfig | None
                              f'{size} px the features need; capture at >= {size} px or pass a '
                              'HogConfig with a smaller image_size')
         modelset = modelset.downscaled(size)
-    model = preset(noise)
+    name, model = resolve_noise(noise)
     a = b = 0.0
     if model is not None:
         a = float(model.sigma_p2 * modelset.noise_scale)
@@ -40,21 +77,19 @@ def search_data(modelset, noise: str = 'sigma3', *, hog_config: HogConfig | None
     return SearchData.from_models(
         modelset.models, modelset.labels, modelset.pose_index, modelset.class_names,
         dimmer=dimmer, noise_a=a, noise_b=b, max_level=float(modelset.max_level),
-        noise_name=str(noise).lower(), hog_config=hog_config)
+        noise_name=name, noise_model=model, hog_config=hog_config)
 
 
-def noise_dict(noise: str) -> dict:
-    """The noise setting as stored in an artifact (name and coefficients; None if unknown)."""
-    name = str(noise).lower()
-    model = preset(name) if name in NOISE_SETTINGS else None
+def noise_dict(name: str, model: NoiseModel | None) -> dict:
+    """The noise setting as stored in an artifact: its name, the camera's coefficients at
+    full resolution and the gain / exposure the classifier node asks the stage for (None
+    without noise)."""
     if model is None:
-        if name != 'none':
-            return {'name': name, 'sigma_p2': None, 'sigma_r2': None, 'gain_db': None,
-                    'exposure_ms': None}
-        return {'name': 'none', 'sigma_p2': None, 'sigma_r2': None, 'gain_db': None,
+        return {'name': str(name), 'sigma_p2': None, 'sigma_r2': None, 'gain_db': None,
                 'exposure_ms': None}
-    return {'name': str(noise).lower(), 'sigma_p2': model.sigma_p2, 'sigma_r2': model.sigma_r2,
-            'gain_db': model.gain_db, 'exposure_ms': model.exposure_ms}
+    return {'name': str(name), 'sigma_p2': float(model.sigma_p2),
+            'sigma_r2': float(model.sigma_r2), 'gain_db': float(model.gain_db),
+            'exposure_ms': float(model.exposure_ms)}
 
 
 def sample_object_types(data: SearchData) -> np.ndarray:

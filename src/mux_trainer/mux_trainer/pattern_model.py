@@ -68,7 +68,8 @@ class PatternModelMixin:
                                          for i in range(1, k + 1)},
                 'best_n_patterns': int(self.best_n_patterns_)}
         prov.update(provenance or {})
-        noise = noise_dict(self.evaluator_.data.noise_name)
+        data = self.evaluator_.data
+        noise = noise_dict(data.noise_name, data.noise_model)
         if self.mode == 'per_colour':
             return TrainedArtifact.from_classifiers(
                 clfs, site_patterns=self.patterns_[:, :k], class_names=self.class_names_,

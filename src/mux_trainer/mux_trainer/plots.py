@@ -12,9 +12,16 @@ import numpy as np  # noqa: E402
 STYLE = {'greedy': ('-', 'o'), 'snr_optimal': ('--', 's'), 'greedy_joint': (':', '^')}
 
 
-def plot_accuracy_vs_images(doc: dict, path) -> Path:
-    """Held-out accuracy vs image count (pattern columns): greedy solid, SNR-optimal dashed,
-    one colour per noise setting; naive methods as horizontal reference lines."""
+def plot_accuracy_vs_images(doc: dict, path, by: str = 'columns') -> Path:
+    """Held-out accuracy vs image count: greedy solid, SNR-optimal dashed, joint greedy
+    dotted, one colour per noise setting; naive methods as horizontal reference lines.
+
+    by: 'columns' (pattern columns, the paper's figure; a per-colour column is 4 exposures)
+    or 'exposures' (camera exposures, which puts the joint 32-LED mode, one exposure per
+    column, on the same axis as the paper's per-colour mode).
+    """
+    if by not in ('columns', 'exposures'):
+        raise ValueError(f"by must be 'columns' or 'exposures', got {by!r}")
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
     colours = plt.rcParams['axes.prop_cycle'].by_key()['color']
     for i, (noise, r) in enumerate(doc['by_noise'].items()):
@@ -23,14 +30,17 @@ def plot_accuracy_vs_images(doc: dict, path) -> Path:
             acc = m['accuracy_by_images']
             if name in STYLE:
                 ks = sorted(int(k) for k in acc)
-                ax.plot(ks, [100 * acc[str(k)] for k in ks], linestyle=STYLE[name][0],
-                        marker=STYLE[name][1], color=colour, label=f'{name} {noise}')
+                per = int(m.get('images_per_pattern', 1)) if by == 'exposures' else 1
+                ax.plot([k * per for k in ks], [100 * acc[str(k)] for k in ks],
+                        linestyle=STYLE[name][0], marker=STYLE[name][1], color=colour,
+                        label=f'{name} {noise}')
             elif i == 0:
                 ax.axhline(100 * m['accuracy'], color='gray', linewidth=0.8,
                            linestyle='-.' if name == 'naive_bow' else ':')
                 ax.annotate(f'{name} {noise}', (1, 100 * m['accuracy']), fontsize=7,
                             color='gray', va='bottom')
-    ax.set_xlabel('image count (pattern columns; per colour: 4 exposures each)')
+    ax.set_xlabel('image count (pattern columns; per colour: 4 exposures each)'
+                  if by == 'columns' else 'camera exposures')
     ax.set_ylabel('held-out accuracy %')
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)

@@ -32,6 +32,8 @@ class SearchData:
     image_shape: (H, W) of the rendered images.
     noise_a, noise_b: variance = noise_a * mean + noise_b at this resolution (0, 0 = no noise).
     max_level: saturation level (1023 for a 10-bit camera).
+    noise_name, noise_model: the noise setting and its camera NoiseModel at full resolution
+    (None without noise), for the artifact.
     """
 
     basis: np.ndarray
@@ -43,6 +45,7 @@ class SearchData:
     noise_b: float = 0.0
     max_level: float = 1023.0
     noise_name: str = 'none'
+    noise_model: object = None
     hog_config: HogConfig = field(default_factory=HogConfig)
 
     def __post_init__(self):
@@ -89,11 +92,8 @@ class SearchData:
     def subset(self, index) -> 'SearchData':
         """The same data restricted to some samples (for held-out evaluation)."""
         index = np.asarray(index)
-        return SearchData(basis=self.basis[:, :, index], labels=self.labels[index],
-                          pose_index=self.pose_index[index], class_names=self.class_names,
-                          image_shape=self.image_shape, noise_a=self.noise_a,
-                          noise_b=self.noise_b, max_level=self.max_level,
-                          noise_name=self.noise_name, hog_config=self.hog_config)
+        return replace(self, basis=self.basis[:, :, index], labels=self.labels[index],
+                       pose_index=self.pose_index[index])
 
 
 def render_site_patterns(data: SearchData, W: np.ndarray) -> np.ndarray:

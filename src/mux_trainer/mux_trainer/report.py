@@ -53,9 +53,13 @@ def _naive_bow_summary(naive, train_data, test_data, n_renders, seed, n_jobs):
 
 def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_repeats=400,
                            max_images=8, holdout_fraction=0.25, n_renders=4, seed=0,
-                           n_jobs=1, hog_config=None, beam_width=1, quiet=False,
-                           progress=False) -> dict:
-    """All requested methods at one noise setting; returns {'methods': {...}, ...}."""
+                           n_jobs=1, hog_config=None, beam_width=1, joint_max_images=None,
+                           quiet=False, progress=False) -> dict:
+    """All requested methods at one noise setting; returns {'methods': {...}, ...}.
+
+    joint_max_images: pattern columns of 'greedy_joint' (one exposure each; default
+    max_images). 4 x max_images gives it the exposures of the per-colour search.
+    """
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f'unknown methods {sorted(unknown)}; choose from {", ".join(METHODS)}')
@@ -80,7 +84,7 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
             model = GreedyPatternSelector(mode='per_colour', n_patterns=max_images,
                                           progress=progress, **common).fit(train)
         else:  # greedy_joint
-            model = GreedyPatternSelector(mode='joint', n_patterns=max_images,
+            model = GreedyPatternSelector(mode='joint', n_patterns=joint_max_images or max_images,
                                           beam_width=beam_width, progress=progress,
                                           **common).fit(train)
         train_s = time.perf_counter() - t0
@@ -152,5 +156,7 @@ def write_outputs(results: dict, out_dir, plots: bool = True) -> list[Path]:
     if plots:
         from .plots import plot_accuracy_vs_images, plot_pattern_matrices
         written.append(plot_accuracy_vs_images(doc, out / 'accuracy_vs_images.png'))
+        written.append(plot_accuracy_vs_images(doc, out / 'accuracy_vs_exposures.png',
+                                               by='exposures'))
         written.append(plot_pattern_matrices(doc, out / 'patterns.png'))
     return written

@@ -33,11 +33,11 @@ from sklearn.base import BaseEstimator
 
 __all__ = [
     "multiplexing_mse", "image_noise_variance", "SnrOptimalMultiplexer", "hadamard_s_matrix",
-    "s_matrix_for_sites", "compare_with_hadamard", "resolve_noise", "single_site_mean_level",
+    "s_matrix_for_sites", "compare_with_hadamard", "noise_coefficients", "single_site_mean_level",
 ]
 
 
-def resolve_noise(noise) -> tuple[float, float]:
+def noise_coefficients(noise) -> tuple[float, float]:
     """(sigma_p2, sigma_r2) from a preset name ("sigma1".."sigma3"), a NoiseModel-like
     object, a dict or a (sigma_p2, sigma_r2) pair."""
     if isinstance(noise, str):
@@ -183,7 +183,7 @@ class SnrOptimalMultiplexer(BaseEstimator):
         mean_level = float(mean_level)
         if not np.isfinite(mean_level) or mean_level < 0:
             raise ValueError(f"mean_level must be a finite gray level >= 0, got {mean_level}")
-        sigma_p2, sigma_r2 = resolve_noise(self.noise)
+        sigma_p2, sigma_r2 = noise_coefficients(self.noise)
         identity = self._identity()
         starts = self._starts(identity)
 
@@ -267,7 +267,7 @@ def compare_with_hadamard(n_sites: int = 8, noise="sigma3", mean_level: float = 
     (identity MSE / MSE), the S-code used, the searched W and the theoretical S-code gain
     for signal-independent noise, (n + 1)^2 / (4 n).
     """
-    sigma_p2, sigma_r2 = resolve_noise(noise)
+    sigma_p2, sigma_r2 = noise_coefficients(noise)
     searches = {
         start: SnrOptimalMultiplexer(n_sites=n_sites, noise=(sigma_p2, sigma_r2), n_iter=n_iter,
                                      seed=seed, noise_scale=noise_scale, start=start).fit(mean_level)

@@ -127,6 +127,11 @@ def main(args=None) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:  # noqa: BLE001
+        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
+        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
+        if rclpy.ok():
+            raise
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

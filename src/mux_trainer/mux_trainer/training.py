@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from .data import NOISE_SETTINGS
+from .data import resolve_noise
 
 METHODS = ('greedy', 'snr_optimal', 'naive')
 MODES = ('per_colour', 'joint')
@@ -20,8 +20,7 @@ def check_options(method: str, mode: str, noise: str, max_images: int, repeats: 
         raise ValueError(f'unknown method {method!r}; use one of {", ".join(METHODS)}')
     if mode not in MODES:
         raise ValueError(f'unknown mode {mode!r}; use one of {", ".join(MODES)}')
-    if noise not in NOISE_SETTINGS:
-        raise ValueError(f'unknown noise setting {noise!r}; use one of {", ".join(NOISE_SETTINGS)}')
+    resolve_noise(noise)  # ValueError naming the problem (unknown preset, bad noise file)
     if max_images < 1 or repeats < 1:
         raise ValueError(f'max_images and repeats must be >= 1, got {max_images} and {repeats}')
 
