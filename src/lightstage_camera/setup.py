@@ -13,17 +13,18 @@ setup(
         ('share/' + package_name, ['package.xml']),
         # `ros2 run lightstage_camera EXE` looks for an executable at <prefix>/lib/<pkg>/EXE;
         # pip puts console_scripts in bin/, so small wrappers are installed there as data.
-        ('lib/' + package_name, ['scripts/camera_node'])
+        ('lib/' + package_name, ['scripts/camera_node', 'scripts/acquisition_node'])
     ],
     install_requires=['setuptools'],
     zip_safe=False,
     maintainer='lightstage maintainers',
     maintainer_email='maintainers@lightstage.invalid',
-    description='Camera and stage physics: capture format, model store, rendering, noise model, calibration, synthetic data and the camera node.',
+    description='Camera and stage physics: capture format, model store, rendering, noise model, calibration, synthetic data; the camera node and the acquisition node (model capture, noise calibration).',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'lightstage-camera-node = lightstage_camera.camera_node:main'
+            'lightstage-camera-node = lightstage_camera.camera_node:main',
+            'lightstage-acquisition-node = lightstage_camera.acquisition_node:main',
         ],
     },
 )

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import sys
 
+from dataclasses import replace
+
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
@@ -25,6 +27,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import Image
 
 from .camera_backend import Frame, Trigger
+from .noise import PAPER_CALIBRATION, NoiseModel, load_noise_file
 from .sim_camera import NOISE_CHOICES, SimCameraBackend, parse_noise, resolve_sample
 
 NODE_NAME = 'lightstage_camera'
@@ -58,8 +61,12 @@ PARAMETERS = {
     'sample': ('0', _text('sample on the stage: a name label/sample/pose (e.g. banana-fake/s2/p03) '
                           'or an index; settable at run time', dynamic=True)),
     'noise': ('auto', _text('camera noise: auto = from each trigger\'s gain_db and exposure_us '
-                            '(affine model at the paper\'s calibration), a fixed preset, or none',
+                            '(affine model at the paper\'s calibration, or at noise_file\'s), a '
+                            'fixed preset, or none',
                             constraints='one of: ' + ', '.join(NOISE_CHOICES))),
+    'noise_file': ('', _text('calibrated noise file (YAML written by `lightstage calibrate`) that '
+                             'noise auto generalizes to each trigger\'s gain and exposure instead '
+                             'of the paper\'s 15 dB / 30 ms fit; empty = the paper\'s')),
     'seed': (-1, ParameterDescriptor(type=ParameterType.PARAMETER_INTEGER,
                                      description='noise seed; -1 = fresh entropy',
                                      integer_range=[IntegerRange(from_value=-1, to_value=2**31 - 1, step=1)])),
@@ -76,7 +83,13 @@ PARAMETERS = {
         type=ParameterType.PARAMETER_DOUBLE, description='/diagnostics period [s]', read_only=True,
         floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)])),
 }
-BACKEND_SETTINGS = ('capture_dir', 'sample', 'noise', 'seed', 'dimmer', 'default_gain_db')
+BACKEND_SETTINGS = ('capture_dir', 'sample', 'noise', 'noise_file', 'seed', 'dimmer',
+                    'default_gain_db')
+
+
+def noise_calibration(noise_file: str) -> NoiseModel:
+    """The fit `noise: auto` generalizes: the noise file's, or the paper's (empty path)."""
+    return load_noise_file(noise_file) if str(noise_file).strip() else PAPER_CALIBRATION
 
 
 def stamp_to_ns(stamp) -> int:
@@ -149,7 +162,8 @@ class CameraNode(Node):
         seed = None if int(s['seed']) < 0 else int(s['seed'])
         return SimCameraBackend.from_capture(
             self._publish_frame, s['capture_dir'], sample=s['sample'], noise=s['noise'],
-            dimmer=float(s['dimmer']), default_gain_db=float(s['default_gain_db']), seed=seed)
+            dimmer=float(s['dimmer']), default_gain_db=float(s['default_gain_db']), seed=seed,
+            calibration=noise_calibration(s['noise_file']))
 
     def _start_backend(self, s: dict) -> None:
         try:
@@ -163,7 +177,8 @@ class CameraNode(Node):
         cam = self.backend.camera
         self.get_logger().info(
             f'sim camera on {s["capture_dir"]}: {len(cam.modelset)} samples, '
-            f'{cam.image_shape[1]}x{cam.image_shape[0]} px, {cam.bit_depth}-bit, noise {s["noise"]}; '
+            f'{cam.image_shape[1]}x{cam.image_shape[0]} px, {cam.bit_depth}-bit, noise {s["noise"]}'
+            f'{" calibrated by " + s["noise_file"] if str(s["noise_file"]).strip() else ""}; '
             f'sample {cam.sample_name} on the stage')
 
     def _on_set_parameters(self, params) -> SetParametersResult:
@@ -173,6 +188,9 @@ class CameraNode(Node):
         s = self._settings(changes)
         try:
             parse_noise(s['noise'])
+            # the noise file is read when it is named, not again on every other change (a
+            # file moved since must not make e.g. a sample change fail)
+            calibration = noise_calibration(s['noise_file']) if 'noise_file' in changes else None
             if self.backend is None:
                 # not running: take the value and retry, so settings can be fixed one by one
                 # (the remaining problem, if any, goes to the log and /diagnostics)
@@ -188,6 +206,8 @@ class CameraNode(Node):
             cam = self.backend.camera
             index = resolve_sample(cam.modelset, s['sample'])  # validate before changing anything
             cam.sample_index, cam.noise = index, parse_noise(s['noise'])
+            if calibration is not None:
+                cam.calibration = replace(calibration, max_level=cam.modelset.max_level)
             cam.dimmer = float(s['dimmer'])
             cam.default_gain_db = float(s['default_gain_db'])
             if 'seed' in changes:
@@ -251,6 +271,11 @@ def main(argv: list[str] | None = None) -> int:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:  # noqa: BLE001
+        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
+        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
+        if rclpy.ok():
+            raise
     finally:
         node.destroy_node()
         if rclpy.ok():

@@ -132,3 +132,96 @@ def choose_gain(images, exposure_ms: float, reference_gain_db: float,
     wanted_ratio = target_fraction * max_level / (peak * exposure_gain)
     gain_db = reference_gain_db + 20.0 * np.log10(wanted_ratio)
     return float(np.clip(gain_db, lo, hi))
+
+
+# ---- calibrated noise files ----------------------------------------------------------
+# A noise file is the YAML `lightstage calibrate` writes: the fitted model at the setting it
+# was measured at, with its standard errors and how it was measured. `load_noise_file` gives
+# the NoiseModel back; `noise_setting` accepts a preset name or such a file.
+NOISE_FILE_KIND = "lightstage-noise-calibration"
+NOISE_FILE_VERSION = 1
+
+
+class NoiseFileError(ValueError):
+    """A noise file that does not load; the message names the file and the problem."""
+
+
+def save_noise_file(path, model: NoiseModel, stderr: tuple[float, float] | None = None,
+                    measured: dict | None = None) -> "Path":
+    """Write `model` (and its standard errors, how it was measured) as a noise YAML file.
+
+    The write is atomic (a temporary file renamed over the target)."""
+    import os
+    from pathlib import Path
+
+    import yaml
+
+    doc = {"kind": NOISE_FILE_KIND, "version": NOISE_FILE_VERSION,
+           "noise_model": {"sigma_p2": float(model.sigma_p2), "sigma_r2": float(model.sigma_r2),
+                           "gain_db": float(model.gain_db),
+                           "exposure_ms": float(model.exposure_ms),
+                           "max_level": int(model.max_level)}}
+    if stderr is not None:
+        doc["stderr"] = {"sigma_p2": float(stderr[0]), "sigma_r2": float(stderr[1])}
+    doc["generalized"] = {name: {"gain_db": g, "exposure_ms": e,
+                                 "sigma_p2": round(float(model.at(g, e).sigma_p2), 6),
+                                 "sigma_r2": round(float(model.at(g, e).sigma_r2), 6)}
+                          for name, (g, e) in SETTINGS.items()}
+    if measured:
+        doc["measured"] = measured
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    header = ("# Camera noise calibration: variance = sigma_p2 * mean + sigma_r2 (gray levels^2)\n"
+              "# at gain_db / exposure_ms; other settings: NoiseModel.at (docs/PHYSICS.md).\n"
+              "# Written by `lightstage calibrate`; use it as the sim camera's noise_file.\n")
+    try:
+        tmp.write_text(header + yaml.safe_dump(doc, sort_keys=False))
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def load_noise_file(path) -> NoiseModel:
+    """The NoiseModel of a noise file written by `save_noise_file`; NoiseFileError if bad."""
+    from pathlib import Path
+
+    import yaml
+
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise NoiseFileError(f"{path}: cannot read the noise file ({exc.strerror or exc}); "
+                             "give a file written by `lightstage calibrate`") from None
+    except UnicodeDecodeError:
+        raise NoiseFileError(f"{path}: not a text file, so not a noise calibration file; give "
+                             "a YAML file written by `lightstage calibrate`") from None
+    except yaml.YAMLError as exc:
+        raise NoiseFileError(f"{path}: not valid YAML ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("kind") != NOISE_FILE_KIND:
+        raise NoiseFileError(f"{path}: not a noise calibration file (expected kind: "
+                             f"{NOISE_FILE_KIND}); write one with `lightstage calibrate`")
+    if doc.get("version") != NOISE_FILE_VERSION:
+        raise NoiseFileError(f"{path}: noise file version {doc.get('version')!r}, this "
+                             f"version reads {NOISE_FILE_VERSION}")
+    m = doc.get("noise_model")
+    try:
+        return NoiseModel(float(m["sigma_p2"]), float(m["sigma_r2"]), gain_db=float(m["gain_db"]),
+                          exposure_ms=float(m["exposure_ms"]),
+                          max_level=int(m.get("max_level", 1023)))
+    except (TypeError, KeyError) as exc:
+        raise NoiseFileError(f"{path}: noise_model needs sigma_p2, sigma_r2, gain_db, "
+                             f"exposure_ms (missing {exc})") from None
+    except ValueError as exc:
+        raise NoiseFileError(f"{path}: {exc}") from None
+
+
+def noise_setting(spec) -> NoiseModel | None:
+    """A noise setting by name ("sigma1".."sigma3", "none") or a calibrated noise file
+    (a path ending in .yaml / .yml): the file's model as measured, at its own setting."""
+    text = str(spec).strip()
+    if text.lower().endswith((".yaml", ".yml")):
+        return load_noise_file(text)
+    return preset(text)

@@ -197,3 +197,30 @@ class SimCameraBackend(CameraBackend):
             'capture_dir': self.source, 'sample': cam.sample_name, 'sample_index': cam.sample_index,
             'samples': len(cam.modelset), 'image_size': f'{w}x{h}', 'bit_depth': cam.bit_depth,
             'noise': noise, 'dimmer': cam.dimmer, 'frames': self.frames})
+
+
+def frame_moments(mean, variance, max_level: int = 1023) -> tuple[np.ndarray, np.ndarray]:
+    """Exact mean and variance of one simulated frame's gray level per pixel.
+
+    A frame is ``round(clip(N(mean, variance), 0, max_level))`` (`SimCamera.capture`), so
+    its mean is not the model's near 0 and the maximum, and rounding adds about 1/12 to its
+    variance. Uses E[Y] = sum_k P(Y >= k) and E[Y^2] = sum_k (2k - 1) P(Y >= k), k = 1..max,
+    with P(Y >= k) = P(X >= k - 1/2). For checking averaged captures against their model.
+    """
+    from scipy.special import ndtr
+
+    mu = np.asarray(mean, np.float64).ravel()
+    sd = np.sqrt(np.maximum(np.asarray(variance, np.float64).ravel(), 1e-12))
+    reach = int(math.ceil(9 * float(sd.max()))) + 2
+    e1 = np.empty_like(mu)
+    e2 = np.empty_like(mu)
+    for start in range(0, mu.size, 4096):
+        m, s = mu[start:start + 4096], sd[start:start + 4096]
+        lo = np.clip(np.floor(m) - reach, 1, max_level)  # below lo: P(Y >= k) = 1
+        k = lo[:, None] + np.arange(2 * reach + 2)[None, :]
+        inside = k <= max_level
+        p = np.where(inside, ndtr((m[:, None] - (k - 0.5)) / s[:, None]), 0.0)
+        e1[start:start + 4096] = (lo - 1) + p.sum(axis=1)
+        e2[start:start + 4096] = (lo - 1) ** 2 + ((2 * k - 1) * p).sum(axis=1)
+    shape = np.shape(mean)
+    return e1.reshape(shape), (e2 - e1 ** 2).reshape(shape)

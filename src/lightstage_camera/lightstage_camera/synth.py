@@ -470,7 +470,28 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--force", action="store_true",
                         help="write into a non-empty folder (same-named files are replaced)")
     parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--calibration-target", action="store_true",
+                        help="write a noise-calibration target instead (one sample, "
+                             "calibration-target/s0/p00, a reflectance ramp; for `lightstage "
+                             "calibrate` on the simulated stage; --size is its width, 3/4 of it "
+                             "its height)")
+    parser.add_argument("--dimmer", type=float, default=0.45,
+                        help="with --calibration-target: the sim camera's dimmer, so that all "
+                             "LEDs bring the target's brightest pixel to 1.1 x the camera's "
+                             "maximum (default 0.45, the camera node's default)")
     args = parser.parse_args(argv)
+    if args.calibration_target:
+        from .calibration import CALIBRATION_TARGET_NAME, write_calibration_target
+        try:
+            out = write_calibration_target(args.out_dir, (max(4, args.size * 3 // 4), args.size),
+                                           dimmer=args.dimmer, overwrite=args.force)
+        except ValueError as exc:
+            print(f"lightstage synth: {exc}", file=sys.stderr)
+            return 2
+        if not args.quiet:
+            print(f"wrote {out} (calibration target {CALIBRATION_TARGET_NAME}, "
+                  f"{args.size}x{max(4, args.size * 3 // 4)} px)")
+        return 0
     types = [t.strip() for t in args.types.split(",") if t.strip()]
     unknown = [t for t in types if t not in OBJECT_TYPES]
     if unknown:

@@ -1,0 +1,167 @@
+"""Model capture and noise calibration through the graph on the simulated stage: time and error.
+
+Brings up driver (Python firmware simulator), sim camera (dimmer 1.0, noise auto) and the
+acquisition node as processes in a domain id of its own (LOCALHOST discovery), then
+
+* captures one synthetic sample's model at N frames per LED image (default 1, 4, 16) at the
+  paper's 15 dB / 30 ms, and reports the wall time per model, the exposure time it contains,
+  and the RMS error of the captured model against the stored one (pixels no frame clips)
+  next to what N frames predict;
+* calibrates the camera noise on a calibration target at 15 dB / 30 ms with F frames per
+  level (default 15, 30, 60, 120; 8 levels) and reports the fit, its standard errors and
+  the error against the camera's configured noise (the paper's 0.7 / 66, plus 1/12 of
+  rounding to whole gray levels).
+
+    .venv/bin/python benchmarks/bench_acquisition.py [--size 240] [--frames 1 4 16]
+        [--calibration-frames 15 30 60 120] [--exposure-us 30000] [--json OUT.json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('--size', type=int, default=240, help='synthetic sample image size (px)')
+    p.add_argument('--frames', type=int, nargs='*', default=[1, 4, 16])
+    p.add_argument('--calibration-frames', type=int, nargs='*', default=[15, 30, 60, 120])
+    p.add_argument('--levels', type=int, default=8)
+    p.add_argument('--target-size', type=int, nargs=2, default=[48, 64], metavar=('H', 'W'))
+    p.add_argument('--exposure-us', type=int, default=30000)
+    p.add_argument('--gain-db', type=float, default=15.0)
+    p.add_argument('--domain-id', type=int, default=None)
+    p.add_argument('--json', default='', help='also write the figures here')
+    args = p.parse_args(argv)
+
+    from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
+    domain_id = args.domain_id if args.domain_id is not None else 200 + os.getpid() % 30
+    apply_ros_environment(domain_id)
+
+    import rclpy
+    import yaml
+    from lightstage_bringup.launcher import NODE_REGISTRY, node_command
+    from lightstage_bringup.supervisor import ProcessSpec, Supervisor
+    from lightstage_camera import synth
+    from lightstage_camera.calibration import write_calibration_target
+    from lightstage_camera.capture_format import load_capture
+    from lightstage_camera.noise import PAPER_CALIBRATION
+    from lightstage_interfaces.action import CalibrateNoise, CaptureModel
+    from rcl_interfaces.srv import ListParameters
+    from rclpy.action import ActionClient
+
+    work = Path(tempfile.mkdtemp(prefix='bench-acquisition-'))
+    fruit = synth.generate(work / 'fruit', image_size=args.size, n_samples_per_class=1,
+                           n_poses=1, object_types=('banana',), n_jobs=1)
+    target = write_calibration_target(work / 'target', shape=tuple(args.target_size), dimmer=1.0)
+    sample = 'banana-real/s0/p00'
+    params = work / 'params.yaml'
+    params.write_text(yaml.safe_dump({
+        'camera': {'ros__parameters': {'capture_dir': str(fruit), 'sample': sample,
+                                       'dimmer': 1.0, 'seed': 0}},
+        'acquisition': {'ros__parameters': {'timeout_s': 30.0}}}))
+    stored = load_capture(fruit, cache=False)
+    truth = stored.models[stored.sample_names.index(sample)].astype(np.float64)
+    noise = PAPER_CALIBRATION.at(args.gain_db, args.exposure_us / 1000)
+    figures = {'size': args.size, 'exposure_us': args.exposure_us, 'gain_db': args.gain_db,
+               'capture': [], 'calibration': []}
+
+    rclpy.init(domain_id=domain_id)
+    node = rclpy.create_node(f'bench_acquisition_{os.getpid()}')
+    env = ros_environment(domain_id)
+    with Supervisor(sigint_timeout_s=5.0, stdout=open(work / 'nodes.log', 'w'),
+                    stderr=open(work / 'nodes.err', 'w')) as supervisor:
+        for name in ('driver', 'camera', 'acquisition'):
+            supervisor.start(ProcessSpec(name, node_command(NODE_REGISTRY[name].module, name,
+                                                            str(params)), env))
+        clients = [node.create_client(ListParameters, f'/{n}/list_parameters')
+                   for n in ('driver', 'camera', 'acquisition')]
+        while not all(c.service_is_ready() for c in clients):
+            rclpy.spin_once(node, timeout_sec=0.05)
+
+        def run(action_type, name, goal):
+            client = ActionClient(node, action_type, name)
+            client.wait_for_server(timeout_sec=30)
+            send = client.send_goal_async(goal)
+            rclpy.spin_until_future_complete(node, send)
+            result = send.result().get_result_async()
+            rclpy.spin_until_future_complete(node, result)
+            return result.result().result
+
+        clear = truth - 6 * np.sqrt(noise.variance(truth)) > 0
+        for n in args.frames:
+            out = work / f'capture_n{n}'
+            start = time.perf_counter()
+            r = run(CaptureModel, '/lightstage/capture_model', CaptureModel.Goal(
+                output_dir=str(out), label='banana-real', sample='s0', pose='p00',
+                exposure_us=args.exposure_us, gain_db=args.gain_db, frames_averaged=n))
+            wall = time.perf_counter() - start
+            if not r.success:
+                print(f'capture N={n} failed: {r.message}', file=sys.stderr)
+                return 1
+            model = load_capture(out, cache=False).models[0].astype(np.float64)
+            rms = float(np.sqrt(np.mean((model[clear] - truth[clear]) ** 2)))
+            predicted = float(np.sqrt(np.mean(noise.variance(truth[clear]) / n + 1 / 12 / n)))
+            exposure_s = 32 * (n + 1) * args.exposure_us / 1e6  # + 1: the preview
+            row = {'frames': n, 'wall_s': round(wall, 2), 'exposure_s': round(exposure_s, 2),
+                   'overhead_ms_per_frame': round(1e3 * (wall - exposure_s) / (32 * (n + 1)), 1),
+                   'rms_error': round(rms, 3), 'rms_predicted': round(predicted, 3),
+                   'clear_pixels': int(clear.sum())}
+            figures['capture'].append(row)
+            print(f'capture N={n:3d}: {wall:6.1f} s per model ({exposure_s:.1f} s of exposure, '
+                  f'{row["overhead_ms_per_frame"]} ms overhead per frame); RMS error vs the '
+                  f'stored model {rms:.3f} gray levels (predicted {predicted:.3f}, '
+                  f'{row["clear_pixels"]} unclipped pixels)', flush=True)
+
+        from rcl_interfaces.srv import SetParametersAtomically
+        from rclpy.parameter import Parameter
+        setp = node.create_client(SetParametersAtomically, '/camera/set_parameters_atomically')
+        setp.wait_for_service(timeout_sec=10)
+        f = setp.call_async(SetParametersAtomically.Request(parameters=[
+            Parameter('capture_dir', value=str(target)).to_parameter_msg(),
+            Parameter('sample', value='0').to_parameter_msg()]))
+        rclpy.spin_until_future_complete(node, f)
+        assert f.result().result.successful, f.result().result.reason
+        exact = PAPER_CALIBRATION.at(args.gain_db, args.exposure_us / 1000)
+        for frames in args.calibration_frames:
+            start = time.perf_counter()
+            r = run(CalibrateNoise, '/lightstage/calibrate_noise', CalibrateNoise.Goal(
+                exposure_us=args.exposure_us, gain_db=args.gain_db, frames_per_level=frames,
+                levels=args.levels))
+            wall = time.perf_counter() - start
+            if not r.success:
+                print(f'calibration F={frames} failed: {r.message}', file=sys.stderr)
+                return 1
+            dp = r.sigma_p2 - exact.sigma_p2
+            dr = r.sigma_r2 - (exact.sigma_r2 + 1 / 12)
+            row = {'frames_per_level': frames, 'levels': args.levels, 'wall_s': round(wall, 1),
+                   'sigma_p2': round(r.sigma_p2, 4), 'sigma_p2_stderr': round(r.sigma_p2_stderr, 4),
+                   'sigma_r2': round(r.sigma_r2, 2), 'sigma_r2_stderr': round(r.sigma_r2_stderr, 2),
+                   'error_sigma_p2_in_se': round(dp / r.sigma_p2_stderr, 2),
+                   'error_sigma_r2_in_se': round(dr / r.sigma_r2_stderr, 2),
+                   'pixels_used': int(r.pixels_used)}
+            figures['calibration'].append(row)
+            print(f'calibration F={frames:3d} x {args.levels} levels: {wall:5.1f} s; '
+                  f'sigma_p2 {r.sigma_p2:.4f} +- {r.sigma_p2_stderr:.4f} '
+                  f'(true {exact.sigma_p2:.4f}, {dp / r.sigma_p2_stderr:+.1f} se), '
+                  f'sigma_r2 {r.sigma_r2:.2f} +- {r.sigma_r2_stderr:.2f} '
+                  f'(true {exact.sigma_r2 + 1 / 12:.2f} with rounding, '
+                  f'{dr / r.sigma_r2_stderr:+.1f} se), {r.pixels_used} pixels', flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
+    if args.json:
+        Path(args.json).write_text(json.dumps(figures, indent=1))
+    print(f'(work files in {work})')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,377 @@
+"""The acquisition node: model capture and noise calibration on the stage, as actions.
+
+``/lightstage/capture_model`` (CaptureModel) captures the relightable model of the sample on
+the stage into a capture folder (`acquisition.capture_model` + `acquisition.write_model`);
+``/lightstage/calibrate_noise`` (CalibrateNoise) characterizes the camera noise on a
+calibration target (`calibration.calibrate_noise`) and writes a noise file and a plot.
+
+Both light patterns through the driver's ``/lightstage/apply_patterns`` (``trigger: true``,
+one camera trigger per pattern) and collect the ``/image_raw`` frames whose header stamps
+equal the returned trigger stamps (`frames.ImageMatcher`, as the classifier does), in
+requests of at most ``frames_per_request`` frames. One goal at a time (they share the
+stage): a goal that arrives while another runs is rejected. The handlers block while they
+wait for the driver and the images, so the node spins a MultiThreadedExecutor with one
+ReentrantCallbackGroup.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from lightstage_interfaces.action import CalibrateNoise, CaptureModel
+from lightstage_interfaces.msg import Pattern
+from lightstage_interfaces.srv import ApplyPatterns
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
+
+from .acquisition import CaptureCancelled, CaptureSettings, DestinationError, acquire_pose
+from .calibration import (CalibrationSettings, calibrate_noise, check_calibration_outputs,
+                          write_calibration_outputs)
+from .frames import AcquisitionError, ImageMatcher, image_from_buffer
+from .rig import Rig
+
+NODE_NAME = 'lightstage_acquisition'
+CAPTURE_ACTION = '/lightstage/capture_model'
+CALIBRATE_ACTION = '/lightstage/calibrate_noise'
+APPLY_SERVICE = '/lightstage/apply_patterns'
+IMAGE_TOPIC = '/image_raw'
+N_SITES = 8  # Pattern.intensities holds 32 LEDs: 8 sites x 4 colours
+# as the camera publishes: every frame of a sequence matters (see camera_node.IMAGE_QOS)
+IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32,
+                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+
+def _int(description: str, lo: int, hi: int, read_only: bool = False) -> ParameterDescriptor:
+    return ParameterDescriptor(type=ParameterType.PARAMETER_INTEGER, description=description,
+                               read_only=read_only,
+                               integer_range=[IntegerRange(from_value=lo, to_value=hi, step=1)])
+
+
+def _float(description: str, lo: float, hi: float) -> ParameterDescriptor:
+    return ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE, description=description,
+                               floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])
+
+
+PARAMETERS = {
+    'exposure_us': (30000, _int('model capture: exposure per frame [us] for goals with '
+                                'exposure_us 0 (long: models should be low-noise)', 1, 10_000_000)),
+    'gain_db': (15.0, _float('model capture: camera gain [dB] for goals with gain_db NaN',
+                             0.0, 48.0)),
+    'frames_averaged': (16, _int('model capture: frames averaged per single-LED image for '
+                                 'goals with frames_averaged 0', 1, 100_000)),
+    'max_saturated_fraction': (0.0, _float(
+        'model capture: the exposure preview (one frame per LED) refuses the capture when an LED '
+        'image has more than this fraction of its pixels at the camera\'s maximum', 0.0, 1.0)),
+    'preview': (True, ParameterDescriptor(
+        type=ParameterType.PARAMETER_BOOL,
+        description='model capture: take one frame per LED first to check the exposure (and '
+                    'the image size against the folder) before the long capture')),
+    'rig_file': ('', ParameterDescriptor(
+        type=ParameterType.PARAMETER_STRING,
+        description='rig.yaml describing the stage\'s sites for new capture folders (its camera '
+                    'section is replaced by the capture\'s setting); empty = an existing '
+                    'folder\'s own rig.yaml, or the paper\'s stage for a new folder')),
+    'calibration_exposure_us': (30000, _int('noise calibration: exposure per frame [us] for '
+                                            'goals with exposure_us 0 (the paper: 30 ms)',
+                                            1, 10_000_000)),
+    'calibration_gain_db': (15.0, _float('noise calibration: gain [dB] for goals with gain_db '
+                                         'NaN (the paper: 15 dB)', 0.0, 48.0)),
+    'calibration_frames': (120, _int('noise calibration: frames per illumination level for '
+                                     'goals with frames_per_level 0 (the paper: 120)', 2, 100_000)),
+    'calibration_levels': (8, _int('noise calibration: illumination levels for goals with '
+                                   'levels 0', 2, 4 * N_SITES)),
+    'frames_per_request': (16, _int('frames per driver request (one trigger sequence); at most '
+                                    'the camera\'s image queue (32)', 1, 32)),
+    'camera_bit_depth': (10, _int('significant bits of the camera\'s mono16 images', 8, 16)),
+    'timeout_s': (10.0, _float('time limit of one driver request and its images, on top of '
+                               'their exposures [s]', 0.1, 600.0)),
+    'image_buffer': (64, _int('images kept while waiting for their trigger stamps', 32, 1024,
+                              read_only=True)),
+}
+
+
+def stamp_to_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _or_default(value, default):
+    """Goal field value, or the node's default: for counts and exposures when the field is 0,
+    for gains (0 dB is a real gain) only when it is NaN."""
+    if isinstance(value, float):
+        return default if math.isnan(value) else value
+    return value if value else default
+
+
+class AcquisitionNode(Node):
+    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+        super().__init__(node_name, **kwargs)
+        for name, (default, descriptor) in PARAMETERS.items():
+            self.declare_parameter(name, default, descriptor)
+        self.matcher = ImageMatcher(self.p('image_buffer'),
+                                    clock=lambda: self.get_clock().now().nanoseconds)
+        self._busy = threading.Lock()  # one goal at a time: the stage is shared
+        group = ReentrantCallbackGroup()
+        self._apply_client = self.create_client(ApplyPatterns, APPLY_SERVICE, callback_group=group)
+        self._image_sub = self.create_subscription(Image, IMAGE_TOPIC, self._on_image, IMAGE_QOS,
+                                                   callback_group=group)
+        self._capture_server = ActionServer(
+            self, CaptureModel, CAPTURE_ACTION, execute_callback=self._execute_capture,
+            goal_callback=self._on_goal, cancel_callback=self._on_cancel, callback_group=group)
+        self._calibrate_server = ActionServer(
+            self, CalibrateNoise, CALIBRATE_ACTION, execute_callback=self._execute_calibration,
+            goal_callback=self._on_goal, cancel_callback=self._on_cancel, callback_group=group)
+
+    def p(self, name: str):
+        return self.get_parameter(name).value
+
+    # ------------------------------------------------------------------ images
+    def _on_image(self, msg: Image) -> None:
+        stamp = stamp_to_ns(msg.header.stamp)
+        try:
+            image = image_from_buffer(msg.data, msg.height, msg.width, msg.step, msg.encoding,
+                                      bool(msg.is_bigendian))
+        except ValueError as exc:
+            self.matcher.add(stamp, None, error=str(exc))
+            return
+        self.matcher.add(stamp, image)
+
+    # ------------------------------------------------------------------ the stage
+    def _wait_for_stage(self, timeout_s: float) -> None:
+        """Driver service and camera publisher present, or AcquisitionError saying which."""
+        deadline = time.monotonic() + timeout_s
+        if not self._apply_client.wait_for_service(timeout_sec=timeout_s):
+            raise AcquisitionError(
+                f'the light stage driver\'s service {APPLY_SERVICE} is not available (waited '
+                f'{timeout_s:g} s); start the driver, e.g. `lightstage up driver camera '
+                'acquisition`, and check its /diagnostics')
+        # images published before the camera's publisher has matched us are lost
+        while self._image_sub.get_publisher_count() == 0:
+            if time.monotonic() >= deadline:
+                raise AcquisitionError(
+                    f'no camera is publishing {IMAGE_TOPIC} to this node; start the camera '
+                    '(`lightstage up driver camera acquisition`) and check its /diagnostics')
+            time.sleep(0.01)
+
+    def _grabber(self, exposure_us: int, gain_db: float):
+        """grab(led_patterns (32, k)) -> k mono16 frames, matched by trigger stamp."""
+        def grab(patterns: np.ndarray) -> list[np.ndarray]:
+            k = patterns.shape[1]
+            limit_s = float(self.p('timeout_s')) + k * exposure_us / 1e6
+            request = ApplyPatterns.Request(trigger=True)
+            for column in np.asarray(patterns, np.float32).T:
+                request.patterns.append(Pattern(intensities=column, exposure_us=int(exposure_us),
+                                                gain_db=float(gain_db)))
+            done = threading.Event()
+            future = self._apply_client.call_async(request)
+            future.add_done_callback(lambda _f: done.set())
+            if not done.wait(limit_s):
+                self._apply_client.remove_pending_request(future)
+                raise AcquisitionError(f'the driver did not answer {APPLY_SERVICE} within '
+                                       f'{limit_s:g} s ({k} patterns); is it running? check its '
+                                       'log and /diagnostics')
+            response = future.result()
+            if response is None or not response.success:
+                reason = response.message if response is not None else future.exception()
+                raise AcquisitionError(f'the driver did not apply the patterns: {reason}')
+            stamps = [stamp_to_ns(t) for t in response.trigger_stamps]
+            if len(stamps) != k:
+                raise AcquisitionError(f'asked for {k} triggers but the driver reported '
+                                       f'{len(stamps)}; check the driver\'s log')
+            frames, _ = self.matcher.collect(stamps, limit_s, list(response.sequences))
+            return frames
+        return grab
+
+    # ------------------------------------------------------------------ goals
+    def _on_goal(self, _goal) -> GoalResponse:
+        if self._busy.locked():
+            self.get_logger().warning('goal rejected: a capture or calibration is running on '
+                                      'the stage')
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _on_cancel(self, _goal_handle) -> CancelResponse:
+        return CancelResponse.ACCEPT
+
+    def _on_stage(self, goal_handle, result, cancelled: str, failed: str, work):
+        """End the goal with `work(start)`, run with the stage to itself (one goal at a time):
+        it fills `result` and returns the message of success. A cancellation ends the goal as
+        cancelled (`cancelled: why`), an acquisition error, bad value or I/O error as aborted
+        (`failed: why`)."""
+        start = time.perf_counter()
+        if not self._busy.acquire(blocking=False):
+            return self._finish(goal_handle, result, 'abort', 'another capture or calibration '
+                                'is running on the stage; try again when it is done', start)
+        try:
+            message = work(start)
+        except CaptureCancelled as exc:
+            return self._finish(goal_handle, result, 'cancel', f'{cancelled}: {exc}', start)
+        except (AcquisitionError, ValueError, OSError) as exc:
+            return self._finish(goal_handle, result, 'abort', f'{failed}: {exc}', start)
+        finally:
+            self._busy.release()
+        return self._finish(goal_handle, result, 'succeed', message, start)
+
+    def _finish(self, goal_handle, result, outcome: str, message: str, start: float):
+        result.message = message
+        result.elapsed_s = time.perf_counter() - start
+        if outcome == 'succeed':
+            result.success = True
+            goal_handle.succeed()
+            self.get_logger().info(message)
+        elif outcome == 'cancel':
+            goal_handle.canceled()
+            self.get_logger().info(message)
+        else:
+            goal_handle.abort()
+            self.get_logger().error(message)
+        return result
+
+    # ------------------------------------------------------------------ CaptureModel
+    def _capture_settings(self, goal) -> CaptureSettings:
+        return CaptureSettings(
+            exposure_us=int(_or_default(int(goal.exposure_us), self.p('exposure_us'))),
+            gain_db=float(_or_default(float(goal.gain_db), self.p('gain_db'))),
+            frames=int(_or_default(int(goal.frames_averaged), self.p('frames_averaged'))),
+            bit_depth=int(self.p('camera_bit_depth')), n_sites=N_SITES,
+            frames_per_request=int(self.p('frames_per_request')),
+            max_saturated_fraction=float(self.p('max_saturated_fraction')))
+
+    def _base_rig(self) -> Rig | None:
+        path = str(self.p('rig_file')).strip()
+        if not path:
+            return None
+        try:
+            return Rig.load_yaml(path)
+        except Exception as exc:  # missing file, YAML errors, bad values
+            raise DestinationError(f'rig_file {path} does not load ({exc}); fix it or set '
+                                   'rig_file to \'\' (the paper\'s stage)') from None
+
+    def _execute_capture(self, goal_handle):
+        goal = goal_handle.request
+        result = CaptureModel.Result()
+        name = f'{goal.label}/{goal.sample}/{goal.pose}'
+
+        def capture(start: float) -> str:
+            settings = self._capture_settings(goal)
+
+            def progress(done: int, total: int, led: str, stage: str) -> None:
+                goal_handle.publish_feedback(CaptureModel.Feedback(
+                    images_done=done, images_total=total, current_led=led, stage=stage))
+
+            self.get_logger().info(f'capturing {name} into {goal.output_dir}: {settings.n_leds} '
+                                   f'LED images x {settings.frames} frames at '
+                                   f'{settings.exposure_us} us, {settings.gain_db:g} dB')
+            pose_dir, captured = acquire_pose(
+                self._grabber(settings.exposure_us, settings.gain_db), settings,
+                goal.output_dir, goal.label, goal.sample, goal.pose, base_rig=self._base_rig(),
+                overwrite=goal.overwrite, preview=bool(self.p('preview')),
+                cancelled=lambda: goal_handle.is_cancel_requested,
+                before_capture=lambda: self._wait_for_stage(float(self.p('timeout_s'))),
+                on_progress=progress)
+            result.model_dir = str(pose_dir)
+            result.images_captured = settings.n_leds
+            result.saturated_pixels = captured.saturated_pixels
+            warning = captured.saturation_warning()
+            message = (f'wrote {pose_dir}: {settings.n_leds} LED images x {settings.frames} '
+                       f'frames in {time.perf_counter() - start:.1f} s')
+            if warning:
+                message += f'; WARNING: {warning}'
+                self.get_logger().warning(warning)
+            return message
+
+        return self._on_stage(goal_handle, result, name, f'capture of {name} failed', capture)
+
+    # ------------------------------------------------------------------ CalibrateNoise
+    def _calibration_settings(self, goal) -> CalibrationSettings:
+        return CalibrationSettings(
+            exposure_us=int(_or_default(int(goal.exposure_us), self.p('calibration_exposure_us'))),
+            gain_db=float(_or_default(float(goal.gain_db), self.p('calibration_gain_db'))),
+            frames_per_level=int(_or_default(int(goal.frames_per_level),
+                                             self.p('calibration_frames'))),
+            levels=int(_or_default(int(goal.levels), self.p('calibration_levels'))),
+            bit_depth=int(self.p('camera_bit_depth')), n_sites=N_SITES,
+            frames_per_request=int(self.p('frames_per_request')))
+
+    def _execute_calibration(self, goal_handle):
+        goal = goal_handle.request
+        result = CalibrateNoise.Result()
+
+        def calibrate(_start: float) -> str:
+            settings = self._calibration_settings(goal)
+            check_calibration_outputs(goal.output_path, goal.plot_path, goal.overwrite)
+            self._wait_for_stage(float(self.p('timeout_s')))
+            grab = self._grabber(settings.exposure_us, settings.gain_db)
+
+            def feedback(level, levels, done, total, lit) -> None:
+                goal_handle.publish_feedback(CalibrateNoise.Feedback(
+                    level=level, levels=levels, frames_done=done, frames_total=total,
+                    leds_lit=lit, stage='capturing'))
+
+            def stage(name: str) -> None:
+                goal_handle.publish_feedback(CalibrateNoise.Feedback(
+                    level=settings.levels, levels=settings.levels, stage=name))
+
+            self.get_logger().info(
+                f'calibrating noise: {settings.levels} levels x {settings.frames_per_level} '
+                f'frames at {settings.exposure_us} us, {settings.gain_db:g} dB')
+            calibration = calibrate_noise(grab, settings, on_frames=feedback,
+                                          on_fitting=lambda: stage('fitting'),
+                                          cancelled=lambda: goal_handle.is_cancel_requested)
+            # the fit goes into the result first: a failed write still returns it
+            fit = calibration.model
+            result.sigma_p2, result.sigma_r2 = float(fit.sigma_p2), float(fit.sigma_r2)
+            result.sigma_p2_stderr, result.sigma_r2_stderr = map(float, calibration.stderr)
+            result.gain_db, result.exposure_ms = float(fit.gain_db), float(fit.exposure_ms)
+            result.pixels_used = calibration.pixels_used
+            stage('writing')
+            result.output_path, result.plot_path = write_calibration_outputs(
+                calibration, goal.output_path, goal.plot_path, overwrite=goal.overwrite,
+                measured_at=datetime.now(timezone.utc).isoformat(timespec='seconds'))
+            message = (f'variance = {fit.sigma_p2:.4g} (+-{calibration.stderr[0]:.2g}) * mean + '
+                       f'{fit.sigma_r2:.4g} (+-{calibration.stderr[1]:.2g}) at {fit.gain_db:g} dB, '
+                       f'{fit.exposure_ms:g} ms from {calibration.pixels_used} pixels x '
+                       f'{settings.frames_per_level} frames')
+            for warning in calibration.warnings():
+                message += f'; WARNING: {warning}'
+            return message
+
+        return self._on_stage(goal_handle, result, 'noise calibration', 'noise calibration failed',
+                              calibrate)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+    rclpy.init(args=sys.argv if argv is None else argv)
+    node = AcquisitionNode()
+    executor = MultiThreadedExecutor(num_threads=4)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:  # noqa: BLE001
+        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
+        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
+        if rclpy.ok():
+            raise
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
