@@ -24,7 +24,8 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 ParameterType)
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_services_default
+from rclpy.service_introspection import ServiceIntrospectionState
 
 from .errors import FirmwareMismatchError, LightStageError, PatternError
 from .sim_backend import backend_from_url, is_sim_url
@@ -67,6 +68,10 @@ PARAMETERS = {
     'channels': (4, _int('rig layout: LEDs (colour channels) per site the firmware must report', 1, 32)),
     'frame_id': ('lightstage', _text('frame id of the rig in IlluminationState headers')),
     'autostart': (True, _text('configure and activate on start-up', ParameterType.PARAMETER_BOOL)),
+    'service_introspection': (True, ParameterDescriptor(
+        type=ParameterType.PARAMETER_BOOL, read_only=True,
+        description='publish the ApplyPatterns calls (request and response contents) on '
+                    '/lightstage/apply_patterns/_service_event, so that recordings hold them')),
 }
 
 
@@ -89,6 +94,9 @@ class LightStageDriverNode(LifecycleNode):
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._diag_timer = self.create_timer(self.p('diagnostics_period_s'), self._publish_diagnostics)
         self._service = self.create_service(ApplyPatterns, SERVICE_NAME, self._on_apply)
+        if self.p('service_introspection'):
+            self._service.configure_introspection(self.get_clock(), qos_profile_services_default,
+                                                  ServiceIntrospectionState.CONTENTS)
 
     def p(self, name: str):
         return self.get_parameter(name).value
@@ -338,6 +346,11 @@ def main(argv: list[str] | None = None) -> int:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:  # noqa: BLE001
+        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
+        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
+        if rclpy.ok():
+            raise
     finally:
         node._active = False
         node._stop_heartbeat()

@@ -6,6 +6,13 @@ one trigger each, exposure and gain of the noise setting the artifact was traine
 in pattern order; the artifact's classifier for k images predicts; the answer also goes
 out on ``/lightstage/result``. The work itself is `inference.classify_on_stage`.
 
+With ``classify_observed`` the node also classifies sequences it only sees: a complete
+trigger request on ``/illumination`` that lit the artifact's first k patterns (lit by another
+client, or replayed from a bag) is matched to its images by stamp and classified; the result
+goes out on ``/lightstage/result`` (`observe.SequenceObserver`; its own service calls are not
+classified twice). ``service_introspection`` publishes the Classify calls on
+``/lightstage/classify/_service_event`` so that recordings hold them.
+
 The service handler blocks while it waits for the driver and the images, so the node runs
 in a MultiThreadedExecutor with one ReentrantCallbackGroup: images and the driver's reply
 are handled by other threads meanwhile.
@@ -20,24 +27,32 @@ import time
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
-from lightstage_interfaces.msg import ClassificationResult, Pattern
+from lightstage_interfaces.msg import ClassificationResult, IlluminationState, Pattern
 from lightstage_interfaces.srv import ApplyPatterns, Classify
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType, SetParametersResult)
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
+                       qos_profile_services_default)
+from rclpy.service_introspection import ServiceIntrospectionState
 from sensor_msgs.msg import Image
 
 from .inference import (AcquisitionPlan, ImageMatcher, InferenceError, classify_on_stage,
                         image_from_buffer)
 from .model import ArtifactError, TrainedArtifact
+from .observe import SequenceObserver, TriggerState
 
 NODE_NAME = 'mux_classifier'
 CLASSIFY_SERVICE = '/lightstage/classify'
 APPLY_SERVICE = '/lightstage/apply_patterns'
 IMAGE_TOPIC = '/image_raw'
 RESULT_TOPIC = '/lightstage/result'
+ILLUMINATION_TOPIC = '/illumination'
+# as the driver publishes: one message per trigger, every one matters
+ILLUMINATION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                              reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.VOLATILE)
 # as the camera publishes: every frame of a sequence matters (see camera_node.IMAGE_QOS)
 IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32,
                        reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
@@ -66,6 +81,15 @@ PARAMETERS = {
                                   '(10: gray level = value >> 6)', 8, 16)),
     'image_buffer': (64, _int('images kept while waiting for their trigger stamps', 8, 1024,
                               read_only=True)),
+    'service_introspection': (True, ParameterDescriptor(
+        type=ParameterType.PARAMETER_BOOL, read_only=True,
+        description='publish the Classify calls (request and response contents) on '
+                    '/lightstage/classify/_service_event, so that recordings hold them')),
+    'classify_observed': (False, ParameterDescriptor(
+        type=ParameterType.PARAMETER_BOOL, read_only=True,
+        description='also classify trigger sequences seen on /illumination that light the '
+                    'artifact\'s first k patterns (another client\'s, or a replayed bag\'s) and '
+                    'publish them on /lightstage/result')),
 }
 
 
@@ -94,7 +118,20 @@ class ClassifierNode(Node):
         self._result_pub = self.create_publisher(ClassificationResult, RESULT_TOPIC, 10)
         self._image_sub = self.create_subscription(Image, IMAGE_TOPIC, self._on_image, IMAGE_QOS,
                                                    callback_group=group)
-        self.create_service(Classify, CLASSIFY_SERVICE, self._on_classify, callback_group=group)
+        service = self.create_service(Classify, CLASSIFY_SERVICE, self._on_classify,
+                                      callback_group=group)
+        if self.p('service_introspection'):
+            service.configure_introspection(self.get_clock(), qos_profile_services_default,
+                                            ServiceIntrospectionState.CONTENTS)
+        self.observer = None
+        if self.p('classify_observed'):
+            self.observer = SequenceObserver(
+                lambda: self.artifact, self.matcher, self._on_observed, stage_busy=self._busy,
+                timeout_s=lambda: float(self.p('timeout_s')),
+                bit_depth=lambda: int(self.p('camera_bit_depth')),
+                on_error=lambda m: self.get_logger().warning(m))
+            self.create_subscription(IlluminationState, ILLUMINATION_TOPIC, self._on_illumination,
+                                     ILLUMINATION_QOS, callback_group=group)
 
     def p(self, name: str):
         return self.get_parameter(name).value
@@ -175,7 +212,10 @@ class ClassifierNode(Node):
         if response is None or not response.success:
             reason = response.message if response is not None else future.exception()
             raise InferenceError(f'the driver did not apply the patterns: {reason}')
-        return [stamp_to_ns(t) for t in response.trigger_stamps], list(response.sequences)
+        stamps = [stamp_to_ns(t) for t in response.trigger_stamps]
+        if self.observer is not None and stamps:
+            self.observer.mark_own(stamps[0])  # lit by this call: not to be classified twice
+        return stamps, list(response.sequences)
 
     # ------------------------------------------------------------------ service
     def _on_classify(self, request: Classify.Request, response: Classify.Response):
@@ -218,6 +258,19 @@ class ClassifierNode(Node):
                                f'{result.compute_ms:.1f} ms)')
         return response
 
+    # ------------------------------------------------------------------ observing
+    def _on_illumination(self, msg: IlluminationState) -> None:
+        self.observer.on_trigger(TriggerState(
+            request_id=int(msg.request_id), index=int(msg.index_in_request),
+            count=int(msg.count_in_request), intensities=np.asarray(msg.intensities),
+            stamp_ns=stamp_to_ns(msg.header.stamp), sequence=int(msg.sequence),
+            arrival_ns=self.get_clock().now().nanoseconds, source=msg.header.frame_id))
+
+    def _on_observed(self, result) -> None:
+        self._publish_result(result)
+        self.get_logger().info(f'classified an observed sequence: {result.label} '
+                               f'({result.images_used} images, compute {result.compute_ms:.1f} ms)')
+
     def _publish_result(self, result) -> None:
         msg = ClassificationResult()
         msg.header.stamp = ns_to_stamp(result.first_stamp_ns)
@@ -241,8 +294,15 @@ def main(argv: list[str] | None = None) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:  # noqa: BLE001
+        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
+        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
+        if rclpy.ok():
+            raise
     finally:
         executor.shutdown()
+        if node.observer is not None:
+            node.observer.close()
         node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()

@@ -1,0 +1,170 @@
+"""Make bags/sim_session: a few classifications on the simulated light stage, recorded.
+
+    .venv/bin/python bags/record_sim_session.py            # rewrites bags/sim_session*
+    .venv/bin/python bags/record_sim_session.py --out /tmp/x --domain-id 80
+
+1. a small synthetic capture (banana and orange, real and fake, 2 samples x 3 poses each,
+   120 px) in a temporary folder;
+2. the greedy illumination search for 2 site patterns (8 images) at Sigma3 on it, saved as
+   OUT/sim_session_classifier.npz (the artifact a replay needs);
+3. the graph as `lightstage up` starts it -- driver on the Python firmware simulator,
+   simulated camera (noise seed 7), classifier -- plus the recorder node writing
+   OUT/sim_session, all with LOCALHOST discovery in their own domain;
+4. one classification per class through /lightstage/classify (8, 4, 8, 4 images), then
+   SIGINT to the recorder, which closes the bag; every trigger and image of the four
+   classifications must be in it.
+"""
+from __future__ import annotations
+
+import argparse
+import io
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
+
+HERE = Path(__file__).resolve().parent
+SAMPLES = ['banana-fake/s1/p02', 'banana-real/s0/p01', 'orange-fake/s1/p00', 'orange-real/s0/p02']
+RECORDED = ['/illumination', '/image_raw', '/lightstage/result',
+            '/lightstage/classify/_service_event', '/lightstage/apply_patterns/_service_event']
+
+
+def _train(capture: Path, artifact: Path) -> None:
+    from lightstage_camera.capture_format import load_capture
+    from mux_trainer.greedy import GreedyPatternSelector
+    modelset = load_capture(capture, downscale_to=120)
+    model = GreedyPatternSelector(n_patterns=2, n_repeats=40, noise='sigma3', seed=0, n_jobs=2)
+    model.fit(modelset)
+    model.to_artifact(provenance={'made_by': 'bags/record_sim_session.py'}).save(artifact)
+
+
+def _record(capture: Path, artifact: Path, bag: Path, domain_id: int, work: Path) -> list:
+    import rclpy
+    import yaml
+    from lightstage_bringup.launcher import node_command
+    from lightstage_bringup.supervisor import ProcessSpec, Supervisor
+    from lightstage_interfaces.srv import Classify
+    from rcl_interfaces.srv import ListParameters, SetParameters
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    params = work / 'params.yaml'
+    params.write_text(yaml.safe_dump({
+        'camera': {'ros__parameters': {'capture_dir': str(capture), 'sample': SAMPLES[0], 'seed': 7}},
+        'classifier': {'ros__parameters': {'artifact_path': str(artifact)}},
+        'recorder': {'ros__parameters': {'output_dir': str(bag)}},
+    }))
+    modules = {'driver': 'lightstage_driver.driver_node', 'camera': 'lightstage_camera.camera_node',
+               'classifier': 'mux_classifier.classifier_node',
+               'recorder': 'lightstage_bringup.recorder_node'}
+    env = ros_environment(domain_id)
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node('record_sim_session', context=context, start_parameter_services=False)
+    from rclpy.executors import SingleThreadedExecutor
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+
+    def call(srv_type, name, request, timeout_s=30.0):
+        client = node.create_client(srv_type, name)
+        deadline = time.monotonic() + timeout_s
+        while not client.service_is_ready():
+            if time.monotonic() > deadline:
+                raise RuntimeError(f'{name} not available')
+            executor.spin_once(timeout_sec=0.05)
+        future = client.call_async(request)
+        executor.spin_until_future_complete(future, timeout_sec=timeout_s)
+        if not future.done():
+            raise RuntimeError(f'{name} did not answer')
+        return future.result()
+
+    out = io.StringIO()
+    answers = []
+    try:
+        with Supervisor(stdout=out, stderr=out, sigint_timeout_s=10.0) as supervisor:
+            for name in ('driver', 'camera', 'classifier'):
+                supervisor.start(ProcessSpec(name, node_command(modules[name], name, params), env))
+            for name in ('driver', 'camera', 'classifier'):
+                call(ListParameters, f'/{name}/list_parameters', ListParameters.Request(depth=1))
+            supervisor.start(ProcessSpec('recorder', node_command(modules['recorder'], 'recorder',
+                                                                  params), env))
+            deadline = time.monotonic() + 30
+            while not all(any(i.node_name == 'recorder' for i in node.get_subscriptions_info_by_topic(t))
+                          for t in RECORDED):
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f'the recorder did not subscribe:\n{out.getvalue()}')
+                executor.spin_once(timeout_sec=0.05)
+            time.sleep(1.0)  # let the publishers match the recorder's new subscriptions
+            for i, sample in enumerate(SAMPLES):
+                r = call(SetParameters, '/camera/set_parameters', SetParameters.Request(
+                    parameters=[Parameter('sample', value=sample).to_parameter_msg()])).results[0]
+                if not r.successful:
+                    raise RuntimeError(r.reason)
+                answer = call(Classify, '/lightstage/classify',
+                              Classify.Request(max_images=8 if i % 2 == 0 else 4))
+                if not answer.success:
+                    raise RuntimeError(answer.message)
+                answers.append((sample, answer))
+                print(f'{sample}: {answer.label} ({answer.images_used} images)', flush=True)
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+        print(''.join(line + '\n' for line in out.getvalue().splitlines()
+                      if line.startswith('[recorder]') and not '[INFO]' in line))
+    finally:
+        rclpy.shutdown(context=context)
+    return answers
+
+
+def _check(bag: Path, answers) -> None:
+    from lightstage_bringup.bag_format import BagReader, format_info
+    from lightstage_interfaces.msg import ClassificationResult, IlluminationState
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import Image
+    reader = BagReader(bag)
+    info = reader.info(verify=True)
+    if not info.complete:
+        raise RuntimeError(f'the bag is incomplete: {info.problems}')
+    results = [deserialize_message(m.data, ClassificationResult)
+               for m in reader.messages(['/lightstage/result'])]
+    if [r.label for r in results] != [a.label for _, a in answers]:
+        raise RuntimeError('the recorded results are not the answers')
+    stamps = {}
+    for m in reader.messages(['/illumination']):
+        s = deserialize_message(m.data, IlluminationState)
+        stamps[s.sequence] = (s.header.stamp.sec, s.header.stamp.nanosec)
+    images = {(lambda h: (h.stamp.sec, h.stamp.nanosec))(deserialize_message(m.data, Image).header)
+              for m in reader.messages(['/image_raw'])}
+    for r in results:
+        if not all(q in stamps and stamps[q] in images for q in r.sequences):
+            raise RuntimeError(f'triggers or images of {list(r.sequences)} are missing from the bag')
+    print(format_info(info))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('--out', default=str(HERE), help='folder for sim_session/ and its classifier')
+    p.add_argument('--domain-id', type=int, default=77)
+    args = p.parse_args(argv)
+    apply_ros_environment(args.domain_id)
+    out = Path(args.out)
+    bag, artifact = out / 'sim_session', out / 'sim_session_classifier.npz'
+    shutil.rmtree(bag, ignore_errors=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        from lightstage_camera import synth
+        capture = synth.generate(work / 'capture', image_size=120, n_samples_per_class=2, n_poses=3,
+                                 object_types=('banana', 'orange'), n_jobs=2)
+        t0 = time.perf_counter()
+        _train(capture, artifact)
+        print(f'trained {artifact} in {time.perf_counter() - t0:.0f} s', flush=True)
+        answers = _record(capture, artifact, bag, args.domain_id, work)
+    _check(bag, answers)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,239 @@
+"""`lightstage record`, `lightstage play` and `lightstage bag info|recover`.
+
+``record`` and ``play`` run the recorder / player node in this process with the project's
+ROS environment (LOCALHOST discovery, `ros_env`); ``bag`` reads bags without ROS.
+
+Exit codes: 0 done; 1 a failure while running (record: a write error, e.g. disk full, stopped
+the recording -- the bag is closed with what it holds; play: no subscriber matched in time;
+bag info: the bag is incomplete or damaged -- its intact part is still summarised; bag
+recover: nothing could be recovered, or the copy stopped midway); 2 bad arguments or a bag
+that cannot be read at all.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .ros_env import apply_ros_environment
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+def _usage_error(args, prog: str, checks: list[tuple[bool, str]]) -> int | None:
+    """EXIT_USAGE, with the message printed, for the first failed (ok, message) check or a bad
+    --domain-id; else None, with the project's ROS environment applied (before rclpy loads)."""
+    problems = [message for ok, message in checks if not ok]
+    if not problems:
+        try:
+            apply_ros_environment(args.domain_id)  # before rclpy loads
+        except ValueError as exc:
+            problems.append(str(exc))
+    if problems:
+        print(f'{prog}: {problems[0]}', file=sys.stderr)
+        return EXIT_USAGE
+    return None
+
+
+def _params(values: dict):
+    from rclpy.parameter import Parameter
+    return [Parameter(name, value=value) for name, value in values.items() if value is not None]
+
+
+# ----------------------------------------------------------------------------- record
+def record_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog='lightstage record',
+        description='Record topics of the running graph (by default all of them, with the calls '
+                    'of services that have introspection on) into an MCAP bag that `ros2 bag` '
+                    'and rosbags read. Stops on Ctrl-C / SIGTERM or after --max-duration-s and '
+                    'prints what it recorded.')
+    p.add_argument('topics', nargs='*', metavar='TOPIC',
+                   help='record only these topics (default: every topic)')
+    p.add_argument('-o', '--output', default='', metavar='DIR',
+                   help='bag directory to create (default: rosbag2_YYYY_MM_DD-HH_MM_SS)')
+    p.add_argument('-e', '--regex', default='', metavar='RE',
+                   help='also record topics whose name matches RE (alone: only those)')
+    p.add_argument('-x', '--exclude', default='', metavar='RE',
+                   help='leave out topics whose name matches RE')
+    p.add_argument('--no-services', action='store_true',
+                   help='leave out service events (<service>/_service_event)')
+    p.add_argument('--include-hidden-topics', action='store_true',
+                   help='also record hidden topics (e.g. action feedback)')
+    p.add_argument('--max-duration-s', type=float, default=0.0, metavar='S',
+                   help='stop after S seconds (default: until Ctrl-C)')
+    p.add_argument('--compression', choices=('lz4', 'none'), default='lz4')
+    p.add_argument('--chunk-size-bytes', type=int, default=1 << 20, metavar='N')
+    p.add_argument('--qos-depth', type=int, default=100, metavar='N',
+                   help='keep-last depth of the subscriptions (default 100)')
+    p.add_argument('--discovery-period-s', type=float, default=0.5, metavar='S',
+                   help='how often to look for new topics (default 0.5)')
+    p.add_argument('--domain-id', type=int, default=None,
+                   help='ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID or 0)')
+    return p
+
+
+def record_main(argv: list[str] | None = None) -> int:
+    args = record_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    prog = 'lightstage record'
+    checks = [(args.max_duration_s >= 0, '--max-duration-s must be >= 0'),
+              (args.chunk_size_bytes >= 1024, '--chunk-size-bytes must be >= 1024'),
+              (args.qos_depth >= 1, '--qos-depth must be >= 1'),
+              (0.05 <= args.discovery_period_s <= 60, '--discovery-period-s must be in 0.05..60')]
+    rc = _usage_error(args, prog, checks)
+    if rc is not None:
+        return rc
+    from rclpy.exceptions import InvalidParameterValueException
+
+    from . import recorder_node
+    values = {'output_dir': args.output, 'include_regex': args.regex,
+              'exclude_regex': args.exclude, 'record_services': not args.no_services,
+              'include_hidden_topics': args.include_hidden_topics,
+              'max_duration_s': float(args.max_duration_s), 'compression': args.compression,
+              'chunk_size_bytes': args.chunk_size_bytes, 'qos_depth': args.qos_depth,
+              'discovery_period_s': float(args.discovery_period_s),
+              'topics': list(args.topics) or None}
+    try:
+        return recorder_node.run(args=['lightstage-record'], parameter_overrides=_params(values))
+    except InvalidParameterValueException as exc:
+        print(f'{prog}: {exc}', file=sys.stderr)
+        return EXIT_USAGE
+
+
+# ----------------------------------------------------------------------------- play
+def play_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog='lightstage play',
+        description='Publish the messages of a bag into the graph as recorded: the recorded '
+                    'bytes, QoS and timing. Service events, /rosout and /parameter_events are '
+                    'left out unless --topics names them.')
+    p.add_argument('bag', metavar='BAG', help='bag directory or .mcap file')
+    p.add_argument('--topics', nargs='+', default=None, metavar='TOPIC',
+                   help='play only these topics')
+    p.add_argument('--exclude', default=None, metavar='RE',
+                   help='leave out topics matching RE (default: service events, /rosout, '
+                        '/parameter_events)')
+    p.add_argument('-r', '--rate', type=float, default=1.0, help='speed factor (default 1.0)')
+    p.add_argument('--start-offset-s', type=float, default=0.0, metavar='S',
+                   help='skip the first S seconds of the bag')
+    p.add_argument('-l', '--loop', action='store_true', help='play again and again until Ctrl-C')
+    p.add_argument('--wait-for', nargs='+', default=None, metavar='TOPIC',
+                   help='start once each of these topics has a matched subscriber')
+    p.add_argument('--wait-timeout-s', type=float, default=10.0, metavar='S',
+                   help='give up waiting for --wait-for subscribers after S seconds (default 10)')
+    p.add_argument('--delay-s', type=float, default=0.0, metavar='S',
+                   help='wait S seconds before the first message (after --wait-for); lets a '
+                        'subscriber that was just matched finish matching the player, so its '
+                        'first messages are not lost')
+    p.add_argument('--domain-id', type=int, default=None,
+                   help='ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID or 0)')
+    return p
+
+
+def play_main(argv: list[str] | None = None) -> int:
+    args = play_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    prog = 'lightstage play'
+    checks = [(0.01 <= args.rate <= 100, '--rate must be in 0.01..100'),
+              (args.start_offset_s >= 0, '--start-offset-s must be >= 0'),
+              (args.wait_timeout_s >= 0, '--wait-timeout-s must be >= 0')]
+    rc = _usage_error(args, prog, checks)
+    if rc is not None:
+        return rc
+    from . import player_node
+    values = {'bag': str(Path(args.bag)), 'topics': args.topics, 'exclude_regex': args.exclude,
+              'rate': float(args.rate), 'start_offset_s': float(args.start_offset_s),
+              'loop': bool(args.loop), 'wait_for_subscribers': args.wait_for,
+              'wait_timeout_s': float(args.wait_timeout_s), 'delay_s': float(args.delay_s)}
+    return player_node.run(args=['lightstage-play'], parameter_overrides=_params(values))
+
+
+# ----------------------------------------------------------------------------- bag
+def bag_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog='lightstage bag', description='Inspect and repair bags.')
+    sub = p.add_subparsers(dest='command', required=True, metavar='COMMAND')
+    info = sub.add_parser('info', help='summarise a bag (like `ros2 bag info`)',
+                          description='Summarise a bag: files, size, duration, topics with types '
+                                      'and counts, recorded services. Exit 1 when the bag is '
+                                      'incomplete or damaged (its intact part is summarised).')
+    info.add_argument('bag', metavar='BAG')
+    info.add_argument('--json', action='store_true', help='print JSON')
+    info.add_argument('-v', '--verbose', action='store_true', help='also the recorded QoS')
+    info.add_argument('--verify', action='store_true',
+                      help='read every message (checks chunk CRCs) instead of trusting the summary')
+    recover = sub.add_parser(
+        'recover', help='copy the intact part of an incomplete or damaged bag into a complete bag',
+        description='Copy every intact message of BAG into a new, complete bag (summary, footer, '
+                    'metadata.yaml) and print what was damaged or lost in BAG. Exit 0 when every '
+                    'intact message was copied; 1 when nothing could be recovered (no bag is '
+                    'written) or the copy stopped midway (the new bag and its metadata.yaml hold '
+                    'what was copied until then); 2 when BAG cannot be read at all or DIR exists.')
+    recover.add_argument('bag', metavar='BAG')
+    recover.add_argument('-o', '--output', default=None, metavar='DIR',
+                         help='new bag directory (default: BAG_recovered); it must not exist, or '
+                              'be an empty directory')
+    return p
+
+
+def format_recovery(result) -> str:
+    """What `lightstage bag recover` did: the source's problems, what was lost, what the new
+    bag holds (`bag_format.Recovery`)."""
+    from .bag_format import format_size, format_time
+    src, dst = result.src, result.dst
+    lines = []
+    if result.source_problems:
+        lines.append(f'{src} is damaged or incomplete:')
+        lines.extend(f'  - {p}' for p in result.source_problems)
+    else:
+        lines.append(f'{src}: no damage found')
+    if result.unreadable:
+        lines.append(f'lost in {src}: {result.unreadable} of the {result.listed} messages its '
+                     'summary / metadata.yaml lists (damaged or cut off, see above)')
+    elif result.listed is None and result.source_problems and not result.error:
+        lines.append(f'lost in {src}: whatever was written after the damage above (it has no '
+                     'intact summary or metadata.yaml that would tell how much)')
+    if result.error:
+        lines.append(f'RECOVERY STOPPED: {result.error}')
+    info = result.info
+    if info is None:
+        why = (f'the copy stopped before any message reached {dst}' if result.error
+               else f'{src} holds no intact message')
+        lines.append(f'nothing could be recovered: {why}; no bag was written to {dst}')
+        return '\n'.join(lines)
+    what = (f'{info.message_count} messages on {len(info.topics)} topics into {dst} '
+            f'({format_size(info.size_bytes)})')
+    if not result.error:
+        lines.append(f'recovered {what}')
+    else:
+        lines.append(f'partly recovered: {what}, those of {src} up to {format_time(info.end_ns)}; '
+                     f'its summary and metadata.yaml list only those. Not copied: the rest of '
+                     f'{src} ({result.source.message_count} messages in all by its info)')
+    return '\n'.join(lines)
+
+
+def bag_main(argv: list[str] | None = None) -> int:
+    args = bag_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    from .bag_format import BagError, BagReader, format_info, recover_bag
+    prog = f'lightstage bag {args.command}'
+    try:
+        if args.command == 'info':
+            info = BagReader(args.bag).info(verify=args.verify)
+            print(json.dumps(info.to_json(), indent=2) if args.json else format_info(info, args.verbose))
+            return EXIT_OK if info.complete else EXIT_FAILED
+        src = Path(args.bag)
+        dst = Path(args.output) if args.output else src.with_name(src.name.removesuffix('.mcap')
+                                                                  + '_recovered')
+        result = recover_bag(src, dst)
+        print(format_recovery(result))
+        if result.error:
+            print(f'{prog}: the copy stopped midway (see RECOVERY STOPPED above); what it '
+                  f'copied is in {dst}', file=sys.stderr)
+            return EXIT_FAILED
+        if result.info is None:
+            print(f'{prog}: nothing could be recovered from {src}; no bag was written',
+                  file=sys.stderr)
+            return EXIT_FAILED
+        return EXIT_OK
+    except BagError as exc:
+        print(f'{prog}: {exc}', file=sys.stderr)
+        return EXIT_USAGE

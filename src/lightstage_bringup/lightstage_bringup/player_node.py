@@ -1,0 +1,218 @@
+"""The player node: a bag's messages back into the graph, as recorded.
+
+    ros2 run lightstage_bringup player --ros-args -p bag:=bags/sim_classify
+    lightstage play bags/sim_classify --topics /illumination /image_raw --wait-for /image_raw
+
+Every message is published as the recorded CDR bytes (`Publisher.publish(bytes)`, nothing is
+deserialized) on a publisher with the recorded QoS (`recording.playback_qos`), at the
+recorded log times scaled by ``rate``. ``start_offset_s`` skips the bag's first seconds,
+``loop`` plays it again and again. With ``wait_for_subscribers`` playback starts only once
+each of those topics has a matched subscriber (a reliable, volatile topic delivers nothing
+to readers that match later), and ``delay_s`` later (the subscriber may match the player a
+little after the player matched it). Service event topics, ``/rosout`` and ``/parameter_events``
+are left out unless ``topics`` names them (``exclude_regex``). A damaged bag plays every
+intact message and says what was lost. At the end the player waits until reliable
+subscribers have acknowledged everything, then exits.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import rclpy
+from rcl_interfaces.msg import ParameterType
+from rclpy.duration import Duration
+from rclpy.exceptions import InvalidParameterValueException, ParameterUninitializedException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from .bag_format import BagError, BagReader
+from .bag_ros import float_param, int_param, message_class, text_param, to_rclpy_qos
+from .recording import DEFAULT_PLAY_EXCLUDE, playback_delay_s, playback_qos, select_play_topics
+
+NODE_NAME = 'player'
+
+
+class PlayerError(Exception):
+    """A bag that cannot be played as asked; the message says what to change."""
+
+
+PARAMETERS = {
+    'bag': ('', text_param('bag directory (metadata.yaml + .mcap) or .mcap file to play')),
+    'topics': (Parameter.Type.STRING_ARRAY, text_param(
+        'play only these topics; unset: every recorded topic not matching exclude_regex',
+        ParameterType.PARAMETER_STRING_ARRAY)),
+    'exclude_regex': (DEFAULT_PLAY_EXCLUDE, text_param('topics left out unless named in topics')),
+    'rate': (1.0, float_param('playback speed factor (2.0: twice as fast)', 0.01, 100.0)),
+    'start_offset_s': (0.0, float_param('skip the first seconds of the bag [s]', 0.0, 1e7)),
+    'loop': (False, text_param('play the bag again and again until stopped',
+                               ParameterType.PARAMETER_BOOL)),
+    'wait_for_subscribers': (Parameter.Type.STRING_ARRAY, text_param(
+        'start only once each of these topics has a matched subscriber',
+        ParameterType.PARAMETER_STRING_ARRAY)),
+    'wait_timeout_s': (10.0, float_param('give up when a subscriber of wait_for_subscribers has '
+                                         'not matched after this long [s]', 0.0, 3600.0)),
+    # a match seen from the publisher's side does not mean the subscriber has matched the
+    # publisher yet; a volatile subscriber loses what arrives before it has
+    'delay_s': (0.0, float_param('wait this long before the first message, after any '
+                                 'wait_for_subscribers [s]', 0.0, 3600.0)),
+    'qos_depth': (100, int_param('keep-last depth of publishers whose recorded depth is unknown '
+                                 '[messages]', 1, 100_000)),
+    'ack_timeout_s': (5.0, float_param('at the end, wait this long for reliable subscribers to '
+                                       'acknowledge everything [s]', 0.0, 600.0)),
+}
+
+
+class PlayerNode(Node):
+    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+        super().__init__(node_name, **kwargs)
+        for name, (default, descriptor) in PARAMETERS.items():
+            self.declare_parameter(name, default, descriptor)
+        if not self.p('bag'):
+            raise PlayerError('no bag given; set the bag parameter (-p bag:=DIR) or use '
+                              '`lightstage play DIR`')
+        try:
+            self.reader = BagReader(self.p('bag'))
+            self.info = self.reader.info()
+            self.topics = select_play_topics(self.info.topics, self._array('topics'),
+                                             self.p('exclude_regex'))
+        except (BagError, ValueError) as exc:
+            raise PlayerError(str(exc)) from None
+        for problem in self.info.problems:
+            self.get_logger().warning(f'{problem}; playing every intact message')
+        self.publishers_by_topic = {}
+        for topic in self.topics:
+            t = self.info.topics[topic]
+            try:
+                cls = message_class(t.type)
+            except ImportError as exc:
+                raise PlayerError(f'cannot play {topic}: {exc}') from None
+            qos = playback_qos(t.offered_qos, self.p('qos_depth'))
+            self.publishers_by_topic[topic] = self.create_publisher(cls, topic, to_rclpy_qos(qos))
+        self.stop = threading.Event()
+        self.played = 0
+
+    def p(self, name: str):
+        return self.get_parameter(name).value
+
+    def _array(self, name: str) -> list[str] | None:
+        try:
+            value = self.get_parameter(name).value
+        except ParameterUninitializedException:
+            return None
+        return list(value) if value else None
+
+    def wait_for_subscribers(self) -> None:
+        topics = self._array('wait_for_subscribers') or []
+        unknown = [t for t in topics if t not in self.publishers_by_topic]
+        if unknown:
+            raise PlayerError(f'wait_for_subscribers names {", ".join(unknown)}, which this '
+                              f'playback does not publish (playing: {", ".join(self.topics)})')
+        deadline = time.monotonic() + self.p('wait_timeout_s')
+        while not self.stop.is_set():
+            missing = [t for t in topics if self.publishers_by_topic[t].get_subscription_count() == 0]
+            if not missing:
+                return
+            if time.monotonic() >= deadline:
+                raise PlayerError(f'no subscriber matched {", ".join(missing)} within '
+                                  f'{self.p("wait_timeout_s"):g} s; start the node that should '
+                                  'receive them (same ROS_DOMAIN_ID) or raise wait_timeout_s')
+            time.sleep(0.01)
+
+    def play_once(self) -> int:
+        """One pass over the bag at the recorded timing; returns the messages published."""
+        offset_ns = int(self.p('start_offset_s') * 1e9)
+        start_ns = self.info.start_ns + offset_ns
+        rate = float(self.p('rate'))
+        t0 = None
+        count = 0
+        for m in self.reader.messages(self.topics, start_ns=start_ns):
+            if self.stop.is_set():
+                break
+            if t0 is None:
+                t0 = time.monotonic()
+            delay = t0 + playback_delay_s(m.log_time_ns, start_ns, rate) - time.monotonic()
+            if delay > 0 and self.stop.wait(delay):
+                break
+            self.publishers_by_topic[m.topic].publish(m.data)
+            count += 1
+        self.played += count
+        return count
+
+    def wait_for_acks(self) -> bool:
+        timeout = Duration(nanoseconds=int(self.p('ack_timeout_s') * 1e9))
+        return all(p.wait_for_all_acked(timeout) for p in self.publishers_by_topic.values())
+
+
+def run(args: list[str] | None = None, parameter_overrides: list[Parameter] | None = None) -> int:
+    """Play the bag; 0 when played, 1 on a playback error, 2 when the bag / options are bad."""
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    rclpy.init(args=args)
+    try:
+        node = PlayerNode(parameter_overrides=parameter_overrides or [])
+    except (PlayerError, InvalidParameterValueException) as exc:
+        print(f'player: {exc}', file=sys.stderr, flush=True)
+        rclpy.try_shutdown()
+        return 2
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    spinner = threading.Thread(target=_spin, args=(executor, node), daemon=True)
+    spinner.start()
+    rc = 0
+    started = time.monotonic()
+    interrupted = False
+    try:
+        node.wait_for_subscribers()
+        log = node.get_logger()
+        if not node.stop.wait(node.p('delay_s')):
+            log.info(f'playing {len(node.topics)} topics of {node.reader.path} at rate '
+                     f'{node.p("rate"):g}: {", ".join(node.topics)}')
+            while True:
+                node.play_once()
+                if not node.p('loop') or node.stop.is_set():
+                    break
+        interrupted = node.stop.is_set()
+        if not interrupted and not node.wait_for_acks():
+            log.warning(f'not every reliable subscriber acknowledged the last messages within '
+                        f'{node.p("ack_timeout_s"):g} s')
+    except PlayerError as exc:
+        print(f'player: {exc}', file=sys.stderr, flush=True)
+        rc = 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        interrupted = True
+    finally:
+        node.stop.set()
+        if rc == 0:
+            problems = node.reader.problems
+            print(f'played {node.played} messages on {len(node.topics)} topics in '
+                  f'{time.monotonic() - started:.1f} s from {node.reader.path}'
+                  + (' (stopped before the end)' if interrupted else '')
+                  + (f' (damaged bag: {"; ".join(problems)})' if problems else ''), flush=True)
+        executor.shutdown(timeout_sec=2.0)
+        spinner.join(timeout=5.0)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return rc
+
+
+def _spin(executor, node: PlayerNode) -> None:
+    """Serve the node's parameter services while the main thread plays; a shutdown (SIGINT /
+    SIGTERM) stops playback."""
+    from rclpy.executors import ExternalShutdownException
+    try:
+        executor.spin()
+    except (ExternalShutdownException, KeyboardInterrupt):
+        pass
+    except Exception:  # noqa: BLE001 - a dying spinner must still stop playback
+        pass
+    finally:
+        node.stop.set()
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(sys.argv if argv is None else argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

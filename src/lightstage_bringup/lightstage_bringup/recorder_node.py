@@ -1,0 +1,262 @@
+"""The recorder node: every topic of the graph, as received, into an MCAP bag.
+
+    ros2 run lightstage_bringup recorder --ros-args -p output_dir:=bags/run1
+    lightstage record -o bags/run1            # the same, with command-line options
+
+It watches the graph (every ``discovery_period_s``) and subscribes *raw* (serialized CDR,
+no deserialization) to each new topic the selection takes -- including the service event
+topics ``<service>/_service_event`` of services with introspection on, so the Classify and
+ApplyPatterns calls themselves are in the bag -- with a QoS matched to what the topic's
+publishers offer (`recording.subscription_qos`). Each message is written with its receive
+time as log time and its send time as publish time (`bag_format.BagWriter`, through
+`recording.Recording`); the chunk in progress is handed to the OS every ``flush_period_s``
+(no fsync), so a recorder that is killed loses at most that much. SIGINT / SIGTERM (or
+``max_duration_s``) close the bag: summary, footer, ``metadata.yaml``, fsynced; the recorder
+then prints what it recorded. A write error (disk full) stops the recording: the bag is
+closed with what it holds, the error is printed, exit code 1.
+"""
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import rclpy
+from rcl_interfaces.msg import ParameterType
+from rclpy.exceptions import ParameterUninitializedException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.task import Future
+
+from .bag_format import COMPRESSIONS, BagError, BagWriter, default_bag_name
+from .bag_ros import (float_param, from_rclpy_qos, int_param, message_class, text_param,
+                      to_rclpy_qos)
+from .recording import Recording, TopicSelector, is_service_event, subscription_qos
+
+NODE_NAME = 'recorder'
+
+
+class RecorderError(Exception):
+    """A recorder that cannot start; the message says what to change."""
+
+
+PARAMETERS = {
+    'output_dir': ('', text_param('bag directory to create (must not exist, or be an empty '
+                                  'directory); empty: rosbag2_YYYY_MM_DD-HH_MM_SS in the working '
+                                  'directory')),
+    'topics': (Parameter.Type.STRING_ARRAY, text_param(
+        'record only these topics (full names); unset: every topic the other parameters take',
+        ParameterType.PARAMETER_STRING_ARRAY)),
+    'include_regex': ('', text_param('record topics whose name matches this regular expression '
+                                     '(with topics: either selects)')),
+    'exclude_regex': ('', text_param('never record topics whose name matches this regular '
+                                     'expression')),
+    'record_services': (True, text_param('record service introspection events '
+                                         '(<service>/_service_event topics)',
+                                         ParameterType.PARAMETER_BOOL)),
+    'include_hidden_topics': (False, text_param('also record other hidden topics (a name part '
+                                                'starting with _, e.g. action feedback)',
+                                                ParameterType.PARAMETER_BOOL)),
+    'discovery_period_s': (0.5, float_param('how often the graph is checked for new topics [s]',
+                                            0.05, 60.0)),
+    'qos_depth': (100, int_param('keep-last depth of the recorder\'s subscriptions [messages]',
+                                 1, 100_000)),
+    'compression': ('lz4', text_param(f'chunk compression: {" | ".join(COMPRESSIONS)}')),
+    'chunk_size_bytes': (1 << 20, int_param('chunk size of the MCAP file [bytes]', 1024, 1 << 30)),
+    'flush_period_s': (1.0, float_param('the chunk in progress is handed to the OS this often [s] '
+                                        '(no fsync); a killed recorder loses at most this much',
+                                        0.05, 600.0)),
+    'max_duration_s': (0.0, float_param('stop and close the bag after this long [s]; 0: until '
+                                        'SIGINT / SIGTERM', 0.0, 1e7)),
+}
+
+
+class RecorderNode(Node):
+    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+        super().__init__(node_name, **kwargs)
+        for name, (default, descriptor) in PARAMETERS.items():
+            self.declare_parameter(name, default, descriptor)
+        try:
+            topics = self.get_parameter('topics').value
+        except ParameterUninitializedException:
+            topics = None
+        try:
+            self.selector = TopicSelector(tuple(topics) if topics else None,
+                                          self.p('include_regex'), self.p('exclude_regex'),
+                                          self.p('record_services'), self.p('include_hidden_topics'))
+        except ValueError as exc:
+            raise RecorderError(str(exc)) from None
+        output = self.p('output_dir') or default_bag_name()
+        try:
+            self.writer = BagWriter(Path(output), compression=self.p('compression'),
+                                    chunk_size_bytes=self.p('chunk_size_bytes'),
+                                    library='lightstage_bringup recorder')
+        except BagError as exc:
+            raise RecorderError(str(exc)) from None
+        self.recording = Recording(self.writer)
+        self.done = Future()
+        self._recording: dict[str, object] = {}
+        self._skipped: dict[str, str] = {}  # topic -> why it is not recorded (reported once)
+        self._started = time.monotonic()
+        self._lock = threading.Lock()
+        self._finished = False
+        self._error_reported = False
+        self.get_logger().info(f'recording to {self.writer.path}')
+        self.create_timer(self.p('discovery_period_s'), self._discover)
+        self.create_timer(self.p('flush_period_s'), self._flush)
+        if self.p('max_duration_s') > 0:
+            self.create_timer(self.p('max_duration_s'), self._time_up)
+        self._discover()
+
+    def p(self, name: str):
+        return self.get_parameter(name).value
+
+    # ------------------------------------------------------------------ topics
+    def _discover(self) -> None:
+        if self._finished or self.recording.stopped:
+            return
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._recording or topic in self._skipped:
+                continue
+            if len(types) != 1:
+                self._skip(topic, f'it has {len(types)} types ({", ".join(types)}); a bag topic '
+                                  'has one')
+                continue
+            type_name = types[0]
+            if not self.selector.wants(topic, type_name):
+                continue
+            publishers = self.get_publishers_info_by_topic(topic)
+            if not publishers:
+                continue  # only subscribers so far: look again at the next discovery
+            try:
+                cls = message_class(type_name)
+            except ImportError as exc:
+                self._skip(topic, str(exc))
+                continue
+            offered = [from_rclpy_qos(p.qos_profile) for p in publishers]
+            type_hash = str(publishers[0].topic_type_hash)
+            if not self.recording.add_topic(topic, type_name, offered,
+                                            type_hash=type_hash if type_hash.startswith('RIHS')
+                                            else None):
+                self._stop_on_error()
+                return
+            qos = subscription_qos(offered, self.p('qos_depth'))
+            self._recording[topic] = self.create_subscription(
+                cls, topic, self._writer_callback(topic), to_rclpy_qos(qos), raw=True)
+            what = 'service events' if is_service_event(topic, type_name) else type_name
+            self.get_logger().info(f'recording {topic} ({what}; {qos.reliability}, {qos.durability})')
+
+    def _skip(self, topic: str, why: str) -> None:
+        self._skipped[topic] = why
+        self.get_logger().warning(f'not recording {topic}: {why}')
+
+    def _writer_callback(self, topic: str):
+        receive = self.recording.receive
+
+        def on_message(data: bytes, info: dict) -> None:
+            if not receive(topic, data, info):
+                self._stop_on_error()
+        return on_message
+
+    def _flush(self) -> None:
+        if not self.recording.flush():
+            self._stop_on_error()
+
+    def _stop_on_error(self) -> None:
+        """After a write error: say so once and end the recording (`run` closes the bag)."""
+        if not self.recording.error or self._error_reported:
+            return
+        self._error_reported = True
+        self.get_logger().error(f'recording stopped: {self.recording.error}')
+        if not self.done.done():
+            self.done.set_result(False)
+
+    @property
+    def recorded_topics(self) -> list[str]:
+        return list(self._recording)
+
+    # ------------------------------------------------------------------ ending
+    def _time_up(self) -> None:
+        if not self.done.done():
+            self.get_logger().info(f'max_duration_s {self.p("max_duration_s"):g} reached')
+            self.done.set_result(True)
+
+    def finish(self) -> str:
+        """Close the bag (idempotent) and return the report of what was recorded."""
+        with self._lock:
+            if self._finished:
+                return ''
+            self._finished = True
+        for sub in self._recording.values():
+            self.destroy_subscription(sub)
+        self.recording.close()
+        return self.report()
+
+    def report(self) -> str:
+        return self.recording.report(time.monotonic() - self._started, self.selector,
+                                     self._skipped)
+
+
+def run(args: list[str] | None = None, parameter_overrides: list[Parameter] | None = None,
+        drain_s: float = 0.2) -> int:
+    """Record until SIGINT / SIGTERM or max_duration_s; 0 on success, 1 when writing failed
+    (disk full: the bag is closed with what it holds), 2 when it cannot start.
+
+    On SIGINT / SIGTERM the recorder first takes what has already arrived (until nothing came
+    for ``drain_s``, at most 2 s: the end of the last classification is not cut off), then
+    closes the bag. rclpy's own signal handlers are not installed, since they would shut the
+    context down before that.
+    """
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        node = RecorderNode(parameter_overrides=parameter_overrides or [])
+    except RecorderError as exc:
+        print(f'recorder: {exc}', file=sys.stderr, flush=True)
+        rclpy.try_shutdown()
+        return 2
+    stop = threading.Event()
+    previous = {}
+
+    def on_signal(signum, _frame):
+        node.get_logger().info(f'{signal.Signals(signum).name} received: closing the bag')
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, on_signal)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while not stop.is_set() and not node.done.done() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+        deadline = time.monotonic() + 2.0
+        idle_since = time.monotonic()
+        while (rclpy.ok() and not node.recording.stopped and time.monotonic() - idle_since < drain_s
+               and time.monotonic() < deadline):
+            before = node.writer.message_count
+            executor.spin_once(timeout_sec=0.02)
+            if node.writer.message_count != before:
+                idle_since = time.monotonic()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        report = node.finish()
+        print(report, flush=True)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    if node.recording.error:
+        print(f'recorder: recording stopped: {node.recording.error}', file=sys.stderr, flush=True)
+        return 1
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(sys.argv if argv is None else argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

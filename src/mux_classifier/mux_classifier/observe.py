@@ -1,0 +1,267 @@
+"""Classifying trigger sequences the classifier only watches (live, or replayed from a bag).
+
+The driver publishes one IlluminationState per trigger: ``request_id``, ``index_in_request``,
+``count_in_request``, the LEDs that were lit and the trigger stamp. `SequenceAssembler`
+groups them per request; a complete request whose patterns are the artifact's first k
+(k one of the image counts it has a classifier for) is an `ObservedSequence`.
+`classify_observed` collects its images by stamp (`ImageMatcher`, as the service path does)
+and classifies them exactly as `inference.classify_on_stage` would have. `SequenceObserver`
+runs that on a worker thread, skipping the sequences its own node lit through the Classify
+service (those are classified there already).
+
+Nothing here imports rclpy; the classifier node maps /illumination onto `TriggerState`.
+"""
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .inference import Classification, ImageMatcher, InferenceError, classify_collected
+from .model import TrainedArtifact
+
+# IlluminationState.intensities are float32 copies of the requested drive on PWM rigs; on/off
+# rigs report 0/1 for what was lit (drive > 0.5)
+DEFAULT_TOLERANCE = 1.0 / 512.0
+
+
+@dataclass(frozen=True)
+class TriggerState:
+    """One IlluminationState, as plain values."""
+    request_id: int
+    index: int
+    count: int
+    intensities: np.ndarray
+    stamp_ns: int
+    sequence: int
+    arrival_ns: int
+    source: str = ''  # header.frame_id: requests of different drivers never mix
+
+
+@dataclass
+class ObservedSequence:
+    """A complete trigger sequence that lit the artifact's first ``n_images`` patterns."""
+    request_id: int
+    stamps_ns: list
+    sequences: list
+    n_images: int
+    first_arrival_ns: int
+    source: str = ''
+
+
+def pattern_matches(observed: np.ndarray, expected: np.ndarray,
+                    tolerance: float = DEFAULT_TOLERANCE) -> bool:
+    """Whether the LEDs lit at one trigger are the pattern ``expected`` (length 32).
+
+    Equal within ``tolerance``, or -- for an on/off rig, which reports 0/1 for what it lit --
+    the same LEDs on as ``expected > 0.5``.
+    """
+    observed = np.asarray(observed, dtype=np.float64).ravel()
+    expected = np.asarray(expected, dtype=np.float64).ravel()
+    if observed.shape != expected.shape:
+        return False
+    if np.all(np.abs(observed - expected) <= tolerance):
+        return True
+    binary = np.all((observed == 0.0) | (observed == 1.0))
+    return bool(binary and np.array_equal(observed > 0.5, expected > 0.5))
+
+
+def artifact_image_count(patterns: Sequence[np.ndarray], artifact: TrainedArtifact,
+                         tolerance: float = DEFAULT_TOLERANCE) -> int:
+    """k if ``patterns`` are the artifact's first k LED patterns and it has a classifier for
+    k images; else 0."""
+    k = len(patterns)
+    if k not in artifact.n_images:
+        return 0
+    expected = artifact.led_patterns
+    if all(pattern_matches(patterns[i], expected[:, i], tolerance) for i in range(k)):
+        return k
+    return 0
+
+
+class SequenceAssembler:
+    """Collects TriggerStates per (source, request_id) until a request is complete.
+
+    States may arrive in any order. A request whose index repeats, or whose count changes,
+    starts over (a restarted driver reuses request ids). At most ``max_pending`` incomplete
+    requests are kept; older ones are dropped and counted in ``dropped``.
+    """
+
+    def __init__(self, max_pending: int = 16):
+        self.max_pending = int(max_pending)
+        self._pending: OrderedDict[tuple, dict[int, TriggerState]] = OrderedDict()
+        self.dropped = 0
+
+    def add(self, state: TriggerState) -> list[TriggerState] | None:
+        """The request's states in index order once it is complete, else None."""
+        if state.count < 1 or not 0 <= state.index < state.count:
+            return None
+        key = (state.source, state.request_id)
+        group = self._pending.get(key)
+        if group is not None:
+            first = next(iter(group.values()))
+            if state.index in group or first.count != state.count:
+                del self._pending[key]
+                group = None
+        if group is None:
+            group = self._pending[key] = {}
+        group[state.index] = state
+        self._pending.move_to_end(key)
+        if len(group) == state.count:
+            del self._pending[key]
+            return [group[i] for i in range(state.count)]
+        while len(self._pending) > self.max_pending:
+            self._pending.popitem(last=False)
+            self.dropped += 1
+        return None
+
+
+def observed_sequence(states: Sequence[TriggerState], artifact: TrainedArtifact,
+                      tolerance: float = DEFAULT_TOLERANCE) -> ObservedSequence | None:
+    """The sequence to classify if ``states`` (a complete request) lit the artifact's first
+    k patterns; None for any other request (other patterns, other count)."""
+    k = artifact_image_count([s.intensities for s in states], artifact, tolerance)
+    if not k:
+        return None
+    return ObservedSequence(states[0].request_id, [s.stamp_ns for s in states],
+                            [s.sequence for s in states], k,
+                            min(s.arrival_ns for s in states), states[0].source)
+
+
+def classify_observed(artifact: TrainedArtifact, seq: ObservedSequence, matcher: ImageMatcher,
+                      timeout_s: float, bit_depth: int = 10) -> Classification:
+    """Collect the sequence's images by trigger stamp and classify them.
+
+    ``acquisition_ms`` runs from the arrival of the sequence's first trigger state to the
+    arrival of its last image (on this node's clock; on replay it reflects replay timing).
+    """
+    frames, last_arrival_ns = matcher.collect(seq.stamps_ns, timeout_s, seq.sequences)
+    return classify_collected(artifact, frames, bit_depth, list(seq.sequences), seq.stamps_ns[0],
+                              max(0.0, (last_arrival_ns - seq.first_arrival_ns) / 1e6))
+
+
+@dataclass
+class ObserverStats:
+    sequences_seen: int = 0      # complete requests
+    classified: int = 0
+    own_skipped: int = 0         # lit by this node's Classify service
+    not_artifact: int = 0        # other patterns or counts
+    failed: int = 0
+    last_error: str = ''
+    errors: list = field(default_factory=list)
+
+
+class SequenceObserver:
+    """Classify every observed sequence of the artifact's patterns, once, on a worker thread.
+
+    - ``artifact()``: the current artifact (None: nothing is classified);
+    - ``matcher``: the ImageMatcher the node's image subscription fills;
+    - ``publish(Classification)``: called for each classified sequence;
+    - ``stage_busy``: the lock the node's Classify service holds while it lights and
+      collects a sequence. Before deciding on a sequence the worker waits for it to be free,
+      so a sequence the service lit is always registered (`mark_own`) by then and skipped;
+    - ``on_error(message)``: a sequence that could not be classified (e.g. missing images).
+    """
+
+    def __init__(self, artifact: Callable[[], TrainedArtifact | None], matcher: ImageMatcher,
+                 publish: Callable[[Classification], None], *,
+                 stage_busy: threading.Lock | None = None, timeout_s: Callable[[], float] = lambda: 10.0,
+                 bit_depth: Callable[[], int] = lambda: 10,
+                 on_error: Callable[[str], None] = lambda _m: None,
+                 tolerance: float = DEFAULT_TOLERANCE, own_memory: int = 256):
+        self._artifact = artifact
+        self.matcher = matcher
+        self._publish = publish
+        self._stage_busy = stage_busy or threading.Lock()
+        self._timeout_s = timeout_s
+        self._bit_depth = bit_depth
+        self._on_error = on_error
+        self.tolerance = float(tolerance)
+        self.assembler = SequenceAssembler()
+        self.stats = ObserverStats()
+        self._own: OrderedDict[int, None] = OrderedDict()
+        self._own_memory = int(own_memory)
+        self._own_lock = threading.Lock()
+        self._queue: queue.Queue = queue.Queue()
+        self._assemble_lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, name='sequence-observer', daemon=True)
+        self._thread.start()
+
+    def mark_own(self, first_stamp_ns: int) -> None:
+        """A sequence this node lit itself (by its first trigger stamp): never classify it here."""
+        with self._own_lock:
+            self._own[int(first_stamp_ns)] = None
+            while len(self._own) > self._own_memory:
+                self._own.popitem(last=False)
+
+    def _is_own(self, seq: ObservedSequence) -> bool:
+        with self._own_lock:
+            return seq.stamps_ns[0] in self._own
+
+    def on_trigger(self, state: TriggerState) -> None:
+        """Feed one IlluminationState (any thread)."""
+        with self._assemble_lock:
+            states = self.assembler.add(state)
+        if states is not None:
+            self._queue.put(states)
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        self._queue.put(None)
+        self._thread.join(timeout_s)
+
+    def join_idle(self, timeout_s: float = 10.0) -> bool:
+        """Wait until every queued sequence is handled (tests)."""
+        deadline = time.monotonic() + timeout_s
+        while self._queue.unfinished_tasks and time.monotonic() < deadline:
+            time.sleep(0.005)
+        return not self._queue.unfinished_tasks
+
+    def _run(self) -> None:
+        while True:
+            states = self._queue.get()
+            try:
+                if states is None:
+                    return
+                self._handle(states)
+            except Exception as exc:  # noqa: BLE001 - the worker must survive any one sequence
+                self.stats.failed += 1
+                self._error(f'observed sequence not classified: {type(exc).__name__}: {exc}')
+            finally:
+                self._queue.task_done()
+
+    def _handle(self, states: list[TriggerState]) -> None:
+        self.stats.sequences_seen += 1
+        artifact = self._artifact()
+        if artifact is None:
+            return
+        seq = observed_sequence(states, artifact, self.tolerance)
+        if seq is None:
+            self.stats.not_artifact += 1
+            return
+        # a Classify call in progress may be lighting this very sequence: let it finish (it
+        # registers its sequences before it lets go of the stage), then decide
+        with self._stage_busy:
+            own = self._is_own(seq)
+        if own:
+            self.stats.own_skipped += 1
+            return
+        try:
+            result = classify_observed(artifact, seq, self.matcher, float(self._timeout_s()),
+                                       int(self._bit_depth()))
+        except InferenceError as exc:
+            self.stats.failed += 1
+            self._error(f'observed request {seq.request_id} ({seq.n_images} images) not '
+                        f'classified: {exc}')
+            return
+        self.stats.classified += 1
+        self._publish(result)
+
+    def _error(self, message: str) -> None:
+        self.stats.last_error = message
+        self.stats.errors = (self.stats.errors + [message])[-20:]
+        self._on_error(message)

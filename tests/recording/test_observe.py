@@ -1,0 +1,136 @@
+"""The classifier's observing mode without ROS: assembling trigger sequences, recognising the
+artifact's patterns, classifying each observed sequence once."""
+import threading
+
+import numpy as np
+import pytest
+
+from mux_classifier.inference import ImageMatcher, classify_frames
+from mux_classifier.observe import (SequenceAssembler, SequenceObserver, TriggerState,
+                                    artifact_image_count, observed_sequence, pattern_matches)
+
+STAMP0 = 1_700_000_000_000_000_000
+
+
+def _states(patterns, request_id=5, stamp0=STAMP0, seq0=100, source='lightstage'):
+    k = patterns.shape[1]
+    return [TriggerState(request_id, i, k, np.asarray(patterns[:, i], np.float32),
+                         stamp0 + i * 25_000_000, seq0 + i, stamp0 + i * 25_000_000 + 1000, source)
+            for i in range(k)]
+
+
+@pytest.fixture(scope='module')
+def frames(stage_capture, stage_artifact):
+    """mono16 frames of one sample under the artifact's 8 patterns, from the sim camera."""
+    from lightstage_camera.capture_format import load_capture
+    from lightstage_camera.sim_camera import SimCamera
+    camera = SimCamera(load_capture(stage_capture), sample='orange-real/s0/p01', noise='sigma3', seed=1)
+    return [camera.capture(stage_artifact.led_patterns[:, i], 22500, 17.5) for i in range(8)]
+
+
+def test_pattern_matching_tolerates_pwm_rounding_and_on_off_rigs():
+    expected = np.zeros(32)
+    expected[[1, 4]] = [1.0, 0.7]
+    assert pattern_matches(expected.astype(np.float32), expected)
+    assert pattern_matches(expected + 0.001, expected)
+    on_off = np.zeros(32)
+    on_off[[1, 4]] = 1.0  # an on/off rig lights every LED driven above 0.5, and reports 1
+    assert pattern_matches(on_off, expected)
+    assert not pattern_matches(on_off, np.roll(expected, 1))
+    assert not pattern_matches(expected + 0.1, expected)
+    assert not pattern_matches(np.zeros(31), np.zeros(32))
+
+
+def test_only_the_artifacts_first_k_patterns_with_a_classifier_for_k_count(stage_artifact):
+    P = stage_artifact.led_patterns
+    assert stage_artifact.n_images == [4, 8]
+    assert artifact_image_count([P[:, i] for i in range(4)], stage_artifact) == 4
+    assert artifact_image_count([P[:, i] for i in range(8)], stage_artifact) == 8
+    assert artifact_image_count([P[:, i] for i in range(6)], stage_artifact) == 0  # no classifier for 6
+    assert artifact_image_count([P[:, i] for i in range(4, 8)], stage_artifact) == 0  # not the first
+    assert artifact_image_count([P[:, i] for i in (1, 0, 2, 3)], stage_artifact) == 0  # order matters
+
+
+def test_assembler_completes_requests_in_any_order_and_keeps_sources_apart(stage_artifact):
+    P = stage_artifact.led_patterns[:, :4]
+    a = SequenceAssembler(max_pending=2)
+    states = _states(P)
+    other = _states(P, source='second_stage')
+    assert a.add(states[2]) is None and a.add(other[0]) is None
+    assert a.add(states[0]) is None and a.add(states[3]) is None
+    done = a.add(states[1])
+    assert [s.index for s in done] == [0, 1, 2, 3]
+    seq = observed_sequence(done, stage_artifact)
+    assert seq.n_images == 4 and seq.sequences == [100, 101, 102, 103]
+    assert seq.stamps_ns == [s.stamp_ns for s in states]
+    # a repeated index starts the request over (a restarted driver reuses ids)
+    assert a.add(states[0]) is None and a.add(states[0]) is None
+    for s in states[1:3]:
+        assert a.add(s) is None
+    assert a.add(states[3]) is not None
+    # bounded: old incomplete requests are dropped
+    for r in range(10, 14):
+        a.add(_states(P, request_id=r)[0])
+    assert a.dropped >= 2
+
+
+def _observer(stage_artifact, published, errors, busy=None, timeout_s=5.0):
+    matcher = ImageMatcher(64)
+    return SequenceObserver(lambda: stage_artifact, matcher, published.append, stage_busy=busy,
+                            timeout_s=lambda: timeout_s, on_error=errors.append), matcher
+
+
+def test_observed_sequence_is_classified_as_the_service_path_would(stage_artifact, frames):
+    published, errors = [], []
+    observer, matcher = _observer(stage_artifact, published, errors)
+    try:
+        states = _states(stage_artifact.led_patterns[:, :8])
+        for s, f in list(zip(states, frames))[:3]:  # some images come before their triggers
+            matcher.add(s.stamp_ns, f)
+        for s in reversed(states):
+            observer.on_trigger(s)
+        for s, f in list(zip(states, frames))[3:]:
+            matcher.add(s.stamp_ns, f)
+        assert observer.join_idle(10.0)
+    finally:
+        observer.close()
+    assert not errors
+    (r,) = published
+    expected, _ = classify_frames(stage_artifact, frames)
+    assert r.label == expected.label and r.images_used == 8
+    np.testing.assert_allclose(r.scores, expected.scores, rtol=1e-6)
+    assert r.sequences == list(range(100, 108)) and r.first_stamp_ns == STAMP0
+    assert r.label.startswith('orange')
+
+
+def test_own_sequences_other_patterns_and_missing_images(stage_artifact, frames):
+    published, errors = [], []
+    busy = threading.Lock()
+    observer, matcher = _observer(stage_artifact, published, errors, busy=busy, timeout_s=0.2)
+    try:
+        # 1. a sequence the node lit through its service: registered while the stage is busy,
+        #    so the observer, which waits for the stage, always knows it
+        own = _states(stage_artifact.led_patterns[:, :4], request_id=1)
+        with busy:
+            for s in own:
+                observer.on_trigger(s)
+            observer.mark_own(own[0].stamp_ns)
+        # 2. somebody else's patterns
+        for s in _states(np.ones((32, 4), np.float32) * 0.0, request_id=2, stamp0=STAMP0 + 10**9):
+            observer.on_trigger(s)
+        # 3. the artifact's patterns, but images 2 and 4 never come
+        lost = _states(stage_artifact.led_patterns[:, :4], request_id=3, stamp0=STAMP0 + 2 * 10**9,
+                       seq0=200)
+        for s, f in zip(lost, frames):
+            if s.index not in (1, 3):
+                matcher.add(s.stamp_ns, f)
+            observer.on_trigger(s)
+        assert observer.join_idle(10.0)
+    finally:
+        observer.close()
+    assert published == []
+    stats = observer.stats
+    assert (stats.own_skipped, stats.not_artifact, stats.failed, stats.sequences_seen) == (1, 1, 1, 3)
+    (error,) = errors
+    assert 'request 3' in error and '2 of 4 images did not arrive' in error
+    assert 'trigger sequence 201' in error and 'trigger sequence 203' in error
