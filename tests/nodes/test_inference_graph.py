@@ -11,7 +11,7 @@ import time
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from node_helpers import RosClient, fresh_domain_id, start_nodes, write_params
+from suite_helpers import RosClient, fresh_domain_id, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
 

@@ -65,6 +65,11 @@ def main() -> int:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:  # noqa: BLE001
+        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
+        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
+        if rclpy.ok():
+            raise
     return 0
 
 

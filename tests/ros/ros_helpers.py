@@ -1,12 +1,10 @@
-"""Shared by the tests/ros tests: domain ids, node processes through the supervisor, and an
-in-process rclpy client on its own context."""
+"""Shared by the tests/ros tests: node processes through the supervisor, checked by the graph
+as `lightstage up` does (domain ids and the in-process client are suite_helpers)."""
 from __future__ import annotations
 
 import contextlib
 import io
-import itertools
 import os
-import time
 from pathlib import Path
 
 from lightstage_bringup.launcher import GraphWatcher, node_command
@@ -14,16 +12,6 @@ from lightstage_bringup.ros_env import ros_environment
 from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 
 HERE = Path(__file__).resolve().parent
-_counter = itertools.count()
-
-
-def fresh_domain_id() -> int:
-    """A ROS domain id for one test, 1..99 (the suite's own run uses 100..199).
-
-    Below 100 every RTPS port (7400 + 250 * domain + ...) stays under 32768, outside the
-    kernel's ephemeral port range: a socket on such a port was bound there on purpose.
-    """
-    return 1 + (os.getpid() * 7 + 50 + next(_counter)) % 99
 
 
 def child_environment(domain_id: int, **overrides: str) -> dict[str, str]:
@@ -60,51 +48,3 @@ def running_nodes(nodes: dict[str, str], domain_id: int, timeout_s: float = 20.0
     unclean = [str(r) for r in reports if not r.clean]
     assert not unclean, f'nodes did not stop cleanly: {unclean}\n{out.getvalue()}'
 
-
-class RosClient:
-    """An rclpy node on its own context and domain, with a private executor."""
-
-    def __init__(self, domain_id: int, name: str = 'test_client'):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.signals import SignalHandlerOptions
-        self._rclpy = rclpy
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id,
-                   signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(name, context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-
-    def spin_until(self, predicate, timeout_s: float = 10.0, what: str = 'condition') -> None:
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            assert time.monotonic() < deadline, f'timed out after {timeout_s} s waiting for {what}'
-            self.executor.spin_once(timeout_sec=0.05)
-
-    def spin_for(self, seconds: float) -> None:
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.05)
-
-    def result(self, future, timeout_s: float = 10.0, what: str = 'a response'):
-        self.spin_until(future.done, timeout_s, what)
-        return future.result()
-
-    def call_until_answered(self, client, request, attempts: int = 4, per_try_s: float = 3.0):
-        """Call an idempotent service until it answers: the first response can be lost while
-        the reply path (server -> this client) is still being matched, which
-        `service_is_ready()` does not cover. Use it to warm a connection up."""
-        for _ in range(attempts):
-            future = client.call_async(request)
-            deadline = time.monotonic() + per_try_s
-            while not future.done() and time.monotonic() < deadline:
-                self.executor.spin_once(timeout_sec=0.05)
-            if future.done():
-                return future.result()
-            client.remove_pending_request(future)
-        raise AssertionError(f'no response after {attempts} calls of {per_try_s} s each')
-
-    def close(self) -> None:
-        self._rclpy.shutdown(context=self.context)

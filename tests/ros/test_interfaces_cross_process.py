@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from ros_helpers import RosClient, fresh_domain_id, running_nodes
+from ros_helpers import running_nodes
+from suite_helpers import RosClient, fresh_domain_id
 
 pytestmark = pytest.mark.ros
 

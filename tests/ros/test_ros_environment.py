@@ -12,7 +12,8 @@ import pytest
 from lightstage_bringup import ros_env
 from proc_sockets import (InetSocket, ephemeral_port_low, listening_beyond_loopback,
                           parse_address, parse_proc_net, sockets_of)
-from ros_helpers import RosClient, fresh_domain_id, running_nodes
+from ros_helpers import running_nodes
+from suite_helpers import RosClient, fresh_domain_id
 
 DRIVER = {'driver': 'ros_fake_driver_node'}
 NS = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'

@@ -1,6 +1,7 @@
 """Launch the light stage on a full ROS 2 Jazzy install: driver, camera and classifier.
 
     ros2 launch lightstage_bringup lightstage.launch.py [params_file:=FILE.yaml] [use_trainer:=true]
+        [use_acquisition:=true] [use_recorder:=true]
 
 The same nodes, names and parameters as `lightstage up` (lightstage_bringup.launcher), which
 is what runs where `launch` is not available (the pip-only setup). Node names are the keys
@@ -27,6 +28,12 @@ def generate_launch_description():
         ('camera', 'lightstage_camera', 'camera_node'),
         ('classifier', 'mux_classifier', 'classifier_node'),
     ]
+    # started only when their launch argument is true: (name, package, executable, argument)
+    optional = [
+        ('trainer', 'mux_trainer', 'trainer_node', 'use_trainer'),
+        ('acquisition', 'lightstage_camera', 'acquisition_node', 'use_acquisition'),
+        ('recorder', 'lightstage_bringup', 'recorder', 'use_recorder'),
+    ]
     actions = [
         # the same settings as lightstage_bringup.ros_env.ros_environment()
         SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'),
@@ -37,11 +44,18 @@ def generate_launch_description():
                               description='ROS parameters YAML for all nodes'),
         DeclareLaunchArgument('use_trainer', default_value='false',
                               description='also start the trainer node (Train action)'),
+        DeclareLaunchArgument('use_acquisition', default_value='false',
+                              description='also start the acquisition node (CaptureModel, '
+                                          'CalibrateNoise actions)'),
+        DeclareLaunchArgument('use_recorder', default_value='false',
+                              description='also record every topic and service call to an MCAP '
+                                          'bag (recorder node; its section of params_file)'),
     ]
     for name, package, executable in nodes:
         actions.append(Node(package=package, executable=executable, name=name,
                             parameters=[params_file], output='screen', emulate_tty=True))
-    actions.append(Node(package='mux_trainer', executable='trainer_node', name='trainer',
-                        parameters=[params_file], output='screen', emulate_tty=True,
-                        condition=IfCondition(LaunchConfiguration('use_trainer'))))
+    for name, package, executable, argument in optional:
+        actions.append(Node(package=package, executable=executable, name=name,
+                            parameters=[params_file], output='screen', emulate_tty=True,
+                            condition=IfCondition(LaunchConfiguration(argument))))
     return LaunchDescription(actions)

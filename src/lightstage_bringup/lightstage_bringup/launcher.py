@@ -44,6 +44,11 @@ NODE_REGISTRY: dict[str, NodeEntry] = {
     'camera': NodeEntry('lightstage_camera.camera_node', 'camera (simulated: renders the sample under each pattern)'),
     'classifier': NodeEntry('mux_classifier.classifier_node', 'classifier (Classify service, /result topic)'),
     'trainer': NodeEntry('mux_trainer.trainer_node', 'trainer (Train action)'),
+    'acquisition': NodeEntry('lightstage_camera.acquisition_node',
+                             'model capture and noise calibration (CaptureModel, CalibrateNoise actions)'),
+    'recorder': NodeEntry('lightstage_bringup.recorder_node',
+                          'records every topic and service call to an MCAP bag (recorder section of the params)'),
+    'player': NodeEntry('lightstage_bringup.player_node', 'plays a bag into the graph (set its bag parameter)'),
 }
 DEFAULT_NODES = ('driver', 'camera', 'classifier')
 
