@@ -16,6 +16,7 @@ subscribers have acknowledged everything, then exits.
 """
 from __future__ import annotations
 
+import signal
 import sys
 import threading
 import time
@@ -146,15 +147,27 @@ class PlayerNode(Node):
 
 
 def run(args: list[str] | None = None, parameter_overrides: list[Parameter] | None = None) -> int:
-    """Play the bag; 0 when played, 1 on a playback error, 2 when the bag / options are bad."""
+    """Play the bag; 0 when played, 1 on a playback error, 2 when the bag / options are bad.
+
+    SIGINT / SIGTERM only set the node's stop flag: rclpy's own handler would shut the
+    context down while this thread publishes (which crashed the player, SIGSEGV, once in a
+    fresh-clone test run); the context is shut down here, after the last publish.
+    """
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-    rclpy.init(args=args)
+    from rclpy.signals import SignalHandlerOptions
+    own_signals = threading.current_thread() is threading.main_thread()
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if own_signals
+               else SignalHandlerOptions.ALL)
     try:
         node = PlayerNode(parameter_overrides=parameter_overrides or [])
     except (PlayerError, InvalidParameterValueException) as exc:
         print(f'player: {exc}', file=sys.stderr, flush=True)
         rclpy.try_shutdown()
         return 2
+    previous = {}
+    if own_signals:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda _signum, _frame: node.stop.set())
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     spinner = threading.Thread(target=_spin, args=(executor, node), daemon=True)
@@ -193,12 +206,14 @@ def run(args: list[str] | None = None, parameter_overrides: list[Parameter] | No
         spinner.join(timeout=5.0)
         node.destroy_node()
         rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     return rc
 
 
 def _spin(executor, node: PlayerNode) -> None:
-    """Serve the node's parameter services while the main thread plays; a shutdown (SIGINT /
-    SIGTERM) stops playback."""
+    """Serve the node's parameter services while the main thread plays; if the spinner ends
+    (the context shut down from elsewhere), playback stops."""
     from rclpy.executors import ExternalShutdownException
     try:
         executor.spin()
