@@ -111,6 +111,8 @@ def test_recover_stopped_by_a_full_disk_lists_only_what_it_copied(tmp_path, caps
     assert meta['topics_with_message_count'][0]['message_count'] == 6
     assert meta['duration']['nanoseconds'] == sent[5][1] - sent[0][1]
     assert 'disk full' in meta['custom_data']['recovery_stopped']
+    shown = bf.format_info(info)  # `lightstage bag info` says it is a partial copy
+    assert f'PARTIAL COPY of {src}: the recovery stopped (disk full writing' in shown, shown
     # as a function: the same, and the wrapper raises
     shutil.rmtree(dst)
     disk.failures, disk.chunks = 0, 0

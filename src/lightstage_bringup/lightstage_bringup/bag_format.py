@@ -199,6 +199,7 @@ class BagInfo:
     library: str = ''
     has_metadata_yaml: bool = False
     storage_identifier: str = 'mcap'
+    custom_data: dict = field(default_factory=dict)  # metadata.yaml's (e.g. of a recovery)
 
     @property
     def duration_ns(self) -> int:
@@ -210,6 +211,7 @@ class BagInfo:
                 'ros_distro': self.ros_distro, 'start_ns': self.start_ns, 'end_ns': self.end_ns,
                 'duration_ns': self.duration_ns, 'message_count': self.message_count,
                 'complete': self.complete, 'problems': list(self.problems),
+                'custom_data': dict(self.custom_data),
                 'topics': [{'name': t.name, 'type': t.type, 'count': t.count,
                             'serialization_format': t.serialization_format,
                             'type_hash': t.type_hash,
@@ -1027,7 +1029,9 @@ class BagReader:
             start_ns=start or 0, end_ns=end or 0, message_count=count, topics=topics,
             complete=complete, problems=list(self.problems),
             ros_distro=distro or (self.metadata_yaml or {}).get('ros_distro', ''),
-            library=library, has_metadata_yaml=self.metadata_yaml is not None)
+            library=library, has_metadata_yaml=self.metadata_yaml is not None,
+            custom_data={str(k): str(v) for k, v in
+                         ((self.metadata_yaml or {}).get('custom_data') or {}).items()})
         return self._info
 
     def _merge_topic(self, topics: dict, scan: _FileScan, channel_id: int) -> TopicInfo | None:
@@ -1234,6 +1238,12 @@ def format_info(info: BagInfo, verbose: bool = False) -> str:
         head = 'Service information: ' if i == 0 else ' ' * 21
         lines.append(f'{head}Service: {s.service_name:<{swidth}} | Type: {s.service_type} | '
                      f'Event Count: {s.count} | Serialization Format: {s.serialization_format}')
+    stopped = info.custom_data.get('recovery_stopped')
+    if stopped:
+        lines.append('')
+        lines.append(f'PARTIAL COPY of {info.custom_data.get("recovered_from", "another bag")}: '
+                     f'the recovery stopped ({stopped}); this bag holds only what was copied '
+                     'before that')
     if not info.complete:
         lines.append('')
         lines.append('INCOMPLETE BAG: ' + ('; '.join(info.problems) or 'no summary'))
