@@ -6,8 +6,8 @@ import sys
 from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / 'src'
-# modules that are ROS by design: the nodes and the recorder's rclpy glue
-ROS_MODULES = {'bag_ros'}
+# modules that are ROS by design besides the nodes: the recorder's rclpy glue, the nodes' main
+ROS_MODULES = {'bag_ros', 'spinning'}
 
 
 def pure_modules() -> list[str]:

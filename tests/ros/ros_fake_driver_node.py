@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from lightstage_camera.spinning import spin_until_stopped
 from rclpy.node import Node
 
 from lightstage_interfaces.msg import IlluminationState
@@ -61,16 +61,7 @@ def main() -> int:
     rclpy.init()
     node = FakeDriver()
     print(f'fake driver up as {node.get_fully_qualified_name()}', flush=True)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:  # noqa: BLE001
-        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
-        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
-        if rclpy.ok():
-            raise
-    return 0
+    return spin_until_stopped(node)
 
 
 if __name__ == '__main__':

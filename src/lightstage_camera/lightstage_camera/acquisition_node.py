@@ -40,6 +40,7 @@ from .calibration import (CalibrationSettings, calibrate_noise, check_calibratio
                           write_calibration_outputs)
 from .frames import AcquisitionError, ImageMatcher, image_from_buffer
 from .rig import Rig
+from .spinning import spin_until_stopped
 
 NODE_NAME = 'lightstage_acquisition'
 CAPTURE_ACTION = '/lightstage/capture_model'
@@ -351,27 +352,9 @@ class AcquisitionNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+    from rclpy.executors import MultiThreadedExecutor
     rclpy.init(args=sys.argv if argv is None else argv)
-    node = AcquisitionNode()
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:  # noqa: BLE001
-        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
-        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
-        if rclpy.ok():
-            raise
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
-
+    return spin_until_stopped(AcquisitionNode(), MultiThreadedExecutor(num_threads=4))
 
 if __name__ == '__main__':
     sys.exit(main())

@@ -29,6 +29,7 @@ from sensor_msgs.msg import Image
 from .camera_backend import Frame, Trigger
 from .noise import PAPER_CALIBRATION, NoiseModel, load_noise_file
 from .sim_camera import NOISE_CHOICES, SimCameraBackend, parse_noise, resolve_sample
+from .spinning import spin_until_stopped
 
 NODE_NAME = 'lightstage_camera'
 IMAGE_TOPIC = '/image_raw'
@@ -264,24 +265,8 @@ class CameraNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from rclpy.executors import ExternalShutdownException
     rclpy.init(args=sys.argv if argv is None else argv)
-    node = CameraNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:  # noqa: BLE001
-        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
-        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
-        if rclpy.ok():
-            raise
-    finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
-
+    return spin_until_stopped(CameraNode())
 
 if __name__ == '__main__':
     sys.exit(main())

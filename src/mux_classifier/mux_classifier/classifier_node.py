@@ -27,6 +27,7 @@ import time
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
+from lightstage_camera.spinning import spin_until_stopped
 from lightstage_interfaces.msg import ClassificationResult, IlluminationState, Pattern
 from lightstage_interfaces.srv import ApplyPatterns, Classify
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
@@ -132,6 +133,11 @@ class ClassifierNode(Node):
                 on_error=lambda m: self.get_logger().warning(m))
             self.create_subscription(IlluminationState, ILLUMINATION_TOPIC, self._on_illumination,
                                      ILLUMINATION_QOS, callback_group=group)
+
+    def destroy_node(self) -> None:
+        if getattr(self, 'observer', None) is not None:
+            self.observer.close()  # its worker thread ends before the node goes
+        super().destroy_node()
 
     def p(self, name: str):
         return self.get_parameter(name).value
@@ -285,29 +291,9 @@ class ClassifierNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+    from rclpy.executors import MultiThreadedExecutor
     rclpy.init(args=sys.argv if argv is None else argv)
-    node = ClassifierNode()
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:  # noqa: BLE001
-        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
-        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
-        if rclpy.ok():
-            raise
-    finally:
-        executor.shutdown()
-        if node.observer is not None:
-            node.observer.close()
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
-
+    return spin_until_stopped(ClassifierNode(), MultiThreadedExecutor(num_threads=4))
 
 if __name__ == '__main__':
     sys.exit(main())

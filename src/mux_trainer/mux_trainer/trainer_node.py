@@ -12,11 +12,12 @@ import threading
 import time
 
 import rclpy
+from lightstage_camera.spinning import spin_until_stopped
 from lightstage_interfaces.action import Train
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 
 from .greedy import REFINE_TOP
@@ -120,23 +121,7 @@ class TrainerNode(Node):
 
 def main(args=None) -> int:
     rclpy.init(args=args)
-    node = TrainerNode()
-    executor = MultiThreadedExecutor(num_threads=2)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:  # noqa: BLE001
-        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
-        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
-        if rclpy.ok():
-            raise
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
-
+    return spin_until_stopped(TrainerNode(), MultiThreadedExecutor(num_threads=2))
 
 if __name__ == '__main__':
     sys.exit(main())
