@@ -162,10 +162,16 @@ class _Client:
                                       context=self.context, start_parameter_services=False)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        self._clients = {}  # by name: one per service / action for all targets, discovered once
 
     def close(self) -> None:
         import rclpy
         rclpy.shutdown(context=self.context)
+
+    def _client(self, name: str, make):
+        if name not in self._clients:
+            self._clients[name] = make()
+        return self._clients[name]
 
     def set_camera_params(self, camera_node: str, params: list, wait_s: float) -> None:
         """Set camera parameters together (SetParametersAtomically: the camera sees e.g. a new
@@ -175,7 +181,7 @@ class _Client:
         if not params:
             return
         name = f'/{camera_node}/set_parameters_atomically'
-        client = self.node.create_client(SetParametersAtomically, name)
+        client = self._client(name, lambda: self.node.create_client(SetParametersAtomically, name))
         if not client.wait_for_service(timeout_sec=wait_s):
             raise _Unavailable(f'the camera node\'s {name} is not available after {wait_s:g} s; '
                                'start the camera (`lightstage up driver camera acquisition`) or '
@@ -195,7 +201,7 @@ class _Client:
         """Send `goal`, spin until its result; Ctrl-C cancels it and re-raises."""
         from action_msgs.msg import GoalStatus
         from rclpy.action import ActionClient
-        client = ActionClient(self.node, action_type, name)
+        client = self._client(name, lambda: ActionClient(self.node, action_type, name))
         if not client.wait_for_server(timeout_sec=wait_s):
             raise _Unavailable(f'the action {name} is not available after {wait_s:g} s '
                                f'(ROS_DOMAIN_ID={self.context.get_domain_id()}); start the graph '

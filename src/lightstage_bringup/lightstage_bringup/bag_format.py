@@ -170,12 +170,11 @@ class TopicInfo:
 
     @property
     def is_service_event(self) -> bool:
-        return (self.name.endswith('/_service_event')
-                and msg_definitions.is_service_event_type(self.type))
+        return msg_definitions.is_service_event(self.name, self.type)
 
     @property
     def service_name(self) -> str:
-        return self.name[:-len('/_service_event')] if self.is_service_event else ''
+        return self.name[:-len(msg_definitions.SERVICE_EVENT_SUFFIX)] if self.is_service_event else ''
 
     @property
     def service_type(self) -> str:

@@ -13,22 +13,12 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSPro
 from .bag_format import INFINITE_NS, QosProfile
 from .msg_definitions import split_type
 
-_HISTORY = {HistoryPolicy.SYSTEM_DEFAULT: 'system_default', HistoryPolicy.KEEP_LAST: 'keep_last',
-            HistoryPolicy.KEEP_ALL: 'keep_all', HistoryPolicy.UNKNOWN: 'unknown'}
-_RELIABILITY = {ReliabilityPolicy.SYSTEM_DEFAULT: 'system_default',
-                ReliabilityPolicy.RELIABLE: 'reliable', ReliabilityPolicy.BEST_EFFORT: 'best_effort',
-                ReliabilityPolicy.UNKNOWN: 'unknown'}
-_DURABILITY = {DurabilityPolicy.SYSTEM_DEFAULT: 'system_default',
-               DurabilityPolicy.TRANSIENT_LOCAL: 'transient_local',
-               DurabilityPolicy.VOLATILE: 'volatile', DurabilityPolicy.UNKNOWN: 'unknown'}
-_LIVELINESS = {LivelinessPolicy.SYSTEM_DEFAULT: 'system_default',
-               LivelinessPolicy.AUTOMATIC: 'automatic',
-               LivelinessPolicy.MANUAL_BY_TOPIC: 'manual_by_topic',
-               LivelinessPolicy.UNKNOWN: 'unknown'}
-for _enum, _table in ((ReliabilityPolicy, _RELIABILITY), (DurabilityPolicy, _DURABILITY),
-                      (LivelinessPolicy, _LIVELINESS)):
-    if hasattr(_enum, 'BEST_AVAILABLE'):
-        _table[_enum.BEST_AVAILABLE] = 'best_available'
+def _name(enum, value) -> str:
+    """A policy as rosbag2 names it (rclpy's short key: 'keep_last', 'best_effort', ...)."""
+    try:
+        return enum(value).short_key
+    except ValueError:
+        return 'unknown'
 
 
 def _ns(duration) -> int:
@@ -38,11 +28,11 @@ def _ns(duration) -> int:
 
 def from_rclpy_qos(q: QoSProfile) -> QosProfile:
     """An rclpy profile (e.g. a discovered publisher's) as rosbag2 stores it."""
-    return QosProfile(history=_HISTORY.get(q.history, 'unknown'), depth=int(q.depth),
-                      reliability=_RELIABILITY.get(q.reliability, 'unknown'),
-                      durability=_DURABILITY.get(q.durability, 'unknown'),
+    return QosProfile(history=_name(HistoryPolicy, q.history), depth=int(q.depth),
+                      reliability=_name(ReliabilityPolicy, q.reliability),
+                      durability=_name(DurabilityPolicy, q.durability),
                       deadline_ns=_ns(q.deadline), lifespan_ns=_ns(q.lifespan),
-                      liveliness=_LIVELINESS.get(q.liveliness, 'unknown'),
+                      liveliness=_name(LivelinessPolicy, q.liveliness),
                       liveliness_lease_duration_ns=_ns(q.liveliness_lease_duration),
                       avoid_ros_namespace_conventions=bool(q.avoid_ros_namespace_conventions))
 
@@ -51,22 +41,26 @@ def _duration(ns: int) -> Duration:
     return Duration(nanoseconds=0) if ns >= INFINITE_NS else Duration(nanoseconds=int(ns))
 
 
-def _policy(name: str, table: dict, default):
-    value = {v: k for k, v in table.items()}.get(name, default)
-    return default if getattr(value, 'name', '') == 'UNKNOWN' else value
+def _policy(enum, name: str, default):
+    """The policy named `name` (a short key), `default` for an unknown one."""
+    try:
+        value = enum[str(name).upper()]
+    except KeyError:
+        return default
+    return default if value.name == 'UNKNOWN' else value
 
 
 def to_rclpy_qos(q: QosProfile) -> QoSProfile:
     """A profile for a subscription or publisher (infinite durations as rclpy's default 0;
     unknown policies as keep-last / reliable / volatile / automatic)."""
-    history = _policy(q.history, _HISTORY, HistoryPolicy.KEEP_LAST)
+    history = _policy(HistoryPolicy, q.history, HistoryPolicy.KEEP_LAST)
     if history == HistoryPolicy.SYSTEM_DEFAULT:
         history = HistoryPolicy.KEEP_LAST
     return QoSProfile(
         history=history, depth=max(1, int(q.depth)),
-        reliability=_policy(q.reliability, _RELIABILITY, ReliabilityPolicy.RELIABLE),
-        durability=_policy(q.durability, _DURABILITY, DurabilityPolicy.VOLATILE),
-        liveliness=_policy(q.liveliness, _LIVELINESS, LivelinessPolicy.AUTOMATIC),
+        reliability=_policy(ReliabilityPolicy, q.reliability, ReliabilityPolicy.RELIABLE),
+        durability=_policy(DurabilityPolicy, q.durability, DurabilityPolicy.VOLATILE),
+        liveliness=_policy(LivelinessPolicy, q.liveliness, LivelinessPolicy.AUTOMATIC),
         deadline=_duration(q.deadline_ns), lifespan=_duration(q.lifespan_ns),
         liveliness_lease_duration=_duration(q.liveliness_lease_duration_ns),
         avoid_ros_namespace_conventions=q.avoid_ros_namespace_conventions)

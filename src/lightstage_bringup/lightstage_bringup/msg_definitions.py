@@ -192,5 +192,13 @@ def type_hash(type_name: str) -> str:
     return ''
 
 
+SERVICE_EVENT_SUFFIX = '/_service_event'
+
+
+def is_service_event(topic: str, type_name: str) -> bool:
+    """A service's introspection topic (``/srv/_service_event`` of a ``pkg/srv/Name_Event``)."""
+    return topic.endswith(SERVICE_EVENT_SUFFIX) and is_service_event_type(type_name)
+
+
 def is_service_event_type(type_name: str) -> bool:
     return '/srv/' in type_name and type_name.endswith('_Event')

@@ -33,7 +33,8 @@ from rclpy.task import Future
 from .bag_format import COMPRESSIONS, BagError, BagWriter, default_bag_name
 from .bag_ros import (float_param, from_rclpy_qos, int_param, message_class, text_param,
                       to_rclpy_qos)
-from .recording import Recording, TopicSelector, is_service_event, subscription_qos
+from .msg_definitions import is_service_event
+from .recording import Recording, TopicSelector, subscription_qos
 
 NODE_NAME = 'recorder'
 

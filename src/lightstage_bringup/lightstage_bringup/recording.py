@@ -12,9 +12,7 @@ from dataclasses import dataclass, replace
 from typing import Iterable, Sequence
 
 from .bag_format import INFINITE_NS, BagWriteError, BagWriter, QosProfile, format_size
-from .msg_definitions import is_service_event_type
-
-SERVICE_EVENT_SUFFIX = '/_service_event'
+from .msg_definitions import is_service_event
 # what `lightstage play` leaves out unless --topics names it: service events (replaying them
 # would pose as calls the live services never served), and the log / parameter topics every
 # node has (replaying them into a live graph only confuses it)
@@ -24,10 +22,6 @@ DEFAULT_PLAY_EXCLUDE = r'/_service_event$|^/rosout$|^/parameter_events$'
 def is_hidden(topic: str) -> bool:
     """A topic with a name part starting with ``_`` (ROS's convention for hidden topics)."""
     return any(part.startswith('_') for part in topic.split('/') if part)
-
-
-def is_service_event(topic: str, type_name: str) -> bool:
-    return topic.endswith(SERVICE_EVENT_SUFFIX) and is_service_event_type(type_name)
 
 
 def compile_regex(pattern: str, what: str) -> re.Pattern | None:

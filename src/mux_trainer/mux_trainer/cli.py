@@ -143,12 +143,10 @@ def eval_main(argv: list[str] | None = None) -> int:
     noises = [n.strip() for n in args.noise.split(',') if n.strip()]
     if not noises:
         raise SystemExit(f'lightstage eval: no noise setting given; use {NOISE_HELP}')
-    for n in noises:
-        try:
-            resolve_noise(n)
-        except ValueError as exc:
-            raise SystemExit(f'lightstage eval: {exc}') from None
-    noises = [resolve_noise(n)[0] for n in noises]
+    try:
+        noises = [resolve_noise(n)[0] for n in noises]
+    except ValueError as exc:
+        raise SystemExit(f'lightstage eval: {exc}') from None
     methods = [m.strip() for m in args.methods.split(',') if m.strip()]
     bad = [m for m in methods if m not in METHODS]
     if not methods or bad:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import re
 
 import numpy as np
-from lightstage_camera.noise import NoiseModel, load_noise_file, preset
+from lightstage_camera.noise import NoiseModel, load_noise_file, noise_setting
 from mux_classifier.hog import HogConfig
 
 from .rendering import DEFAULT_DIMMER, SearchData
@@ -29,7 +29,7 @@ def resolve_noise(spec) -> tuple[str, NoiseModel | None]:
         return 'calibrated', spec
     text = str(spec).strip()
     if text.lower() in NOISE_SETTINGS:
-        return text.lower(), preset(text.lower())
+        return text.lower(), noise_setting(text.lower())
     at = _AT.match(text)
     if at:
         model = load_noise_file(at['path'])
@@ -38,7 +38,7 @@ def resolve_noise(spec) -> tuple[str, NoiseModel | None]:
         except ValueError as exc:
             raise ValueError(f'noise {text!r}: {exc}') from None
     if text.lower().endswith(('.yaml', '.yml')):
-        return text, load_noise_file(text)
+        return text, noise_setting(text)
     path, sep, setting = text.rpartition('@')
     if sep and path.lower().endswith(('.yaml', '.yml')):
         raise ValueError(f'noise {text!r}: after the @ give GAIN_DB:EXPOSURE_MS, two numbers '
