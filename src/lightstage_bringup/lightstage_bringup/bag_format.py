@@ -749,29 +749,6 @@ def _format_ns(ns: int) -> str:
     return f'{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}'
 
 
-def _zstd_decompress(data: bytes) -> bytes:
-    try:
-        from compression import zstd  # Python >= 3.14
-    except ImportError:
-        from backports import zstd
-    return zstd.decompress(data)
-
-
-def _decompressible(chunk):
-    """A zstd chunk (rosbag2's MCAP writer compresses chunks with zstd by default) as an
-    uncompressed one when the mcap library's own zstd module (zstandard) is not installed:
-    backports.zstd, which is, decompresses it. The chunk CRC is still checked."""
-    if chunk.compression != 'zstd':
-        return chunk
-    try:
-        import zstandard  # noqa: F401 - mcap decompresses it itself
-        return chunk
-    except ImportError:
-        pass
-    import dataclasses
-    return dataclasses.replace(chunk, compression='', data=_zstd_decompress(chunk.data))
-
-
 @dataclass
 class _Chunk:
     """Messages of one chunk (or one loose message) in file order, with its start time."""
@@ -858,7 +835,7 @@ class _FileScan:
                     reader = StreamReader(io.BytesIO(head + body), skip_magic=True, emit_chunks=True)
                     record = next(iter(reader.records))
                     if isinstance(record, Chunk):
-                        records = breakup_chunk(_decompressible(record), validate_crc=True)
+                        records = breakup_chunk(record, validate_crc=True)
                     else:
                         records = [record]
                 except Exception as exc:  # noqa: BLE001 - damaged data, described and skipped
