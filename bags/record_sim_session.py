@@ -27,6 +27,10 @@ from pathlib import Path
 from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
 
 HERE = Path(__file__).resolve().parent
+sys.path[:0] = [str(HERE.parent / 'tests' / d) for d in ('', 'recording')]
+from recording_helpers import bag_results  # noqa: E402  (the tests' bag and ROS helpers)
+from suite_helpers import RosClient, start_nodes, write_params  # noqa: E402
+
 SAMPLES = ['banana-fake/s1/p02', 'banana-real/s0/p01', 'orange-fake/s1/p00', 'orange-real/s0/p02']
 RECORDED = ['/illumination', '/image_raw', '/lightstage/result',
             '/lightstage/classify/_service_event', '/lightstage/apply_patterns/_service_event']
@@ -42,94 +46,55 @@ def _train(capture: Path, artifact: Path) -> None:
 
 
 def _record(capture: Path, artifact: Path, bag: Path, domain_id: int, work: Path) -> list:
-    import rclpy
-    import yaml
-    from lightstage_bringup.launcher import node_command
+    from lightstage_bringup.launcher import NODE_REGISTRY, node_command
     from lightstage_bringup.supervisor import ProcessSpec, Supervisor
     from lightstage_interfaces.srv import Classify
-    from rcl_interfaces.srv import ListParameters, SetParameters
-    from rclpy.context import Context
-    from rclpy.parameter import Parameter
 
-    params = work / 'params.yaml'
-    params.write_text(yaml.safe_dump({
-        'camera': {'ros__parameters': {'capture_dir': str(capture), 'sample': SAMPLES[0], 'seed': 7}},
-        'classifier': {'ros__parameters': {'artifact_path': str(artifact)}},
-        'recorder': {'ros__parameters': {'output_dir': str(bag)}},
-    }))
-    modules = {'driver': 'lightstage_driver.driver_node', 'camera': 'lightstage_camera.camera_node',
-               'classifier': 'mux_classifier.classifier_node',
-               'recorder': 'lightstage_bringup.recorder_node'}
-    env = ros_environment(domain_id)
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    node = rclpy.create_node('record_sim_session', context=context, start_parameter_services=False)
-    from rclpy.executors import SingleThreadedExecutor
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-
-    def call(srv_type, name, request, timeout_s=30.0):
-        client = node.create_client(srv_type, name)
-        deadline = time.monotonic() + timeout_s
-        while not client.service_is_ready():
-            if time.monotonic() > deadline:
-                raise RuntimeError(f'{name} not available')
-            executor.spin_once(timeout_sec=0.05)
-        future = client.call_async(request)
-        executor.spin_until_future_complete(future, timeout_sec=timeout_s)
-        if not future.done():
-            raise RuntimeError(f'{name} did not answer')
-        return future.result()
-
+    params = write_params(work / 'params.yaml', {
+        'camera': {'capture_dir': str(capture), 'sample': SAMPLES[0], 'seed': 7},
+        'classifier': {'artifact_path': str(artifact)},
+        'recorder': {'output_dir': str(bag)},
+    })
+    client = RosClient(domain_id, 'record_sim_session')
     out = io.StringIO()
     answers = []
     try:
         with Supervisor(stdout=out, stderr=out, sigint_timeout_s=10.0) as supervisor:
-            for name in ('driver', 'camera', 'classifier'):
-                supervisor.start(ProcessSpec(name, node_command(modules[name], name, params), env))
-            for name in ('driver', 'camera', 'classifier'):
-                call(ListParameters, f'/{name}/list_parameters', ListParameters.Request(depth=1))
-            supervisor.start(ProcessSpec('recorder', node_command(modules['recorder'], 'recorder',
-                                                                  params), env))
-            deadline = time.monotonic() + 30
-            while not all(any(i.node_name == 'recorder' for i in node.get_subscriptions_info_by_topic(t))
-                          for t in RECORDED):
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f'the recorder did not subscribe:\n{out.getvalue()}')
-                executor.spin_once(timeout_sec=0.05)
+            start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
+            supervisor.start(ProcessSpec('recorder', node_command(NODE_REGISTRY['recorder'].module,
+                                                                  'recorder', params),
+                                         ros_environment(domain_id)))
+            client.spin_until(lambda: all(client.subscribed_by(t, 'recorder') for t in RECORDED), 30.0,
+                              lambda: f'the recorder to subscribe:\n{out.getvalue()}')
             time.sleep(1.0)  # let the publishers match the recorder's new subscriptions
             for i, sample in enumerate(SAMPLES):
-                r = call(SetParameters, '/camera/set_parameters', SetParameters.Request(
-                    parameters=[Parameter('sample', value=sample).to_parameter_msg()])).results[0]
+                (r,) = client.set_parameters('camera', sample=sample)
                 if not r.successful:
                     raise RuntimeError(r.reason)
-                answer = call(Classify, '/lightstage/classify',
-                              Classify.Request(max_images=8 if i % 2 == 0 else 4))
+                answer = client.call(Classify, '/lightstage/classify',
+                                     Classify.Request(max_images=8 if i % 2 == 0 else 4))
                 if not answer.success:
                     raise RuntimeError(answer.message)
                 answers.append((sample, answer))
                 print(f'{sample}: {answer.label} ({answer.images_used} images)', flush=True)
-            end = time.monotonic() + 1.0
-            while time.monotonic() < end:
-                executor.spin_once(timeout_sec=0.05)
+            client.spin_for(1.0)
         print(''.join(line + '\n' for line in out.getvalue().splitlines()
                       if line.startswith('[recorder]') and not '[INFO]' in line))
     finally:
-        rclpy.shutdown(context=context)
+        client.close()
     return answers
 
 
 def _check(bag: Path, answers) -> None:
     from lightstage_bringup.bag_format import BagReader, format_info
-    from lightstage_interfaces.msg import ClassificationResult, IlluminationState
+    from lightstage_interfaces.msg import IlluminationState
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import Image
     reader = BagReader(bag)
     info = reader.info(verify=True)
     if not info.complete:
         raise RuntimeError(f'the bag is incomplete: {info.problems}')
-    results = [deserialize_message(m.data, ClassificationResult)
-               for m in reader.messages(['/lightstage/result'])]
+    results = bag_results(bag)
     if [r.label for r in results] != [a.label for _, a in answers]:
         raise RuntimeError('the recorded results are not the answers')
     stamps = {}

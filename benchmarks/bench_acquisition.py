@@ -20,13 +20,16 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests' / d) for d in ('', 'acquisition')]
+from acquisition_helpers import GraphClient  # noqa: E402  (the tests' ROS client and node start-up)
+from suite_helpers import fresh_domain_id, write_params  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -42,59 +45,43 @@ def main(argv=None) -> int:
     p.add_argument('--json', default='', help='also write the figures here')
     args = p.parse_args(argv)
 
-    from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
-    domain_id = args.domain_id if args.domain_id is not None else 200 + os.getpid() % 30
+    from lightstage_bringup.ros_env import apply_ros_environment
+    domain_id = args.domain_id if args.domain_id is not None else fresh_domain_id()
     apply_ros_environment(domain_id)
 
-    import rclpy
-    import yaml
-    from lightstage_bringup.launcher import NODE_REGISTRY, node_command
-    from lightstage_bringup.supervisor import ProcessSpec, Supervisor
+    from lightstage_bringup.supervisor import Supervisor
     from lightstage_camera import synth
     from lightstage_camera.calibration import write_calibration_target
     from lightstage_camera.capture_format import load_capture
     from lightstage_camera.noise import PAPER_CALIBRATION
     from lightstage_interfaces.action import CalibrateNoise, CaptureModel
-    from rcl_interfaces.srv import ListParameters
-    from rclpy.action import ActionClient
 
     work = Path(tempfile.mkdtemp(prefix='bench-acquisition-'))
     fruit = synth.generate(work / 'fruit', image_size=args.size, n_samples_per_class=1,
                            n_poses=1, object_types=('banana',), n_jobs=1)
     target = write_calibration_target(work / 'target', shape=tuple(args.target_size), dimmer=1.0)
     sample = 'banana-real/s0/p00'
-    params = work / 'params.yaml'
-    params.write_text(yaml.safe_dump({
-        'camera': {'ros__parameters': {'capture_dir': str(fruit), 'sample': sample,
-                                       'dimmer': 1.0, 'seed': 0}},
-        'acquisition': {'ros__parameters': {'timeout_s': 30.0}}}))
+    params = write_params(work / 'params.yaml', {
+        'camera': {'capture_dir': str(fruit), 'sample': sample, 'dimmer': 1.0, 'seed': 0},
+        'acquisition': {'timeout_s': 30.0}})
     stored = load_capture(fruit, cache=False)
     truth = stored.models[stored.sample_names.index(sample)].astype(np.float64)
     noise = PAPER_CALIBRATION.at(args.gain_db, args.exposure_us / 1000)
     figures = {'size': args.size, 'exposure_us': args.exposure_us, 'gain_db': args.gain_db,
                'capture': [], 'calibration': []}
+    frame_s = args.exposure_us / 1e6
 
-    rclpy.init(domain_id=domain_id)
-    node = rclpy.create_node(f'bench_acquisition_{os.getpid()}')
-    env = ros_environment(domain_id)
+    client = GraphClient(domain_id)
     with Supervisor(sigint_timeout_s=5.0, stdout=open(work / 'nodes.log', 'w'),
                     stderr=open(work / 'nodes.err', 'w')) as supervisor:
-        for name in ('driver', 'camera', 'acquisition'):
-            supervisor.start(ProcessSpec(name, node_command(NODE_REGISTRY[name].module, name,
-                                                            str(params)), env))
-        clients = [node.create_client(ListParameters, f'/{n}/list_parameters')
-                   for n in ('driver', 'camera', 'acquisition')]
-        while not all(c.service_is_ready() for c in clients):
-            rclpy.spin_once(node, timeout_sec=0.05)
+        client.start(supervisor, ['driver', 'camera', 'acquisition'], params)
 
-        def run(action_type, name, goal):
-            client = ActionClient(node, action_type, name)
-            client.wait_for_server(timeout_sec=30)
-            send = client.send_goal_async(goal)
-            rclpy.spin_until_future_complete(node, send)
-            result = send.result().get_result_async()
-            rclpy.spin_until_future_complete(node, result)
-            return result.result().result
+        def run(action_type, name, goal, n_exposures):
+            """The action's result (None if the goal was rejected); the time limit grows
+            with the exposures the goal takes."""
+            _, result, _ = client.action(action_type, name, goal,
+                                         timeout_s=120.0 + 5 * n_exposures * frame_s)
+            return result
 
         clear = truth - 6 * np.sqrt(noise.variance(truth)) > 0
         for n in args.frames:
@@ -102,10 +89,12 @@ def main(argv=None) -> int:
             start = time.perf_counter()
             r = run(CaptureModel, '/lightstage/capture_model', CaptureModel.Goal(
                 output_dir=str(out), label='banana-real', sample='s0', pose='p00',
-                exposure_us=args.exposure_us, gain_db=args.gain_db, frames_averaged=n))
+                exposure_us=args.exposure_us, gain_db=args.gain_db, frames_averaged=n),
+                n_exposures=32 * (n + 1))
             wall = time.perf_counter() - start
-            if not r.success:
-                print(f'capture N={n} failed: {r.message}', file=sys.stderr)
+            if r is None or not r.success:
+                print(f'capture N={n} failed: {r.message if r else "goal rejected"}',
+                      file=sys.stderr)
                 return 1
             model = load_capture(out, cache=False).models[0].astype(np.float64)
             rms = float(np.sqrt(np.mean((model[clear] - truth[clear]) ** 2)))
@@ -121,24 +110,18 @@ def main(argv=None) -> int:
                   f'stored model {rms:.3f} gray levels (predicted {predicted:.3f}, '
                   f'{row["clear_pixels"]} unclipped pixels)', flush=True)
 
-        from rcl_interfaces.srv import SetParametersAtomically
-        from rclpy.parameter import Parameter
-        setp = node.create_client(SetParametersAtomically, '/camera/set_parameters_atomically')
-        setp.wait_for_service(timeout_sec=10)
-        f = setp.call_async(SetParametersAtomically.Request(parameters=[
-            Parameter('capture_dir', value=str(target)).to_parameter_msg(),
-            Parameter('sample', value='0').to_parameter_msg()]))
-        rclpy.spin_until_future_complete(node, f)
-        assert f.result().result.successful, f.result().result.reason
+        result = client.set_parameters('camera', capture_dir=str(target), sample='0')
+        assert result.successful, result.reason
         exact = PAPER_CALIBRATION.at(args.gain_db, args.exposure_us / 1000)
         for frames in args.calibration_frames:
             start = time.perf_counter()
             r = run(CalibrateNoise, '/lightstage/calibrate_noise', CalibrateNoise.Goal(
                 exposure_us=args.exposure_us, gain_db=args.gain_db, frames_per_level=frames,
-                levels=args.levels))
+                levels=args.levels), n_exposures=frames * args.levels)
             wall = time.perf_counter() - start
-            if not r.success:
-                print(f'calibration F={frames} failed: {r.message}', file=sys.stderr)
+            if r is None or not r.success:
+                print(f'calibration F={frames} failed: {r.message if r else "goal rejected"}',
+                      file=sys.stderr)
                 return 1
             dp = r.sigma_p2 - exact.sigma_p2
             dr = r.sigma_r2 - (exact.sigma_r2 + 1 / 12)
@@ -155,8 +138,7 @@ def main(argv=None) -> int:
                   f'sigma_r2 {r.sigma_r2:.2f} +- {r.sigma_r2_stderr:.2f} '
                   f'(true {exact.sigma_r2 + 1 / 12:.2f} with rounding, '
                   f'{dr / r.sigma_r2_stderr:+.1f} se), {r.pixels_used} pixels', flush=True)
-    node.destroy_node()
-    rclpy.shutdown()
+    client.close()
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=1))
     print(f'(work files in {work})')

@@ -32,6 +32,10 @@ import numpy as np
 
 from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
 
+sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests' / d) for d in ('', 'recording')]
+from recording_helpers import bag_results  # noqa: E402  (the tests' bag and ROS helpers)
+from suite_helpers import RosClient, write_params  # noqa: E402
+
 
 def frames(n: int, size: int, seed: int = 0) -> list[bytes]:
     from rclpy.serialization import serialize_message
@@ -73,40 +77,30 @@ def bench_writer(data: list[bytes], tmp: Path) -> None:
 
 
 def bench_recorder(data: list[bytes], tmp: Path, rates: list[float], domain_id: int) -> None:
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.duration import Duration
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
 
     from lightstage_bringup.bag_format import BagReader
-    from lightstage_bringup.launcher import node_command
+    from lightstage_bringup.launcher import NODE_REGISTRY, node_command
 
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    node = rclpy.create_node('bench_recording_publisher', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
+    client = RosClient(domain_id, 'bench_recording_publisher')
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.VOLATILE)
-    pub = node.create_publisher(Image, '/image_raw', qos)
+    pub = client.node.create_publisher(Image, '/image_raw', qos)
     mb = len(data[0]) / 1e6
     print(f'recorder process: {len(data)} images of {mb:.2f} MB over a reliable keep-last-32 topic')
     try:
         for rate in [0.0] + rates:
             bag = tmp / f'rec_{rate:g}'
-            params = tmp / 'params.yaml'
-            params.write_text(f'recorder:\n  ros__parameters:\n    output_dir: {bag}\n'
-                              f'    topics: [/image_raw]\n')
-            proc = subprocess.Popen(node_command('lightstage_bringup.recorder_node', 'recorder', params),
+            params = write_params(tmp / 'params.yaml', {
+                'recorder': {'output_dir': str(bag), 'topics': ['/image_raw']}})
+            proc = subprocess.Popen(node_command(NODE_REGISTRY['recorder'].module, 'recorder', params),
                                     env=ros_environment(domain_id), stdout=subprocess.PIPE,
                                     stderr=subprocess.STDOUT, text=True)
             try:
-                deadline = time.monotonic() + 30
-                while pub.get_subscription_count() == 0:
-                    if time.monotonic() > deadline:
-                        raise RuntimeError('the recorder did not subscribe')
-                    executor.spin_once(timeout_sec=0.05)
+                client.spin_until(lambda: pub.get_subscription_count() > 0, 30.0,
+                                  'the recorder to subscribe')
                 time.sleep(0.5)
                 t0 = time.perf_counter()
                 for i, d in enumerate(data):
@@ -116,7 +110,7 @@ def bench_recorder(data: list[bytes], tmp: Path, rates: list[float], domain_id: 
                             time.sleep(wait)
                     pub.publish(d)
                 send_s = time.perf_counter() - t0
-                pub.wait_for_all_acked(rclpy.duration.Duration(seconds=30))
+                pub.wait_for_all_acked(Duration(seconds=30))
             finally:
                 proc.send_signal(signal.SIGINT)
                 proc.communicate(timeout=60)
@@ -132,21 +126,17 @@ def bench_recorder(data: list[bytes], tmp: Path, rates: list[float], domain_id: 
                       f'take in time was overwritten)')
             shutil.rmtree(bag)
     finally:
-        rclpy.shutdown(context=context)
+        client.close()
 
 
 def bench_size(bag: Path) -> None:
-    from lightstage_interfaces.msg import ClassificationResult
-    from rclpy.serialization import deserialize_message
-
     from lightstage_bringup.bag_format import BagReader
     reader = BagReader(bag)
     info = reader.info()
     by_topic: dict[str, int] = {}
     for m in reader.messages():
         by_topic[m.topic] = by_topic.get(m.topic, 0) + len(m.data)
-    results = [deserialize_message(m.data, ClassificationResult)
-               for m in reader.messages(['/lightstage/result'])]
+    results = bag_results(bag)
     n = len(results)
     images = sum(r.images_used for r in results)
     file_size = sum(f.stat().st_size for f in info.files)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -34,6 +35,11 @@ def fresh_domain_id() -> int:
     kernel's ephemeral port range: a socket on such a port was bound there on purpose.
     """
     return 1 + (os.getpid() * 7 + 50 + next(_counter)) % 99
+
+
+def lightstage_command(*args: str) -> list[str]:
+    """The argv that runs `lightstage ARGS...` (the installed CLI) in a fresh interpreter."""
+    return [sys.executable, '-m', 'lightstage_bringup.cli', *args]
 
 
 def write_params(path: Path, sections: dict) -> Path:

@@ -6,7 +6,7 @@ import numpy as np
 
 from lightstage_camera.models import ModelSet
 from lightstage_camera.rig import Rig
-from suite_helpers import RosClient, parameter_msgs, start_nodes
+from suite_helpers import RosClient, lightstage_command, parameter_msgs, start_nodes
 
 
 def smooth_modelset(shape=(24, 32), n_samples=2, seed=0, top=600.0, dark=True) -> ModelSet:
@@ -135,7 +135,5 @@ class GraphClient(RosClient):
 def cli(*args, domain_id: int, timeout: float = 300):
     """Run `lightstage VERB ...` (the installed CLI) in a fresh process."""
     import subprocess
-    import sys
-    return subprocess.run([sys.executable, '-m', 'lightstage_bringup.cli', *args,
-                           '--domain-id', str(domain_id)],
+    return subprocess.run(lightstage_command(*args, '--domain-id', str(domain_id)),
                           capture_output=True, text=True, timeout=timeout)

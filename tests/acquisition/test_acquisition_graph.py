@@ -19,7 +19,7 @@ from lightstage_camera.calibration import write_calibration_target
 from lightstage_camera.capture_format import load_capture
 from lightstage_camera.noise import PAPER_CALIBRATION, SETTINGS, load_noise_file
 from lightstage_camera.sim_camera import frame_moments
-from suite_helpers import fresh_domain_id, write_params
+from suite_helpers import fresh_domain_id, lightstage_command, write_params
 
 pytestmark = pytest.mark.ros
 
@@ -252,12 +252,10 @@ def test_ctrl_c_in_the_cli_cancels_the_capture_and_leaves_no_pose(graph, tmp_pat
     /illumination): the CLI cancels the goal, exits 130, and the folder stays empty."""
     import signal
     import subprocess
-    import sys
     import time
     before = len(graph.illumination)
-    proc = subprocess.Popen([sys.executable, '-m', 'lightstage_bringup.cli', 'capture',
-                             str(tmp_path / 'out'), 'banana-real/s0/p00', '--frames', '16',
-                             '--domain-id', str(graph.domain_id)],
+    proc = subprocess.Popen(lightstage_command('capture', str(tmp_path / 'out'), 'banana-real/s0/p00',
+                                               '--frames', '16', '--domain-id', str(graph.domain_id)),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60

@@ -5,14 +5,13 @@ from __future__ import annotations
 import array
 import io
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from lightstage_bringup.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
-from suite_helpers import RosClient, fresh_domain_id, start_nodes, write_params
+from suite_helpers import RosClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -94,6 +93,16 @@ def _plain(v):
     return v
 
 
+def bag_results(bag, topic: str = '/lightstage/result') -> list:
+    """The ClassificationResult messages of a bag's `topic` (default /lightstage/result), in
+    bag order."""
+    from lightstage_interfaces.msg import ClassificationResult
+    from rclpy.serialization import deserialize_message
+
+    from lightstage_bringup.bag_format import BagReader
+    return [deserialize_message(m.data, ClassificationResult) for m in BagReader(bag).messages([topic])]
+
+
 def mcap_ros2_decode(path, topics):
     """(topic, log time ns, decoded message) by mcap-ros2-support's decoder, from the schemas."""
     from mcap.reader import make_reader
@@ -126,11 +135,11 @@ def replay_into_observing_classifier(bag, artifact_path, tmp_path: Path, n_resul
             start_nodes(supervisor, client, ['classifier'], domain_id, params)
             client.spin_until(lambda: client.node.count_publishers('/lightstage/result') > 0, 10.0,
                               'the classifier\'s result publisher')
-            p = subprocess.run([sys.executable, '-m', 'lightstage_bringup.cli', 'play', str(bag),
-                                '--topics', '/illumination', '/image_raw',
-                                '--wait-for', '/illumination', '/image_raw', '--delay-s', '1',
-                                *play_args,
-                                '--domain-id', str(domain_id)],
+            p = subprocess.run(lightstage_command('play', str(bag),
+                                                  '--topics', '/illumination', '/image_raw',
+                                                  '--wait-for', '/illumination', '/image_raw',
+                                                  '--delay-s', '1', *play_args,
+                                                  '--domain-id', str(domain_id)),
                                env=ros_environment(domain_id), capture_output=True, text=True,
                                timeout=120)
             assert p.returncode == 0, p.stdout + p.stderr

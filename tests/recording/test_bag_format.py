@@ -4,7 +4,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 
 import pytest
 import yaml
@@ -14,6 +13,7 @@ from lightstage_bringup import bag_format as bf
 from lightstage_bringup.bag_ros import message_class
 from recording_helpers import (apply_event, classify_event, fields_equal, illumination, image,
                                mcap_ros2_decode, result)
+from suite_helpers import lightstage_command
 
 T0 = 1_700_000_000_000_000_000
 TOPICS = {'/illumination': 'lightstage_interfaces/msg/IlluminationState',
@@ -311,7 +311,7 @@ def test_files_that_are_no_bag_are_clear_errors(tmp_path, bag):
 
 def test_bag_cli_info_json_and_exit_codes(bag, chunked, tmp_path):
     path, messages = bag
-    run = [sys.executable, '-m', 'lightstage_bringup.cli', 'bag']
+    run = lightstage_command('bag')
     p = subprocess.run(run + ['info', str(path)], capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr
     assert 'Topic: /image_raw' in p.stdout and 'Count: 8' in p.stdout

@@ -5,16 +5,14 @@ import pytest
 from rclpy.serialization import deserialize_message
 
 from lightstage_bringup.bag_format import BagReader
-from recording_helpers import REPO, mcap_ros2_decode, replay_into_observing_classifier
+from recording_helpers import REPO, bag_results, mcap_ros2_decode, replay_into_observing_classifier
 
 BAG = REPO / 'bags' / 'sim_session'
 ARTIFACT = REPO / 'bags' / 'sim_session_classifier.npz'
 
 
 def _results():
-    from lightstage_interfaces.msg import ClassificationResult
-    return [deserialize_message(m.data, ClassificationResult)
-            for m in BagReader(BAG).messages(['/lightstage/result'])]
+    return bag_results(BAG)
 
 
 def test_the_bundled_bag_is_complete_and_small():

@@ -8,7 +8,6 @@ Every node runs in its own process with LOCALHOST discovery in a domain id of th
 import io
 import signal
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -18,23 +17,14 @@ from lightstage_bringup import msg_definitions
 from lightstage_bringup.bag_format import BagReader
 from lightstage_bringup.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
-from recording_helpers import replay_into_observing_classifier
-from suite_helpers import RosClient, fresh_domain_id, start_nodes, write_params
+from recording_helpers import bag_results, replay_into_observing_classifier
+from suite_helpers import RosClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
 
 SAMPLES = ['banana-fake/s0/p01', 'orange-real/s1/p02', 'banana-real/s1/p00', 'orange-fake/s0/p00']
 RECORDED = ['/illumination', '/image_raw', '/lightstage/result',
             '/lightstage/classify/_service_event', '/lightstage/apply_patterns/_service_event']
-
-
-def _cli(*args):
-    return [sys.executable, '-m', 'lightstage_bringup.cli', *args]
-
-
-def _results(bag, topic='/lightstage/result'):
-    from lightstage_interfaces.msg import ClassificationResult
-    return [deserialize_message(m.data, ClassificationResult) for m in BagReader(bag).messages([topic])]
 
 
 @pytest.fixture(scope='module')
@@ -58,7 +48,7 @@ def session(stage_capture, stage_artifact_path, tmp_path_factory):
     try:
         with Supervisor(stdout=out, stderr=out, sigint_timeout_s=5.0) as supervisor:
             start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
-            recorder = subprocess.Popen(_cli('record', '-o', str(bag), '--domain-id', str(domain_id)),
+            recorder = subprocess.Popen(lightstage_command('record', '-o', str(bag), '--domain-id', str(domain_id)),
                                         env=ros_environment(domain_id), stdout=subprocess.PIPE,
                                         stderr=subprocess.STDOUT, text=True)
             try:
@@ -91,7 +81,7 @@ def _stamp(msg):
 
 def _counted(bag, n=len(SAMPLES)):
     """The results of the counted calls: the bag's last n."""
-    return _results(bag)[-n:]
+    return bag_results(bag)[-n:]
 
 
 def test_sigterm_closes_a_complete_bag_and_reports_it(session):

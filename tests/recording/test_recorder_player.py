@@ -2,7 +2,6 @@
 (transient-local) topics through record and replay, and the command-line errors."""
 import signal
 import subprocess
-import sys
 
 import pytest
 
@@ -10,13 +9,9 @@ from lightstage_bringup.bag_format import BagError, BagReader, recover
 from lightstage_bringup.launcher import node_command
 from lightstage_bringup.ros_env import ros_environment
 from recording_helpers import illumination
-from suite_helpers import RosClient, fresh_domain_id, write_params
+from suite_helpers import RosClient, fresh_domain_id, lightstage_command, write_params
 
 pytestmark = pytest.mark.ros
-
-
-def _cli(*args):
-    return [sys.executable, '-m', 'lightstage_bringup.cli', *args]
 
 
 def _readable(bag, topic):
@@ -120,7 +115,7 @@ def test_command_line_errors_say_what_to_do(tmp_path):
             w.write('/illumination', serialize_message(illumination(seq=i)), 1_000_000_000 * (i + 1))
 
     def run(*args, timeout=60):
-        return subprocess.run(_cli(*args, '--domain-id', str(domain_id)), env=env,
+        return subprocess.run(lightstage_command(*args, '--domain-id', str(domain_id)), env=env,
                               capture_output=True, text=True, timeout=timeout)
 
     p = run('play', str(tmp_path / 'small'), '--topics', '/nope')
