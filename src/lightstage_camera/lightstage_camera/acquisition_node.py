@@ -38,7 +38,7 @@ from sensor_msgs.msg import Image
 from .acquisition import CaptureCancelled, CaptureSettings, DestinationError, acquire_pose
 from .calibration import (CalibrationSettings, calibrate_noise, check_calibration_outputs,
                           write_calibration_outputs)
-from .frames import AcquisitionError, ImageMatcher, image_from_buffer
+from .frames import AcquisitionError, ImageMatcher, stamp_to_ns
 from .rig import Rig
 from .spinning import spin_until_stopped
 
@@ -102,10 +102,6 @@ PARAMETERS = {
 }
 
 
-def stamp_to_ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
 def _or_default(value, default):
     """Goal field value, or the node's default: for counts and exposures when the field is 0,
     for gains (0 dB is a real gain) only when it is NaN."""
@@ -124,8 +120,8 @@ class AcquisitionNode(Node):
         self._busy = threading.Lock()  # one goal at a time: the stage is shared
         group = ReentrantCallbackGroup()
         self._apply_client = self.create_client(ApplyPatterns, APPLY_SERVICE, callback_group=group)
-        self._image_sub = self.create_subscription(Image, IMAGE_TOPIC, self._on_image, IMAGE_QOS,
-                                                   callback_group=group)
+        self._image_sub = self.create_subscription(Image, IMAGE_TOPIC, self.matcher.add_message,
+                                                   IMAGE_QOS, callback_group=group)
         self._capture_server = ActionServer(
             self, CaptureModel, CAPTURE_ACTION, execute_callback=self._execute_capture,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel, callback_group=group)
@@ -135,17 +131,6 @@ class AcquisitionNode(Node):
 
     def p(self, name: str):
         return self.get_parameter(name).value
-
-    # ------------------------------------------------------------------ images
-    def _on_image(self, msg: Image) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        try:
-            image = image_from_buffer(msg.data, msg.height, msg.width, msg.step, msg.encoding,
-                                      bool(msg.is_bigendian))
-        except ValueError as exc:
-            self.matcher.add(stamp, None, error=str(exc))
-            return
-        self.matcher.add(stamp, image)
 
     # ------------------------------------------------------------------ the stage
     def _wait_for_stage(self, timeout_s: float) -> None:

@@ -27,6 +27,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from sensor_msgs.msg import Image
 
 from .camera_backend import Frame, Trigger
+from .frames import stamp_to_ns
 from .noise import PAPER_CALIBRATION, NoiseModel, load_noise_file
 from .sim_camera import NOISE_CHOICES, SimCameraBackend, parse_noise, resolve_sample
 from .spinning import spin_until_stopped
@@ -91,10 +92,6 @@ BACKEND_SETTINGS = ('capture_dir', 'sample', 'noise', 'noise_file', 'seed', 'dim
 def noise_calibration(noise_file: str) -> NoiseModel:
     """The fit `noise: auto` generalizes: the noise file's, or the paper's (empty path)."""
     return load_noise_file(noise_file) if str(noise_file).strip() else PAPER_CALIBRATION
-
-
-def stamp_to_ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def ns_to_stamp(ns: int) -> Time:

@@ -43,6 +43,11 @@ def format_stamp(ns: int) -> str:
     return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
 
 
+def stamp_to_ns(stamp) -> int:
+    """A ``builtin_interfaces/Time`` (anything with ``sec`` and ``nanosec``) in nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
 # --------------------------------------------------------------------------- images
 
 
@@ -116,6 +121,18 @@ class ImageMatcher:
                 self.evicted += 1
             self.received += 1
             self._cond.notify_all()
+
+    def add_message(self, msg) -> None:
+        """A ``sensor_msgs/Image`` (duck-typed: no ROS import here), by its header stamp; one
+        that is not 16-bit mono is kept as unusable, with the reason."""
+        stamp = stamp_to_ns(msg.header.stamp)
+        try:
+            image = image_from_buffer(msg.data, msg.height, msg.width, msg.step, msg.encoding,
+                                      bool(msg.is_bigendian))
+        except ValueError as exc:
+            self.add(stamp, None, error=str(exc))
+            return
+        self.add(stamp, image)
 
     def collect(self, stamps_ns: Sequence[int], timeout_s: float,
                 sequences: Sequence[int] | None = None) -> tuple[list[np.ndarray], int]:

@@ -27,6 +27,7 @@ import time
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
+from lightstage_camera.frames import stamp_to_ns
 from lightstage_camera.spinning import spin_until_stopped
 from lightstage_interfaces.msg import ClassificationResult, IlluminationState, Pattern
 from lightstage_interfaces.srv import ApplyPatterns, Classify
@@ -39,8 +40,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from rclpy.service_introspection import ServiceIntrospectionState
 from sensor_msgs.msg import Image
 
-from .inference import (AcquisitionPlan, ImageMatcher, InferenceError, classify_on_stage,
-                        image_from_buffer)
+from .inference import AcquisitionPlan, ImageMatcher, InferenceError, classify_on_stage
 from .model import ArtifactError, TrainedArtifact
 from .observe import SequenceObserver, TriggerState
 
@@ -94,10 +94,6 @@ PARAMETERS = {
 }
 
 
-def stamp_to_ns(stamp) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
 def ns_to_stamp(ns: int) -> Time:
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
@@ -117,8 +113,8 @@ class ClassifierNode(Node):
         group = ReentrantCallbackGroup()
         self._apply_client = self.create_client(ApplyPatterns, APPLY_SERVICE, callback_group=group)
         self._result_pub = self.create_publisher(ClassificationResult, RESULT_TOPIC, 10)
-        self._image_sub = self.create_subscription(Image, IMAGE_TOPIC, self._on_image, IMAGE_QOS,
-                                                   callback_group=group)
+        self._image_sub = self.create_subscription(Image, IMAGE_TOPIC, self.matcher.add_message,
+                                                   IMAGE_QOS, callback_group=group)
         service = self.create_service(Classify, CLASSIFY_SERVICE, self._on_classify,
                                       callback_group=group)
         if self.p('service_introspection'):
@@ -175,17 +171,6 @@ class ClassifierNode(Node):
                 self.artifact, self.artifact_error = artifact, ''
                 self.get_logger().info(f'loaded {param.value}: classifiers for {artifact.n_images} images')
         return SetParametersResult(successful=True)
-
-    # ------------------------------------------------------------------ images
-    def _on_image(self, msg: Image) -> None:
-        stamp = stamp_to_ns(msg.header.stamp)
-        try:
-            image = image_from_buffer(msg.data, msg.height, msg.width, msg.step, msg.encoding,
-                                      bool(msg.is_bigendian))
-        except ValueError as exc:
-            self.matcher.add(stamp, None, error=str(exc))
-            return
-        self.matcher.add(stamp, image)
 
     # ------------------------------------------------------------------ driver
     def _apply(self, plan: AcquisitionPlan, timeout_s: float):
