@@ -112,4 +112,21 @@ for pkg in "${PROJECT_PACKAGES[@]}"; do
     stamp_set "$pkg" "$h"
   fi
 done
-step "ready: $VENV"
+
+# 7. the venv's ROS setup file, and a path fix in the interface package's own setup file
+#    (its configure-time prefix is scikit-build-core's temporary wheel folder, gone by now)
+sed -i "s|^: \${AMENT_CURRENT_PREFIX:=\"[^\"]*\"}|: \${AMENT_CURRENT_PREFIX:=\"$VENV\"}|" \
+  "$VENV/share/lightstage_interfaces/local_setup.sh"
+cat > "$VENV/setup.bash" <<'SETUP'
+# The ROS environment of this venv (written by scripts/bootstrap.sh): `source .venv/setup.bash`,
+# as /opt/ros/jazzy/setup.bash on a full ROS 2 install. It puts the venv's bin/ first on PATH
+# (python, lightstage) and applies the project's ROS environment (lightstage_bringup.ros_env):
+# the venv on AMENT_PREFIX_PATH (so `ros2 pkg` / `ros2 run` / ament_index_python find every
+# package), LOCALHOST discovery, the Fast DDS profile. Paths come from this file's location.
+_lightstage_venv="$(cd "$(dirname "${BASH_SOURCE[0]:-$0}")" && pwd)"
+export VIRTUAL_ENV="$_lightstage_venv"
+case ":$PATH:" in *":$_lightstage_venv/bin:"*) ;; *) export PATH="$_lightstage_venv/bin:$PATH" ;; esac
+eval "$("$_lightstage_venv/bin/python" -m lightstage_bringup.ros_env)"
+unset _lightstage_venv
+SETUP
+step "ready: $VENV (ROS environment: source .venv/setup.bash)"
