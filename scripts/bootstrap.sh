@@ -18,9 +18,10 @@ mkdir -p "$LOG_DIR"
 
 # Debian packages: the interface build (cmake, ninja, g++), the AVR firmware build
 # (gcc-avr, binutils-avr, avr-libc), the simavr harness it is tested in (libsimavr-dev,
-# libelf-dev), and strace, with which a test checks that ROS traffic stays on loopback.
+# libelf-dev), strace, with which a test checks that ROS traffic stays on loopback, and
+# iproute2, with which scripts/run_tests.sh brings up loopback in the tests' network namespace.
 APT_PACKAGES=(cmake ninja-build gcc g++ make pkg-config gcc-avr binutils-avr avr-libc
-              libsimavr-dev libelf-dev strace)
+              libsimavr-dev libelf-dev strace iproute2)
 PROJECT_PACKAGES=(lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_bringup)
 
 step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }

@@ -20,15 +20,8 @@ TEST_RUN_DOMAIN_ID = 100 + os.getpid() % 100
 apply_ros_environment(domain_id=int(os.environ.get('LIGHTSTAGE_TEST_DOMAIN_ID', TEST_RUN_DOMAIN_ID)))
 
 
-def network_interfaces() -> list[str]:
-    """The network interfaces this process sees (a private namespace of scripts/run_tests.sh: lo)."""
-    try:
-        return sorted(os.listdir('/sys/class/net'))
-    except OSError:
-        return []
-
-
 def pytest_report_header(config):
+    from suite_helpers import network_interfaces
     interfaces = network_interfaces()
     if interfaces == ['lo']:
         return 'network: private namespace, loopback only (no packet can leave the machine)'
