@@ -74,7 +74,8 @@ def test_sigint_to_the_launcher_stops_every_node(tmp_path):
 
 def test_a_node_dying_stops_the_rest_and_fails_naming_it(tmp_path):
     params = tmp_path / 'params.yaml'
-    params.write_text('crasher:\n  ros__parameters:\n    die_after_s: 1.0\n    exit_code: 7\n')
+    # it dies once the graph is up (about 1.5 s; a loaded 2-core machine took over 1 s at times)
+    params.write_text('crasher:\n  ros__parameters:\n    die_after_s: 6.0\n    exit_code: 7\n')
     p = run_up('steady', 'crasher', '--node', f'steady={FAKE}', '--node', f'crasher={FAKE}',
                '--params', str(params))
     assert p.returncode == launcher.EXIT_NODE_FAILED
@@ -120,6 +121,8 @@ def test_a_node_that_crashes_on_shutdown_fails_the_run(tmp_path):
     (['x', '--node', 'x'], 'expected NAME=MODULE'),
     (['x', '--node', f'x={FAKE}', '--params', '/nonexistent/params.yaml'],
      'params file /nonexistent/params.yaml does not exist'),
+    (['x', '--node', f'x={FAKE}', '--bag-dir', '/proc/no_bags_here'],
+     'cannot create the bag folder /proc/no_bags_here'),
 ])
 def test_bad_arguments_are_clear_errors_and_start_nothing(args, message, capsys):
     assert launcher.main(args) == launcher.EXIT_USAGE

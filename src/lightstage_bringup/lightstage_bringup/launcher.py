@@ -285,6 +285,18 @@ def main(argv: list[str] | None = None) -> int:
         Path(args.log_dir).mkdir(parents=True, exist_ok=True)
         env['ROS_LOG_DIR'] = str(Path(args.log_dir).resolve())
 
+    extra_ros_args: dict[str, list[str]] = {}
+    if RECORDER in names and not args.no_record:
+        try:
+            bag = _new_bag_path(Path(args.bag_dir))
+        except OSError as e:
+            print(f'lightstage up: cannot create the bag folder {args.bag_dir}: {e}; choose another '
+                  f'with --bag-dir, or --no-record', file=err)
+            return EXIT_USAGE
+        # node-qualified, so it wins over the params file's recorder section: a new bag per run
+        extra_ros_args[RECORDER] = ['-p', f'{RECORDER}:output_dir:={bag}']
+        print(f'recording to {bag} (--no-record: off)', flush=True)
+
     stop = threading.Event()
     stop_reason: list[str] = []
 
@@ -297,18 +309,6 @@ def main(argv: list[str] | None = None) -> int:
     if in_main_thread:
         for sig in (signal.SIGINT, signal.SIGTERM):
             old_handlers[sig] = signal.signal(sig, on_signal)
-
-    extra_ros_args: dict[str, list[str]] = {}
-    if RECORDER in names and not args.no_record:
-        try:
-            bag = _new_bag_path(Path(args.bag_dir))
-        except OSError as e:
-            print(f'lightstage up: cannot create the bag folder {args.bag_dir}: {e}; choose another '
-                  f'with --bag-dir, or --no-record', file=err)
-            return EXIT_USAGE
-        # node-qualified, so it wins over the params file's recorder section: a new bag per run
-        extra_ros_args[RECORDER] = ['-p', f'{RECORDER}:output_dir:={bag}']
-        print(f'recording to {bag} (--no-record: off)', flush=True)
 
     rc = EXIT_OK
     supervisor = Supervisor(log_dir=args.log_dir, sigint_timeout_s=args.sigint_timeout_s,
