@@ -44,7 +44,7 @@ from .inference import AcquisitionPlan, ImageMatcher, InferenceError, classify_o
 from .model import ArtifactError, TrainedArtifact
 from .observe import SequenceObserver, TriggerState
 
-NODE_NAME = 'mux_classifier'
+NODE_NAME = 'classifier'
 CLASSIFY_SERVICE = '/lightstage/classify'
 APPLY_SERVICE = '/lightstage/apply_patterns'
 IMAGE_TOPIC = '/image_raw'
@@ -277,7 +277,8 @@ class ClassifierNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     from rclpy.executors import MultiThreadedExecutor
-    rclpy.init(args=sys.argv if argv is None else argv)
+    from lightstage_camera.spinning import init_node
+    init_node(sys.argv if argv is None else argv)
     return spin_until_stopped(ClassifierNode(), MultiThreadedExecutor(num_threads=4))
 
 if __name__ == '__main__':

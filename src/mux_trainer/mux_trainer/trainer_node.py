@@ -24,7 +24,7 @@ from .greedy import REFINE_TOP
 from .training import train_from_capture
 
 ACTION_NAME = '/lightstage/train'
-NODE_NAME = 'mux_trainer'
+NODE_NAME = 'trainer'
 SITE_CANDIDATES = 254  # per-colour mode: patterns with 1..7 of 8 sites lit
 
 
@@ -120,7 +120,8 @@ class TrainerNode(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args)
+    from lightstage_camera.spinning import init_node
+    init_node(args)
     return spin_until_stopped(TrainerNode(), MultiThreadedExecutor(num_threads=2))
 
 if __name__ == '__main__':
