@@ -12,14 +12,13 @@ import sys
 import time
 
 from lightstage_bringup.ros_env import apply_ros_environment
-from mux_classifier.classify_request import (TIMEOUT_MAX_S, request_max_images,
-                                             request_timeout_s)
 
 SERVICE = '/lightstage/classify'
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNAVAILABLE = 0, 1, 2, 3
 
 
 def _parser() -> argparse.ArgumentParser:
+    from mux_classifier.classify_request import TIMEOUT_MAX_S, TIMEOUT_MIN_S
     p = argparse.ArgumentParser(
         prog='lightstage classify',
         description='Classify the sample on the stage: the classifier node lights its learned '
@@ -29,8 +28,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--max-images', type=int, default=0,
                    help='use at most this many learned patterns (default 0: all the classifier has)')
     p.add_argument('--timeout-s', type=float, default=0.0,
-                   help='time limit of the classification [s], 0.1 to 600 (default 0: the '
-                        'node\'s timeout_s)')
+                   help=f'time limit of the classification [s], {TIMEOUT_MIN_S:g} to '
+                        f'{TIMEOUT_MAX_S:g} (default 0: the node\'s timeout_s)')
     p.add_argument('--wait-s', type=float, default=5.0,
                    help='how long to wait for the classify service to appear [s] (default 5)')
     p.add_argument('--domain-id', type=int, default=None,
@@ -52,6 +51,8 @@ def format_answer(answer: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from mux_classifier.classify_request import (TIMEOUT_MAX_S, request_max_images,
+                                                 request_timeout_s)
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     try:
         # the node's own request checks, so that the answer is a usage error, not a refusal
