@@ -9,6 +9,8 @@ import json
 import sys
 from pathlib import Path
 
+from lightstage_camera.workers import jobs_type, usable_cores
+
 from .data import NOISE_HELP, resolve_noise
 from .greedy import REFINE_TOP
 from .report import DEFAULT_METHODS, METHODS
@@ -30,8 +32,10 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument('--max-images', type=int, default=8,
                    help='most pattern columns to select (default: 8)')
     p.add_argument('--seed', type=int, default=0, help='seed of splits and noise (default: 0)')
-    p.add_argument('--jobs', type=int, default=1,
-                   help='joblib workers for candidate evaluation (default: 1; -1 = all cores)')
+    p.add_argument('--jobs', type=jobs_type, default=usable_cores(),
+                   help='joblib workers for candidate evaluation (default: the cores this process '
+                        f'may use, {usable_cores()} here; -1 = all of them). The results do not '
+                        'depend on it')
     p.add_argument('--json', action='store_true', help='print the results as one JSON document')
     p.add_argument('--quiet', action='store_true', help='no progress on stderr')
     g = p.add_argument_group('features (defaults: the paper\'s HOG, 900 values per image)')
@@ -90,8 +94,13 @@ def train_main(argv: list[str] | None = None) -> int:
     if args.refine_top < 0:
         raise SystemExit(f'lightstage: --refine-top must be >= 0, got {args.refine_top}')
     hog_config = _hog_config(args)
+    from .training import ArtifactNotWritten, check_artifact_path, train_modelset
+    try:  # before the capture is loaded: a run must not end in an unwritable path
+        check_artifact_path(args.out)
+    except ValueError as exc:
+        raise SystemExit(f'lightstage train: {exc}') from None
     modelset = _load(args.capture_dir, hog_config)
-    from .training import train_modelset
+    not_written = None
     try:
         doc = train_modelset(
             modelset, args.out, capture=args.capture_dir, method=args.method, mode=args.mode, noise=args.noise,
@@ -101,13 +110,18 @@ def train_main(argv: list[str] | None = None) -> int:
             beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet)
     except ValueError as exc:
         raise SystemExit(f'lightstage train: {exc}') from None
+    except ArtifactNotWritten as exc:  # the result is printed all the same
+        not_written, doc = exc, exc.summary
     out, seconds = doc['artifact'], doc['train_seconds']
     if args.json:
         print(json.dumps(doc))
-    elif not args.quiet:
-        print(f'wrote {out}: {len(doc["patterns"][0])} pattern column(s), split accuracy by '
-              f'image count {doc["accuracy_by_images"]}, best at {doc["best_n_images"]}; '
-              f'{seconds:.1f} s')
+    elif not args.quiet or not_written:
+        print(f'{"kept" if not_written else "wrote"} {out}: {len(doc["patterns"][0])} pattern '
+              f'column(s), split accuracy by image count {doc["accuracy_by_images"]}, best at '
+              f'{doc["best_n_images"]}; {seconds:.1f} s')
+    if not_written:
+        print(f'lightstage train: {not_written}', file=sys.stderr)
+        return 1
     return 0
 
 
@@ -154,8 +168,13 @@ def eval_main(argv: list[str] | None = None) -> int:
     if not 0 < args.holdout < 1:
         raise SystemExit(f'lightstage eval: --holdout must be in (0, 1), got {args.holdout}')
     hog_config = _hog_config(args)
+    from .report import check_output_dir, json_ready, keep_outputs, run_evaluation, write_outputs
+    if args.out:
+        try:  # before the evaluation: its results must not end in an unwritable folder
+            check_output_dir(args.out)
+        except ValueError as exc:
+            raise SystemExit(f'lightstage eval: {exc}') from None
     modelset = _load(args.capture_dir, hog_config)
-    from .report import json_ready, run_evaluation, write_outputs
     try:
         results = run_evaluation(modelset, noises, methods, n_repeats=args.repeats,
                                  max_images=args.max_images, holdout_fraction=args.holdout,
@@ -169,13 +188,9 @@ def eval_main(argv: list[str] | None = None) -> int:
                            'joint_max_images': args.joint_max_images or args.max_images,
                            'holdout': args.holdout, 'renders': args.renders, 'seed': args.seed,
                            'methods': methods, 'noise': noises}
-    if args.out:
-        for path in write_outputs(results, args.out, plots=not args.no_plots):
-            if not args.quiet:
-                print(f'wrote {path}', file=sys.stderr)
     doc = json_ready(results)
     if args.json:
-        print(json.dumps(doc))
+        print(json.dumps(doc), flush=True)
     else:
         for noise, r in doc['by_noise'].items():
             print(f'noise {noise}: held-out accuracy (test poses {r["test_poses"]})')
@@ -183,6 +198,16 @@ def eval_main(argv: list[str] | None = None) -> int:
                 types = ', '.join(f'{t} {100 * a:.1f}' for t, a in m['accuracy_by_type'].items())
                 print(f'  {name:<13} {100 * m["accuracy"]:6.2f} %  at {m["n_images"]} image(s)'
                       f'  [{types}]')
+        sys.stdout.flush()
+    if args.out:
+        try:
+            written = write_outputs(results, args.out, plots=not args.no_plots)
+        except OSError as exc:  # the folder changed during the run: keep the results
+            print(f'lightstage eval: {keep_outputs(doc, args.out, exc)}', file=sys.stderr)
+            return 1
+        for path in written:
+            if not args.quiet:
+                print(f'wrote {path}', file=sys.stderr)
     return 0
 
 
