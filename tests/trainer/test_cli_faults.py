@@ -7,6 +7,7 @@ and `chattr +i` (immutable, refused even to root) where the file system supports
 """
 import json
 import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -196,13 +197,26 @@ def test_eval_keeps_the_results_when_the_folder_breaks_during_the_evaluation(
     printed = doc['methods']['greedy']['accuracy']
     assert f'{100 * printed:6.2f} %' in captured.out
     # the command the message gives writes the outputs from the kept file, no new evaluation
-    command = captured.err.split('`', 2)[1]
-    assert command.startswith('python -c ')
+    command = shlex.split(captured.err.split('`', 2)[1])
+    assert command[:2] == ['lightstage', 'eval']
     shutil.rmtree(out, ignore_errors=True)
-    subprocess.run([sys.executable, '-c', command.split('"')[1]], check=True)
+    assert eval_main(command[2:]) == 0
     assert json.loads((out / 'results.json').read_text()) == doc
     assert (out / 'table1.csv').read_text().count('\n') == 3  # header + 2 methods
     assert (out / 'patterns.png').stat().st_size > 0
+
+
+def test_from_results_refuses_what_it_cannot_use(tmp_path, capsys):
+    (tmp_path / 'bad.json').write_text('{"methods": 1}')
+    with pytest.raises(SystemExit, match=r'cannot write the outputs of .*bad.json into'):
+        eval_main(['--from-results', str(tmp_path / 'bad.json'), '--out', str(tmp_path / 'o')])
+    assert not (tmp_path / 'o').exists()
+    with pytest.raises(SystemExit):
+        eval_main(['--from-results', str(tmp_path / 'bad.json')])  # no --out
+    assert '--from-results FILE takes --out DIR' in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        eval_main(['--repeats', '2'])  # neither a capture nor --from-results
+    assert 'give CAPTURE_DIR' in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------- item 11: --jobs 0

@@ -35,24 +35,12 @@ def led_index(site: int, channel: str | int) -> int:
     return int(site) * N_CHANNELS + channel_index(channel)
 
 
-def _yaml_number(value, key: str, source: str) -> float:
-    """A finite number of a rig.yaml entry. Numeric strings are taken: YAML 1.1 reads `3e4`
-    (no decimal point) as a string."""
-    if not isinstance(value, bool):
-        try:
-            number = float(value)
-        except (TypeError, ValueError, OverflowError):
-            pass
-        else:
-            if math.isfinite(number):
-                return number
-    raise ValueError(f"{source}: {key} must be a finite number, got {value!r}")
-
-
-def _yaml_whole(value, key: str, source: str) -> int:
-    """A whole number of a rig.yaml entry: 11.9 is refused, not truncated (a bit depth or an
-    image size off by a fraction is a typo, not a setting)."""
-    if isinstance(value, int) and not isinstance(value, bool):
+def _yaml_number(value, key: str, source: str, whole: bool = False) -> float | int:
+    """A finite number (`whole`: a whole number) of a rig.yaml entry, else ValueError naming
+    the key and value. 11.9 is refused where a whole number belongs, not truncated (a bit
+    depth or an image size off by a fraction is a typo, not a setting). Numeric strings are
+    taken: YAML 1.1 reads `3e4` (no decimal point) as a string."""
+    if whole and isinstance(value, int) and not isinstance(value, bool):
         return value
     if not isinstance(value, bool):
         try:
@@ -60,9 +48,10 @@ def _yaml_whole(value, key: str, source: str) -> int:
         except (TypeError, ValueError, OverflowError):
             pass
         else:
-            if number.is_integer():
-                return int(number)
-    raise ValueError(f"{source}: {key} must be a whole number, got {value!r}")
+            if number.is_integer() if whole else math.isfinite(number):
+                return int(number) if whole else number
+    raise ValueError(f"{source}: {key} must be a {'whole' if whole else 'finite'} number, "
+                     f"got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -184,13 +173,9 @@ class Rig:
                 raise ValueError(f"{source}: '{key}' must be a list, got {value!r}")
             return value
 
-        def number(mapping, key, where, default=None):
+        def number(mapping, key, where, default=None, whole=False):
             value = need(mapping, key, where) if default is None else mapping.get(key, default)
-            return _yaml_number(value, f"{where}{key}", source)
-
-        def whole(mapping, key, where, default=None):
-            value = need(mapping, key, where) if default is None else mapping.get(key, default)
-            return _yaml_whole(value, f"{where}{key}", source)
+            return _yaml_number(value, f"{where}{key}", source, whole)
 
         sites = [Site(str(need(s, "name", f"sites[{i}].")), number(s, "x_mm", f"sites[{i}]."),
                       number(s, "y_mm", f"sites[{i}]."), number(s, "z_mm", f"sites[{i}]."))
@@ -209,12 +194,12 @@ class Rig:
         try:
             return cls(
                 sites=sites, channels=names, wavelengths_nm=wavelengths,
-                bit_depth=whole(cam, "bit_depth", "camera."),
-                image_size=(whole(cam, "image_height", "camera."),
-                            whole(cam, "image_width", "camera.")),
+                bit_depth=number(cam, "bit_depth", "camera.", whole=True),
+                image_size=(number(cam, "image_height", "camera.", whole=True),
+                            number(cam, "image_width", "camera.", whole=True)),
                 exposure_us=number(cam, "exposure_us", "camera."),
                 gain_db=number(cam, "gain_db", "camera."),
-                frames_averaged=whole(cam, "frames_averaged", "camera.", default=1),
+                frames_averaged=number(cam, "frames_averaged", "camera.", default=1, whole=True),
                 camera_height_mm=number(cam, "height_mm", "camera.", default=240.0),
                 field_of_view_mm=number(cam, "field_of_view_mm", "camera.", default=160.0),
             )

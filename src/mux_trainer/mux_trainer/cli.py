@@ -25,8 +25,10 @@ def _hog_config(args):
         raise SystemExit(f'lightstage: bad feature options: {exc}') from None
 
 
-def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument('capture_dir', metavar='CAPTURE_DIR', help='capture folder (holds rig.yaml)')
+def _common(p: argparse.ArgumentParser, capture_optional: bool = False) -> None:
+    p.add_argument('capture_dir', metavar='CAPTURE_DIR', nargs='?' if capture_optional else None,
+                   help='capture folder (holds rig.yaml)'
+                        + ('; omit it with --from-results' if capture_optional else ''))
     p.add_argument('--repeats', type=int, default=400,
                    help='random 75/25 pose splits per candidate (default: 400, the paper)')
     p.add_argument('--max-images', type=int, default=8,
@@ -131,7 +133,7 @@ def eval_main(argv: list[str] | None = None) -> int:
         description='Evaluate naive, naive + BoW, SNR-optimal and greedy illumination on a '
                     'capture folder (Table 1 and accuracy vs image count of the paper), on '
                     'held-out poses rendered with fresh noise.')
-    _common(p)
+    _common(p, capture_optional=True)
     p.add_argument('--noise', default='sigma3',
                    help='comma-separated noise settings, e.g. sigma1,sigma2,sigma3 (default: '
                         'sigma3); the JSON\'s top-level "methods" are those of the first. Each '
@@ -150,7 +152,14 @@ def eval_main(argv: list[str] | None = None) -> int:
                         'exposures)')
     p.add_argument('--out', metavar='DIR', help='write results.json, CSVs and PNG plots here')
     p.add_argument('--no-plots', action='store_true', help='with --out: skip the PNG plots')
+    p.add_argument('--from-results', metavar='FILE',
+                   help='with --out: write the CSVs and plots of an earlier run from its '
+                        'results.json (e.g. one kept in the rescue folder), evaluate nothing')
     args = p.parse_args(argv)
+    if args.from_results:
+        return _outputs_from_results(p, args)
+    if not args.capture_dir:
+        p.error('give CAPTURE_DIR (or --from-results FILE --out DIR)')
     _positive(args, 'repeats', 'max_images', 'renders', 'beam_width')
     if args.joint_max_images is not None:
         _positive(args, 'joint_max_images')
@@ -208,6 +217,25 @@ def eval_main(argv: list[str] | None = None) -> int:
         for path in written:
             if not args.quiet:
                 print(f'wrote {path}', file=sys.stderr)
+    return 0
+
+
+def _outputs_from_results(p: argparse.ArgumentParser, args) -> int:
+    """`eval --from-results FILE --out DIR`: the outputs of a finished run, no evaluation."""
+    from .report import check_output_dir, write_outputs
+    if not args.out or args.capture_dir:
+        p.error('--from-results FILE takes --out DIR and no CAPTURE_DIR')
+    try:
+        doc = json.loads(Path(args.from_results).read_text())
+        check_output_dir(args.out)
+        written = write_outputs(doc, args.out, plots=not args.no_plots)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise SystemExit(f'lightstage eval: cannot write the outputs of {args.from_results} '
+                         f'into {args.out}: {exc!r}; give a results.json that lightstage eval '
+                         'wrote and a writable folder') from None
+    for path in written:
+        if not args.quiet:
+            print(f'wrote {path}', file=sys.stderr)
     return 0
 
 

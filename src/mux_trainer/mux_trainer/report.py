@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -149,19 +150,18 @@ def keep_outputs(doc: dict, out_dir, error: Exception) -> str:
         return (f'{failed}, nor in a rescue folder ({exc}); the results printed above are all '
                 'that is left of this run')
     return (f'{failed}; the results are printed above and kept in {kept}: once the folder '
-            f'takes files, write the tables and plots from it with `python -c "import json; '
-            f'from mux_trainer.report import write_outputs; '
-            f'write_outputs(json.load(open(\'{kept}\')), \'{out_dir}\')"`, no need to '
-            'evaluate again')
+            f'takes files, write the tables and plots from them with `lightstage eval '
+            f'--from-results {shlex.quote(str(kept))} --out {shlex.quote(str(out_dir))}`, no '
+            'need to evaluate again')
 
 
 def write_outputs(results: dict, out_dir, plots: bool = True) -> list[Path]:
     """results.json, table1.csv, accuracy_vs_images.csv and (plots) PNG figures. `results`
     is `run_evaluation`'s, or its JSON-ready document (`json_ready`, a results.json)."""
+    doc = json_ready(results)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    doc = json_ready(results)
     path = out / RESULTS_FILE
     path.write_text(json.dumps(doc, indent=2, sort_keys=False))
     written.append(path)
