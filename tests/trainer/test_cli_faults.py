@@ -208,9 +208,11 @@ def test_eval_keeps_the_results_when_the_folder_breaks_during_the_evaluation(
 
 def test_from_results_refuses_what_it_cannot_use(tmp_path, capsys):
     (tmp_path / 'bad.json').write_text('{"methods": 1}')
-    with pytest.raises(SystemExit, match=r'cannot write the outputs of .*bad.json into'):
+    with pytest.raises(SystemExit, match=r'bad.json is not a results.json of lightstage eval'):
         eval_main(['--from-results', str(tmp_path / 'bad.json'), '--out', str(tmp_path / 'o')])
     assert not (tmp_path / 'o').exists()
+    with pytest.raises(SystemExit, match=r'cannot read .*missing.json as JSON \(No such file'):
+        eval_main(['--from-results', str(tmp_path / 'missing.json'), '--out', str(tmp_path / 'o')])
     with pytest.raises(SystemExit):
         eval_main(['--from-results', str(tmp_path / 'bad.json')])  # no --out
     assert '--from-results FILE takes --out DIR' in capsys.readouterr().err

@@ -227,12 +227,19 @@ def _outputs_from_results(p: argparse.ArgumentParser, args) -> int:
         p.error('--from-results FILE takes --out DIR and no CAPTURE_DIR')
     try:
         doc = json.loads(Path(args.from_results).read_text())
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f'lightstage eval: cannot read {args.from_results} as JSON '
+                         f'({getattr(exc, "strerror", None) or exc}); give the results.json '
+                         'named in the message of the run') from None
+    try:
         check_output_dir(args.out)
         written = write_outputs(doc, args.out, plots=not args.no_plots)
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise SystemExit(f'lightstage eval: cannot write the outputs of {args.from_results} '
-                         f'into {args.out}: {exc!r}; give a results.json that lightstage eval '
-                         'wrote and a writable folder') from None
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f'lightstage eval: {exc}') from None
+    except (KeyError, TypeError, AttributeError) as exc:  # JSON, but not an eval's results
+        raise SystemExit(f'lightstage eval: {args.from_results} is not a results.json of '
+                         f'lightstage eval ({type(exc).__name__}: {exc}); give one it wrote') \
+            from None
     for path in written:
         if not args.quiet:
             print(f'wrote {path}', file=sys.stderr)
