@@ -61,7 +61,7 @@ def test_stated_errors_cover_the_configured_noise_at_the_stated_rate(z_scores, w
                                                                      rate):
     """420 calibrations (7 frame counts x 60 seeds): the truth inside +-1 stated standard
     error in 68.3 % of them, inside +-2 in 95.4 %, within the binomial band for 420 draws
-    (1 se: 238..335 hits; 2 se: 379..420). Main's fit: 21 % for sigma_r2 at 1 se."""
+    (1 se: 236..334 hits; 2 se: 375..418). Main's fit: 21 % for sigma_r2 at 1 se."""
     z = np.array([v[which] for v in z_scores.values()])
     hits = int(np.sum(np.abs(z) < sigmas))
     lo, hi = _coverage_band(len(z), rate)
