@@ -173,8 +173,9 @@ def core_calibration(args) -> int:
     from lightstage_camera.sim_camera import SimCamera
 
     work = Path(tempfile.mkdtemp(prefix='bench-calibration-'))
-    target = load_capture(cal.write_calibration_target(work / 'target', shape=tuple(args.target_size),
-                                                       dimmer=1.0), cache=False)
+    target_dir = cal.write_calibration_target(work / 'target', shape=tuple(args.target_size),
+                                              dimmer=1.0)
+    target = load_capture(target_dir, cache=False)
     truth = PAPER_CALIBRATION.at(args.gain_db, args.exposure_us / 1000)
     exact = np.array([truth.sigma_p2, truth.sigma_r2 + 1 / 12])  # + rounding
     print(f'{args.target_size[0]} x {args.target_size[1]} target, camera dimmer '
