@@ -14,6 +14,15 @@ acquisition node as processes in a domain id of its own (LOCALHOST discovery), t
 
     .venv/bin/python benchmarks/bench_acquisition.py [--size 240] [--frames 1 4 16]
         [--calibration-frames 15 30 60 120] [--exposure-us 30000] [--json OUT.json]
+
+Without ROS (`--core`): the calibration cases FRAMESxLEVELS (default the issue 12 cases
+120x8 30x8 30x6) through `calibration.calibrate_noise` on the simulated camera's frames (the
+acquisition node's core, the same frames the graph delivers), `--seeds` repeats each, and the
+mean error in stated standard errors. `--cause` adds the experiment behind issue 12 item 6:
+the same frames fitted with main's pixel-dropping rule and its variants.
+
+    .venv/bin/python benchmarks/bench_acquisition.py --core [--cases 120x8 30x8 30x6]
+        [--seeds 5] [--camera-dimmer 0.45] [--target-size 180 240] [--cause]
 """
 from __future__ import annotations
 
@@ -43,7 +52,16 @@ def main(argv=None) -> int:
     p.add_argument('--gain-db', type=float, default=15.0)
     p.add_argument('--domain-id', type=int, default=None)
     p.add_argument('--json', default='', help='also write the figures here')
+    p.add_argument('--core', action='store_true', help='calibration cases without ROS')
+    p.add_argument('--cases', nargs='*', default=['120x8', '30x8', '30x6'],
+                   help='--core: FRAMESxLEVELS')
+    p.add_argument('--seeds', type=int, default=5, help='--core: repeats per case')
+    p.add_argument('--camera-dimmer', type=float, default=1.0,
+                   help='--core: the sim camera\'s dimmer (the target is written for 1.0)')
+    p.add_argument('--cause', action='store_true', help='--core: also main\'s rule and variants')
     args = p.parse_args(argv)
+    if args.core:
+        return core_calibration(args)
 
     from lightstage_bringup.ros_env import apply_ros_environment
     domain_id = args.domain_id if args.domain_id is not None else fresh_domain_id()
@@ -143,6 +161,95 @@ def main(argv=None) -> int:
         Path(args.json).write_text(json.dumps(figures, indent=1))
     print(f'(work files in {work})')
     return 0
+
+
+def core_calibration(args) -> int:
+    """The calibration cases through the pure core on sim camera frames (see the docstring)."""
+    from acquisition_helpers import sim_grab
+    from lightstage_camera import calibration as cal
+    from lightstage_camera.capture_format import load_capture
+    from lightstage_camera.frames import mono16_to_gray
+    from lightstage_camera.noise import PAPER_CALIBRATION
+    from lightstage_camera.sim_camera import SimCamera
+
+    work = Path(tempfile.mkdtemp(prefix='bench-calibration-'))
+    target_dir = cal.write_calibration_target(work / 'target', shape=tuple(args.target_size),
+                                              dimmer=1.0)
+    target = load_capture(target_dir, cache=False)
+    truth = PAPER_CALIBRATION.at(args.gain_db, args.exposure_us / 1000)
+    exact = np.array([truth.sigma_p2, truth.sigma_r2 + 1 / 12])  # + rounding
+    print(f'{args.target_size[0]} x {args.target_size[1]} target, camera dimmer '
+          f'{args.camera_dimmer:g}, {args.gain_db:g} dB / {args.exposure_us / 1000:g} ms, true '
+          f'{exact[0]:.4f} / {exact[1]:.3f}; {args.seeds} seeds per case (mean fit, mean stated '
+          'se, mean error in se, sd of the fits over seeds)')
+    rows = []
+    for case in args.cases:
+        frames, levels = (int(v) for v in case.lower().split('x'))
+        settings = cal.CalibrationSettings(exposure_us=args.exposure_us, gain_db=args.gain_db,
+                                           frames_per_level=frames, levels=levels)
+        fits, errors, variants = [], [], {}
+        for seed in range(args.seeds):
+            cam = SimCamera(target, dimmer=args.camera_dimmer, seed=seed)
+            stacks = []
+
+            def grab(patterns, stacks=stacks):
+                shots = sim_grab(cam, args.exposure_us, args.gain_db)(patterns)
+                stacks.append(np.array([mono16_to_gray(f, cam.bit_depth) for f in shots]))
+                return shots
+
+            r = cal.calibrate_noise(grab, settings)
+            fits.append((r.model.sigma_p2, r.model.sigma_r2))
+            errors.append(r.stderr)
+            if args.cause:
+                for name, fit in _variants(_levels_frames(stacks, levels), truth).items():
+                    variants.setdefault(name, []).append(fit)
+        fits, errors = np.array(fits), np.array(errors)
+        z = (fits.mean(0) - exact) / errors.mean(0)
+        row = {'case': case, 'sigma_p2': round(float(fits[:, 0].mean()), 4),
+               'sigma_r2': round(float(fits[:, 1].mean()), 3),
+               'se': [round(float(v), 4) for v in errors.mean(0)],
+               'error_in_se': [round(float(v), 2) for v in z],
+               'sd_over_seeds': [round(float(v), 4) for v in fits.std(0, ddof=1)]
+               if args.seeds > 1 else None}
+        rows.append(row)
+        print(f'{case:>6}: sigma_p2 {row["sigma_p2"]:.4f} (+-{row["se"][0]:.4f}, {z[0]:+.1f} se), '
+              f'sigma_r2 {row["sigma_r2"]:.2f} (+-{row["se"][1]:.2f}, {z[1]:+.1f} se); '
+              f'sd over seeds {row["sd_over_seeds"]}', flush=True)
+        for name, got in variants.items():
+            got = np.array(got)
+            print(f'        {name:44s} sigma_p2 {got[:, 0].mean():.4f}, sigma_r2 '
+                  f'{got[:, 1].mean():.2f}', flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+def _levels_frames(stacks, levels):
+    """The grabbed request stacks joined into one (frames, H, W) stack per level."""
+    per = len(stacks) // levels
+    return [np.concatenate(stacks[i * per:(i + 1) * per], 0) for i in range(levels)]
+
+
+def _variants(levels_frames, truth):
+    """sigma_p2, sigma_r2 of the same frames under main's rule and its variants: each pixel's
+    (mean, variance) over all frames, binned by that mean into 60 quantile bins, a weighted
+    least-squares line (weights from the true noise, so only the points differ)."""
+    m = np.concatenate([s.mean(0).ravel() for s in levels_frames])
+    out = {}
+    for name, ddof, drop_by_own in (('main: drop by own sd, ddof 1', 1, True),
+                                    ('main with ddof 0', 0, True),
+                                    ('drop by the true model sd, ddof 1', 1, False)):
+        v = np.concatenate([s.var(0, ddof=ddof).ravel() for s in levels_frames])
+        sd = np.sqrt(v) if drop_by_own else np.sqrt(truth.variance(m) + 1 / 12)
+        keep = (m - 4 * sd > 0) & (m + 4 * sd < truth.max_level)
+        edges = np.quantile(m[keep], np.linspace(0, 1, 61))
+        which = np.clip(np.searchsorted(edges, m[keep], side='right') - 1, 0, 59)
+        count = np.bincount(which, minlength=60)
+        bm = np.bincount(which, m[keep], 60) / count
+        bv = np.bincount(which, v[keep], 60) / count
+        slope, intercept = np.polyfit(bm, bv, 1, w=np.sqrt(count) / truth.variance(bm))
+        out[name] = (slope, intercept)
+    return out
 
 
 if __name__ == '__main__':

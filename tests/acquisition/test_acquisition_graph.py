@@ -152,7 +152,7 @@ def test_cancel_between_images_leaves_no_pose(graph, tmp_path):
 def test_calibrating_the_simulated_stage_recovers_the_camera_noise(graph, stage, tmp_path):
     """Calibrate at 15 dB / 10 ms, 6 levels x 40 frames of a 48 x 64 target: the fit must be
     within 4 standard errors (from the frames and pixels used, `fit_uncertainty`, checked
-    against repeated simulations in test_calibration_core) of the camera's configured noise,
+    against many simulated calibrations in test_calibration_coverage) of the camera's configured noise,
     the paper's 0.7 / 66 fit generalized to 10 ms (plus the 1/12 of rounding); and so must
     its generalization to Sigma1..3, whose errors scale with the same factors."""
     fruit, target = stage
@@ -191,9 +191,13 @@ def test_calibrating_the_simulated_stage_recovers_the_camera_noise(graph, stage,
         moved.rename(noise_file)
         # existing outputs are not replaced unless asked; a plot format that does not exist is
         # refused before anything is lit
-        again = cli('calibrate', str(noise_file), '--frames', '2', '--levels', '2',
+        again = cli('calibrate', str(noise_file), '--frames', '3', '--levels', '2',
                     domain_id=graph.domain_id)
         assert again.returncode == 1 and 'already exists' in again.stderr
+        # too few frames for an unbiased fit: refused with the reason (issue 12 item 6)
+        again = cli('calibrate', str(tmp_path / 'new.yaml'), '--frames', '2', '--levels', '2',
+                    domain_id=graph.domain_id)
+        assert again.returncode == 1 and 'at least 3 frames per level' in again.stderr
         again = cli('calibrate', str(tmp_path / 'new.yaml'), '--plot', str(tmp_path / 'n.txt'),
                     domain_id=graph.domain_id)
         assert again.returncode == 1 and 'should end in one of .png' in again.stderr

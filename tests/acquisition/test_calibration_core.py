@@ -35,38 +35,41 @@ def test_streamed_moments_and_characteristic_equal_the_batch_ones():
                                              shape=(8, 12), rng=rng)
     moments = []
     for stack in stacks:
-        acc = cal.PixelMoments()
+        acc, split = cal.PixelMoments(), cal.SplitMoments()
         for frame in stack:
             acc.add(frame)
+            split.add(frame)
         np.testing.assert_allclose(acc.mean(), stack.astype(np.float64).mean(axis=0), rtol=1e-12)
         np.testing.assert_allclose(acc.variance(), stack.astype(np.float64).var(axis=0, ddof=1),
                                    rtol=1e-9, atol=1e-9)
-        moments.append((acc.mean(), acc.variance(), acc.count))
+        np.testing.assert_allclose(split.mean(), acc.mean(), rtol=1e-12)
+        (mean_a, var_a, n_a), (mean_b, var_b, n_b) = split.moments()
+        assert (n_a, n_b) == (8, 7)  # even frames, odd frames
+        np.testing.assert_allclose(var_b, stack[1::2].astype(np.float64).var(axis=0, ddof=1),
+                                   rtol=1e-9, atol=1e-9)
+        moments.append(split.moments())
     a, b = cal.noise_characteristic(stacks), cal.characteristic_from_moments(moments)
     np.testing.assert_allclose(a.bin_mean, b.bin_mean)
     np.testing.assert_allclose(a.bin_var, b.bin_var, rtol=1e-9)
-    assert a.bin_count.sum() == len(a.pixel_mean)
+    np.testing.assert_allclose(a.bin_dof, b.bin_dof)
+    # the display moments are every frame's: the two halves recombined
+    all_var = np.concatenate([s.astype(np.float64).var(axis=0, ddof=1).ravel() for s in stacks])
+    assert np.all(np.isin(np.round(a.pixel_var, 6), np.round(all_var, 6)))
+    assert a.bin_dof.sum() <= len(a.pixel_mean) * 13  # 7 + 6 dof per pixel at most
 
 
-def test_fit_standard_errors_match_the_spread_of_repeated_calibrations():
-    """The tolerance the graph test uses comes from `fit_uncertainty`: check it against the
-    scatter of 30 independent simulated calibrations. With 30 repeats the sample sd is
-    within about +-13 % (1 sd) of the true one, so [0.6, 1.5] is a > 3 sd band."""
-    truth = NoiseModel(0.7, 66.0)
-    rng = np.random.default_rng(11)
-    fits, errors = [], []
-    for _ in range(30):
-        char = cal.noise_characteristic(cal.simulate_calibration_frames(
-            truth, n_levels=6, n_frames=20, shape=(24, 32), rng=rng))
-        fit = cal.fit_noise_model(char)
-        fits.append((fit.sigma_p2, fit.sigma_r2))
-        errors.append(cal.fit_uncertainty(char, fit))
-    ratio = np.std(fits, axis=0, ddof=1) / np.mean(errors, axis=0)
-    assert np.all((ratio > 0.6) & (ratio < 1.5)), ratio
-    # and no bias beyond what 30 repeats resolve (quantization adds 1/12 to the read noise)
-    mean_fit, se_mean = np.mean(fits, axis=0), np.mean(errors, axis=0) / np.sqrt(30)
-    assert abs(mean_fit[0] - truth.sigma_p2) < 4 * se_mean[0]
-    assert abs(mean_fit[1] - (truth.sigma_r2 + QUANTIZATION)) < 4 * se_mean[1]
+def test_fewer_than_three_frames_per_level_are_refused_with_the_reason():
+    frames = cal.simulate_calibration_frames(NoiseModel(), n_levels=3, n_frames=2, shape=(8, 12),
+                                             rng=np.random.default_rng(0))
+    with pytest.raises(ValueError, match='level 0: 2 frames; the fit needs at least 3 frames '
+                                         'per level: .*two interleaved halves'):
+        cal.fit_noise_model(frames)
+    with pytest.raises(ValueError, match='frames_per_level must be >= 3, got 2: .*halves'):
+        cal.CalibrationSettings(frames_per_level=2)
+    split = cal.SplitMoments()
+    split.add(frames[0][0])
+    with pytest.raises(ValueError, match='1 frames; the fit needs at least 3'):
+        split.moments()
 
 
 @pytest.fixture(scope='module')

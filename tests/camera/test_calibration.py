@@ -43,7 +43,7 @@ def test_saturated_pixels_are_excluded():
 
 
 def test_bad_calibration_input():
-    with pytest.raises(ValueError, match="at least 2 frames"):
+    with pytest.raises(ValueError, match="at least 3 frames per level"):
         fit_noise_model([np.zeros((1, 4, 4))])
     with pytest.raises(ValueError, match="no calibration levels"):
         fit_noise_model([])

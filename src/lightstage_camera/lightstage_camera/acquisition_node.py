@@ -89,7 +89,8 @@ PARAMETERS = {
     'calibration_gain_db': (15.0, _float('noise calibration: gain [dB] for goals with gain_db '
                                          'NaN (the paper: 15 dB)', 0.0, 48.0)),
     'calibration_frames': (120, _int('noise calibration: frames per illumination level for '
-                                     'goals with frames_per_level 0 (the paper: 120)', 2, 100_000)),
+                                     'goals with frames_per_level 0 (the paper: 120; >= 3: '
+                                     'the fit splits them in two halves)', 3, 100_000)),
     'calibration_levels': (8, _int('noise calibration: illumination levels for goals with '
                                    'levels 0', 2, 4 * N_SITES)),
     'frames_per_request': (16, _int('frames per driver request (one trigger sequence); at most '

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import NoiseCharacteristic
+from .calibration import NoiseCharacteristic, bin_standard_errors
 from .noise import NoiseModel
 from .render import render_noisy
 from .rig import CHANNELS
@@ -26,7 +26,10 @@ def plot_noise_characteristic(path, characteristic: NoiseCharacteristic, fit: No
                               max_points: int = 4000, seed: int = 0) -> Path:
     """Measured (mean, variance) points, their binned means and the fitted affine line.
 
-    `others` adds predicted lines, e.g. the fit generalized to the Sigma1..3 settings.
+    The binned points are the fit's (`calibration.characteristic_from_moments`: binned by
+    an independent half of the frames, so they scatter about the line without bias), with
+    error bars of one standard error. `others` adds predicted lines, e.g. the fit
+    generalized to the Sigma1..3 settings.
     """
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6, 4.2))
@@ -35,8 +38,9 @@ def plot_noise_characteristic(path, characteristic: NoiseCharacteristic, fit: No
     pick = rng.choice(n, min(n, max_points), replace=False)
     ax.scatter(characteristic.pixel_mean[pick], characteristic.pixel_var[pick], s=2,
                alpha=0.25, color="0.6", label="pixels (mean, variance)")
-    ax.plot(characteristic.bin_mean, characteristic.bin_var, "o", ms=3, color="k",
-            label="binned")
+    ax.errorbar(characteristic.bin_mean, characteristic.bin_var,
+                yerr=bin_standard_errors(characteristic, fit), fmt="o", ms=3,
+                color="k", elinewidth=0.8, label="binned (+- 1 standard error)")
     x = np.linspace(0, fit.max_level, 100)
     ax.plot(x, fit.variance(x), "r-",
             label=f"fit: {fit.sigma_p2:.3g} I + {fit.sigma_r2:.3g} "
@@ -116,10 +120,11 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     frames = simulate_calibration_frames(PAPER_CALIBRATION, n_levels=8, n_frames=120,
                                          rng=np.random.default_rng(0))
-    fit = fit_noise_model(frames)
+    characteristic = noise_characteristic(frames)
+    fit = fit_noise_model(characteristic)
     others = {name: fit.at(*setting) for name, setting in SETTINGS.items()}
-    print(plot_noise_characteristic(out / "noise_characteristic.png",
-                                    noise_characteristic(frames), fit, others))
+    print(plot_noise_characteristic(out / "noise_characteristic.png", characteristic, fit,
+                                    others))
     if args.capture:
         from .capture_format import load_capture
         ms = load_capture(args.capture, downscale_to=120)
