@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import abc
 import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass
 
 
@@ -110,10 +111,26 @@ class ChildProcessBackend(FirmwareBackend):
 
     Subclasses start both in `start()` and say how to ask the child to exit politely
     (`_request_exit`); stopping, killing and reaping are the same for every such backend.
+    Their reader calls `_notify_exit(proc)` when the child's output ends, which hands the
+    child's exit status to `on_exit` (if set) from the reader's thread: an owner that did not
+    stop the child itself learns at once that its firmware is gone. An owner that stops the
+    child on purpose clears `on_exit` first.
     """
 
     _proc = None
     _reader = None
+    #: called with the exit status (None: still running after its output ended) when a child exits
+    on_exit: Callable[[int | None], None] | None = None
+
+    def _notify_exit(self, proc) -> None:
+        callback = self.on_exit
+        if callback is None:
+            return
+        try:
+            code = proc.wait(5)
+        except subprocess.TimeoutExpired:
+            code = None
+        callback(code)
 
     def _request_exit(self, proc) -> None:
         proc.terminate()
