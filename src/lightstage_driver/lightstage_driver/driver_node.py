@@ -18,6 +18,7 @@ node is armed again.
 from __future__ import annotations
 
 import math
+import signal
 import sys
 import threading
 import time
@@ -204,9 +205,9 @@ class LightStageDriverNode(LifecycleNode):
 
     def _release(self) -> None:
         """LEDs off (best effort), port closed, simulator stopped."""
-        self._stop_reconnecting()
         if self.backend is not None:
             self.backend.on_exit = None    # stopping it now is no fault
+        self._stop_reconnecting()
         if self.stage is not None:
             self.stage.close(all_off=True)
             self.stage = None
@@ -242,9 +243,14 @@ class LightStageDriverNode(LifecycleNode):
 
     def _on_simulator_exit(self, code: int | None) -> None:
         # the simulator's reader thread: its process is gone, the pty with it
-        how = 'still running' if code is None else \
-            f'killed by signal {-code}' if code < 0 else f'exit status {code}'
-        self._link_lost(f'the firmware simulator process exited ({how})')
+        if code is None:
+            how = 'closed its output'
+        elif code < 0:
+            names = {int(sig): sig.name for sig in signal.Signals}
+            how = f'was killed by signal {-code} ({names.get(-code, "unnamed")})'
+        else:
+            how = f'exited with status {code}'
+        self._link_lost(f'the firmware simulator process {how}')
 
     def _link_lost(self, reason: str) -> None:
         """Mark the link down (requests fail at once) and reconnect in the background.
