@@ -1,5 +1,7 @@
 """Injected faults (Python simulator): each leads to a retry or a clear error in time, LEDs end dark."""
 import errno
+import os
+import signal
 import time
 
 import numpy as np
@@ -172,6 +174,15 @@ def test_port_gone_for_good_is_port_not_found(sim):
     with pytest.raises(PortNotFoundError, match='does not exist'):
         stage.heartbeat()
     assert time.monotonic() - start < 0.3 + 1.0     # connect timeout + slack for a loaded machine
+
+
+def test_a_killed_simulator_leaves_no_link_to_its_pty(sim):
+    # else a reconnecting driver would open whatever pty next gets the dead one's number
+    assert os.path.realpath(sim.port) == sim.pty_path
+    os.kill(sim.pid, signal.SIGKILL)
+    assert wait_until(lambda: not os.path.lexists(sim.port), 5.0)
+    sim.restart()
+    assert os.path.realpath(sim.port) == sim.pty_path
 
 
 def test_missing_port_and_unknown_usb_serial_are_named():
