@@ -2,6 +2,7 @@
 import errno
 import os
 import signal
+import termios
 import time
 
 import numpy as np
@@ -162,6 +163,17 @@ def test_disconnect_mid_use_then_replug_recovers(sim, stage):
     assert not status.leds_lit                 # the device reset on re-plug: dark
     assert stage.link.stats.reconnects == 1
     stage.apply(one_hot(4), 500)
+
+
+def test_a_port_failing_in_tcdrain_is_a_disconnect(sim, stage):
+    # seen when the simulator died between a command's write and its flush: termios.error is
+    # no OSError, and it took the driver node down
+    def fail():
+        raise termios.error(5, 'Input/output error')
+    stage.link._serial.flush = fail
+    with pytest.raises(DisconnectedError, match='went away'):
+        stage.heartbeat()
+    assert not stage.link.is_open
 
 
 def test_port_gone_for_good_is_port_not_found(sim):

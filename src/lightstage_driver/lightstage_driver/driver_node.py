@@ -22,6 +22,7 @@ import signal
 import sys
 import threading
 import time
+import traceback
 
 import numpy as np
 import rclpy
@@ -321,7 +322,9 @@ class LightStageDriverNode(LifecycleNode):
         try:
             self.stage.heartbeat()
             self.link_state = 'armed'
-        except LightStageError as exc:
+        except Exception as exc:  # noqa: BLE001 (a timer callback that raises stops the node)
+            if not isinstance(exc, LightStageError):
+                self.get_logger().error(f'unexpected error in the heartbeat: {traceback.format_exc()}')
             self.faults += 1
             self._link_lost(f'heartbeat failed: {exc}')
 
@@ -397,7 +400,10 @@ class LightStageDriverNode(LifecycleNode):
         except PatternError as exc:
             response.message = f'rejected, nothing was sent: {exc}'
             return response
-        except LightStageError as exc:
+        except Exception as exc:  # noqa: BLE001 (no request may take the node down)
+            if not isinstance(exc, LightStageError):
+                self.get_logger().error(f'unexpected error while applying: {traceback.format_exc()}')
+                exc = LightStageError(f'{type(exc).__name__}: {exc}')
             self.faults += 1
             self._note_error(f'apply failed: {exc}')
             self.get_logger().error(self.last_error)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import errno
 import os
 import stat
+import termios
 import threading
 import time
 from collections.abc import Callable
@@ -280,7 +281,8 @@ class SerialLink:
         try:
             self._serial.write(data)
             self._serial.flush()
-        except (OSError, serial.SerialException) as exc:
+        except (OSError, serial.SerialException, termios.error) as exc:
+            # termios.error: tcdrain on a pty whose other end just closed (EIO)
             raise self._lost(exc) from exc
         return time.monotonic()
 
@@ -292,7 +294,7 @@ class SerialLink:
             if data and ser.in_waiting:
                 data += ser.read(ser.in_waiting)
             return data
-        except (OSError, serial.SerialException, TypeError) as exc:
+        except (OSError, serial.SerialException, termios.error, TypeError) as exc:
             # TypeError: pyserial on a port closed under it
             raise self._lost(exc) from exc
 
