@@ -18,9 +18,10 @@ mkdir -p "$LOG_DIR"
 
 # Debian packages: the interface build (cmake, ninja, g++), the AVR firmware build
 # (gcc-avr, binutils-avr, avr-libc), the simavr harness it is tested in (libsimavr-dev,
-# libelf-dev), and strace, with which a test checks that ROS traffic stays on loopback.
+# libelf-dev), strace, with which a test checks that ROS traffic stays on loopback, and
+# iproute2, with which scripts/run_tests.sh brings up loopback in the tests' network namespace.
 APT_PACKAGES=(cmake ninja-build gcc g++ make pkg-config gcc-avr binutils-avr avr-libc
-              libsimavr-dev libelf-dev strace)
+              libsimavr-dev libelf-dev strace iproute2)
 PROJECT_PACKAGES=(lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_bringup)
 
 step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }
@@ -112,4 +113,21 @@ for pkg in "${PROJECT_PACKAGES[@]}"; do
     stamp_set "$pkg" "$h"
   fi
 done
-step "ready: $VENV"
+
+# 7. the venv's ROS setup file, and a path fix in the interface package's own setup file
+#    (its configure-time prefix is scikit-build-core's temporary wheel folder, gone by now)
+sed -i "s|^: \${AMENT_CURRENT_PREFIX:=\"[^\"]*\"}|: \${AMENT_CURRENT_PREFIX:=\"$VENV\"}|" \
+  "$VENV/share/lightstage_interfaces/local_setup.sh"
+cat > "$VENV/setup.bash" <<'SETUP'
+# The ROS environment of this venv (written by scripts/bootstrap.sh): `source .venv/setup.bash`,
+# as /opt/ros/jazzy/setup.bash on a full ROS 2 install. It puts the venv's bin/ first on PATH
+# (python, lightstage) and applies the project's ROS environment (lightstage_bringup.ros_env):
+# the venv on AMENT_PREFIX_PATH (so `ros2 pkg` / `ros2 run` / ament_index_python find every
+# package), LOCALHOST discovery, the Fast DDS profile. Paths come from this file's location.
+_lightstage_venv="$(cd "$(dirname "${BASH_SOURCE[0]:-$0}")" && pwd)"
+export VIRTUAL_ENV="$_lightstage_venv"
+case ":$PATH:" in *":$_lightstage_venv/bin:"*) ;; *) export PATH="$_lightstage_venv/bin:$PATH" ;; esac
+eval "$("$_lightstage_venv/bin/python" -m lightstage_bringup.ros_env)"
+unset _lightstage_venv
+SETUP
+step "ready: $VENV (ROS environment: source .venv/setup.bash)"

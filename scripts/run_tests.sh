@@ -1,5 +1,11 @@
 #!/usr/bin/env bash
 # Run the test suite in .venv (after scripts/bootstrap.sh). Extra arguments go to pytest.
+#
+# No packet may leave the machine, by construction: pytest runs in a private network
+# namespace whose only interface is loopback (`unshare --net`, then `ip link set lo up`), when
+# the platform allows it (as root: CI). Otherwise it runs in the host's network and says so;
+# LIGHTSTAGE_TEST_NETNS=off skips the namespace on purpose. (Not `unshare -r` for other
+# users: root in a user namespace passes the permission checks some tests rely on.)
 set -uo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -10,8 +16,29 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 # and run the checkout's firmware, and must not be skipped here.
 export LIGHTSTAGE_FIRMWARE_DIR="$ROOT/src/lightstage_driver/firmware"
 export LIGHTSTAGE_REQUIRE_AVR=1
-.venv/bin/python -m pytest "$@"
-rc=$?
+
+PYTEST=(.venv/bin/python -m pytest "$@")
+UNSHARE=(unshare --net)
+why=""
+if [ "${LIGHTSTAGE_TEST_NETNS:-on}" = off ]; then
+  why="LIGHTSTAGE_TEST_NETNS=off"
+elif ! command -v unshare >/dev/null || ! command -v ip >/dev/null; then
+  why="unshare (util-linux) or ip (iproute2) is not installed"
+elif ! err=$("${UNSHARE[@]}" ip link set lo up 2>&1); then
+  why="unshare --net failed: ${err:-no reason given} (needs root)"
+fi
+if [ -z "$why" ]; then
+  echo "[run_tests] pytest runs in a private network namespace: loopback only, no packet can leave the machine"
+  # tests/conftest.py reports the interfaces it sees in pytest's header; "private" tells the
+  # test that checks nothing can leave (tests/ros/test_ros_environment.py) that it should
+  export LIGHTSTAGE_TEST_NETNS=private
+  "${UNSHARE[@]}" sh -c 'ip link set lo up && exec "$@"' sh "${PYTEST[@]}"
+  rc=$?
+else
+  echo "[run_tests] WARNING: no private network namespace ($why); pytest runs in the host's network (LOCALHOST discovery still keeps ROS traffic on loopback)"
+  "${PYTEST[@]}"
+  rc=$?
+fi
 if [ $rc -eq 5 ]; then
   echo "pytest collected no tests (exit 5); nothing failed"
   exit 0

@@ -20,6 +20,15 @@ TEST_RUN_DOMAIN_ID = 100 + os.getpid() % 100
 apply_ros_environment(domain_id=int(os.environ.get('LIGHTSTAGE_TEST_DOMAIN_ID', TEST_RUN_DOMAIN_ID)))
 
 
+def pytest_report_header(config):
+    from suite_helpers import network_interfaces
+    interfaces = network_interfaces()
+    if interfaces == ['lo']:
+        return 'network: private namespace, loopback only (no packet can leave the machine)'
+    return (f"network: the host's ({', '.join(interfaces) or 'unknown'}), not a private "
+            f'namespace; scripts/run_tests.sh runs the suite in one where the platform allows')
+
+
 @pytest.fixture(scope='session', autouse=True)
 def rescue_dir(tmp_path_factory):
     """Captures that cannot be written keep their images in a rescue folder: the tests' (and

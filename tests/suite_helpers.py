@@ -37,6 +37,13 @@ def fresh_domain_id() -> int:
     return 1 + (os.getpid() * 7 + 50 + next(_counter)) % 99
 
 
+def network_interfaces() -> list[str]:
+    """The network interfaces of this process's network namespace (scripts/run_tests.sh's
+    private one: lo). Asked of the kernel, not /sys, which shows the namespace it was mounted in."""
+    import socket
+    return sorted(name for _index, name in socket.if_nameindex())
+
+
 def lightstage_command(*args: str) -> list[str]:
     """The argv that runs `lightstage ARGS...` (the installed CLI) in a fresh interpreter."""
     return [sys.executable, '-m', 'lightstage_bringup.cli', *args]

@@ -29,6 +29,7 @@ def child_environment(domain_id: int, *extra_paths: Path) -> dict[str, str]:
     return env
 
 
-def launcher_argv(*args: str) -> list[str]:
-    """`lightstage up ARGS` through the CLI dispatcher, run by this interpreter."""
-    return [sys.executable, '-m', 'lightstage_bringup.cli', 'up', *args]
+def launcher_argv(*args: str, record: bool = False) -> list[str]:
+    """`lightstage up ARGS` through the CLI dispatcher, run by this interpreter; without the
+    recorder unless `record` (a test that records chooses where with --bag-dir)."""
+    return [sys.executable, '-m', 'lightstage_bringup.cli', 'up', *args, *([] if record else ['--no-record'])]

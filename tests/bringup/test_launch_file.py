@@ -86,3 +86,20 @@ def test_setup_installs_launch_and_config_into_share(monkeypatch):
     for files in data.values():
         for f in files:
             assert (PKG / f).is_file(), f
+
+
+def test_launch_file_records_by_default_to_a_new_bag_under_bag_dir():
+    tree = ast.parse(LAUNCH.read_text())
+    arguments = {}
+    for n in ast.walk(tree):
+        if isinstance(n, ast.Call) and getattr(n.func, 'id', None) == 'DeclareLaunchArgument':
+            arguments[ast.literal_eval(n.args[0])] = {k.arg: ast.unparse(k.value) for k in n.keywords}
+    # as `lightstage up`: the recorder is on unless use_recorder:=false ...
+    assert arguments['use_recorder']['default_value'] == "'true'"
+    # ... and writes a new bag under bag_dir (default out/bags), named as the launcher names it
+    assert arguments['bag_dir']['default_value'] == "os.path.join('out', 'bags')"
+    assert launcher.DEFAULT_BAG_DIR.parts == ('out', 'bags')
+    extra = next(n.value for n in ast.walk(tree) if isinstance(n, ast.Assign)
+                 and getattr(n.targets[0], 'id', '') == 'extra_parameters')
+    assert "'output_dir'" in ast.unparse(extra) and "LaunchConfiguration('bag_dir')" in ast.unparse(extra)
+    assert 'default_bag_name()' in ast.unparse(extra)

@@ -74,7 +74,8 @@ def test_sigint_to_the_launcher_stops_every_node(tmp_path):
 
 def test_a_node_dying_stops_the_rest_and_fails_naming_it(tmp_path):
     params = tmp_path / 'params.yaml'
-    params.write_text('crasher:\n  ros__parameters:\n    die_after_s: 1.0\n    exit_code: 7\n')
+    # it dies once the graph is up (about 1.5 s; a loaded 2-core machine took over 1 s at times)
+    params.write_text('crasher:\n  ros__parameters:\n    die_after_s: 6.0\n    exit_code: 7\n')
     p = run_up('steady', 'crasher', '--node', f'steady={FAKE}', '--node', f'crasher={FAKE}',
                '--params', str(params))
     assert p.returncode == launcher.EXIT_NODE_FAILED
@@ -120,6 +121,8 @@ def test_a_node_that_crashes_on_shutdown_fails_the_run(tmp_path):
     (['x', '--node', 'x'], 'expected NAME=MODULE'),
     (['x', '--node', f'x={FAKE}', '--params', '/nonexistent/params.yaml'],
      'params file /nonexistent/params.yaml does not exist'),
+    (['x', '--node', f'x={FAKE}', '--bag-dir', '/proc/no_bags_here'],
+     'cannot create the bag folder /proc/no_bags_here'),
 ])
 def test_bad_arguments_are_clear_errors_and_start_nothing(args, message, capsys):
     assert launcher.main(args) == launcher.EXIT_USAGE
@@ -156,3 +159,47 @@ def test_up_with_the_project_nodes_and_config(tmp_path):
         assert f'{name} (pid ' in up_line
         assert (tmp_path / f'{name}.log').is_file()
     assert p.stderr.count('exit code 0 after SIGINT') == len(launcher.DEFAULT_NODES), p.stderr
+
+
+# -- recording by default -------------------------------------------------------------
+def _up_in(cwd: Path, *args, record: bool):
+    domain_id = fresh_domain_id()
+    p = subprocess.run(launcher_argv(*args, '--node', f'alpha={FAKE}', '--exit-after-up',
+                                     '--domain-id', str(domain_id), record=record),
+                       env=child_environment(domain_id), cwd=cwd, capture_output=True, text=True,
+                       timeout=60)
+    assert p.returncode == 0, p.stdout + p.stderr
+    (up_line,) = [ln for ln in p.stdout.splitlines() if ln.startswith('graph up: ')]
+    return p, up_line
+
+
+def _bag_is_complete(bag: Path) -> bool:
+    import yaml
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    return info['storage_identifier'] == 'mcap' and all((bag / f).is_file() for f in info['relative_file_paths'])
+
+
+def test_up_records_by_default_to_a_new_bag_under_out_bags(tmp_path):
+    p, up_line = _up_in(tmp_path, 'alpha', record=True)
+    assert 'recorder (pid ' in up_line
+    (bag,) = (tmp_path / 'out' / 'bags').glob('rosbag2_*')  # the documented folder, cwd-relative
+    assert f'recording to {bag} ' in p.stdout
+    assert _bag_is_complete(bag)
+    assert sorted(x.name for x in tmp_path.iterdir()) == ['out']  # nothing else written
+
+
+def test_no_record_starts_no_recorder_and_writes_no_bag(tmp_path):
+    p, up_line = _up_in(tmp_path, 'alpha', record=False)
+    assert 'recorder' not in up_line and 'recording to' not in p.stdout
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bag_dir_wins_over_the_params_file_output_dir(tmp_path):
+    """--bag-dir chooses the folder; a recorder output_dir in the params file (meant for `ros2
+    run` / `lightstage record`) does not make every `lightstage up` write to one bag."""
+    params = tmp_path / 'params.yaml'
+    params.write_text(f'recorder:\n  ros__parameters:\n    output_dir: {tmp_path / "fixed"}\n')
+    p, _ = _up_in(tmp_path, 'alpha', '--params', str(params), '--bag-dir', str(tmp_path / 'mine'),
+                  record=True)
+    (bag,) = (tmp_path / 'mine').glob('rosbag2_*')
+    assert _bag_is_complete(bag) and not (tmp_path / 'fixed').exists()

@@ -1,13 +1,20 @@
 """Trained-classifier artifact: round trip, file safety and clear errors."""
 import json
+import os
+import re
+import stat
 import zipfile
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from mux_classifier.model import (FORMAT_VERSION, ArtifactError, MuxClassifier,
                                   TrainedArtifact, noise_to_dict)
 from mux_classifier.patterns import site_to_led_patterns
+
+from artifact_mutations import mutated_artifacts
 
 SIGMA3 = {"name": "sigma3", "sigma_p2": 0.94, "sigma_r2": 117.37, "gain_db": 17.5,
           "exposure_ms": 22.5}
@@ -181,3 +188,104 @@ def test_corrupted_bytes_are_refused(artifact, tmp_path):
     (tmp_path / "c.npz").write_bytes(bytes(data))
     with pytest.raises(ArtifactError, match="not a readable lightstage classifier file"):
         TrainedArtifact.load(tmp_path / "c.npz")
+
+
+def test_issue_12_header_that_is_not_an_npy_array_is_refused(tmp_path, monkeypatch):
+    """Issue 12, item 2, as written there: a zip whose header.npy is not an .npy array gave
+    AttributeError ('bytes' object has no attribute 'astype')."""
+    monkeypatch.chdir(tmp_path)
+    zipfile.ZipFile('x.npz', 'w').writestr('header.npy', b'garbage')
+    with pytest.raises(ArtifactError, match=r"'x.npz' is not a readable lightstage classifier "
+                                            r"file: its members \['header'\] are not .npy arrays"):
+        TrainedArtifact.load('x.npz')
+
+
+def test_paths_that_are_not_regular_files_are_refused(tmp_path):
+    for path in ['/dev/zero', str(tmp_path), 'a\0b', 'x' * 5000]:  # endless, a folder, NUL, long
+        with pytest.raises(ArtifactError, match="not a regular file|cannot read classifier file"):
+            TrainedArtifact.load(path)
+
+
+@pytest.mark.parametrize("header", [
+    b'{"format": "lightstage.mux_classifier", "format_version": NaN}',
+    b'{"format": "lightstage.mux_classifier", "format_version": 1e400}',
+    b'[' * 100_000,
+    b'\xff\xfe',
+])
+def test_headers_with_nan_huge_numbers_deep_nesting_or_bad_utf8_are_refused(header, tmp_path):
+    np.savez(tmp_path / "h.npz", header=np.frombuffer(header, np.uint8))
+    with pytest.raises(ArtifactError, match="header is not valid JSON"):
+        TrainedArtifact.load(tmp_path / "h.npz")
+
+
+def test_header_array_of_another_type_is_refused(tmp_path):
+    np.savez(tmp_path / "h.npz", header=np.array(["{}"]))
+    with pytest.raises(ArtifactError, match=r"header is a <U2 array of shape \(1,\)"):
+        TrainedArtifact.load(tmp_path / "h.npz")
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("n_images", [2.0], "'n_images' must list integers"),
+    ("class_names", "abcd", "'class_names' must be a list"),
+    ("class_names", [1, 2, 3, 4], "'class_names' must list strings"),
+    ("hog_config", None, "'hog_config' must be an object"),
+    ("has_site_patterns", "yes", "'has_site_patterns' must be true or false"),
+    ("provenance", [1], "'provenance' must be an object"),
+    ("noise", {"name": "x", "sigma_p2": 1, "sigma_r2": 1, "gain_db": 0, "exposure_ms": -1},
+     "exposure_ms must be a finite number >= 0, got -1.0"),
+    ("noise", {"name": "x", "sigma_p2": "a", "sigma_r2": 1, "gain_db": 0, "exposure_ms": 1},
+     "sigma_p2 must be a number or null"),
+])
+def test_malformed_header_fields_are_named(artifact, tmp_path, field, value, message):
+    artifact.save(tmp_path / "a.npz")
+    _rewrite(tmp_path / "a.npz", tmp_path / "b.npz", change_header=lambda h: h.update({field: value}))
+    with pytest.raises(ArtifactError, match=re.escape(message)):
+        TrainedArtifact.load(tmp_path / "b.npz")
+
+
+def test_arrays_of_text_are_refused(artifact, tmp_path):
+    artifact.save(tmp_path / "a.npz")
+    with np.load(tmp_path / "a.npz") as npz:
+        arrays = dict(npz)
+    arrays["led_patterns"] = arrays["led_patterns"].astype(str)
+    np.savez(tmp_path / "b.npz", **arrays)
+    with pytest.raises(ArtifactError, match="array 'led_patterns' holds <U32 values, not real numbers"):
+        TrainedArtifact.load(tmp_path / "b.npz")
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o002, 0o077])
+def test_saved_file_has_the_mode_the_umask_gives(artifact, tmp_path, umask):
+    """Issue 12: artifacts were written 0600 (mkstemp's mode survived the rename), unreadable
+    to a classifier running as another user."""
+    old = os.umask(umask)
+    try:
+        artifact.save(tmp_path / "a.npz")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(os.stat(tmp_path / "a.npz").st_mode) == 0o666 & ~umask
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz"]
+
+
+@pytest.fixture(scope="module")
+def artifact_bytes(artifact, tmp_path_factory):
+    path = tmp_path_factory.mktemp("fuzz") / "a.npz"
+    artifact.save(path)
+    return path.read_bytes()
+
+
+@settings(max_examples=int(os.environ.get("LIGHTSTAGE_FUZZ_EXAMPLES", 150)), deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(data=st.data())
+def test_fuzz_malformed_files_raise_only_artifact_error(artifact_bytes, tmp_path_factory, data):
+    """Mutated artifact bytes and zip members: the loader answers ArtifactError or loads a
+    classifier that classifies; nothing else."""
+    path = tmp_path_factory.getbasetemp() / "fuzzed.npz"
+    path.write_bytes(data.draw(mutated_artifacts(artifact_bytes)))
+    try:
+        loaded = TrainedArtifact.load(path)
+    except ArtifactError as exc:
+        assert str(exc)
+        return
+    size = loaded.hog_config.image_size
+    prediction = loaded.predict_stack(np.zeros((loaded.n_images[-1], size, size), np.float32))
+    assert prediction.label in loaded.class_names

@@ -1,5 +1,9 @@
 """`lightstage classify` without a graph: argument checks and the printed answer."""
+import subprocess
+
 from lightstage_bringup import classify_cli
+
+from suite_helpers import lightstage_command
 
 
 def test_answer_lists_the_label_then_scores_best_first():
@@ -16,7 +20,25 @@ def test_answer_lists_the_label_then_scores_best_first():
 
 def test_bad_arguments_exit_2_with_the_reason(capsys):
     assert classify_cli.main(['--max-images', '-1']) == classify_cli.EXIT_USAGE
-    assert '--max-images must be >= 0' in capsys.readouterr().err
-    assert classify_cli.main(['--timeout-s', '-2']) == classify_cli.EXIT_USAGE
+    assert '--max-images must be an integer from 0' in capsys.readouterr().err
+    assert classify_cli.main(['--max-images', str(2**32)]) == classify_cli.EXIT_USAGE
+    assert 'to 4294967295; got 4294967296' in capsys.readouterr().err
+    for bad in ['-2', 'nan', 'inf', '-inf', '1e-6', '0.05', '601', '1e10']:
+        assert classify_cli.main([f'--timeout-s={bad}']) == classify_cli.EXIT_USAGE, bad
+        err = capsys.readouterr().err
+        assert '--timeout-s must be 0 (the classifier node\'s default) or between 0.1 and 600 s' in err, bad
+    for bad in ['-1', 'nan', 'inf', '-inf']:
+        assert classify_cli.main([f'--wait-s={bad}']) == classify_cli.EXIT_USAGE, bad
+        assert '--wait-s must be a finite number of seconds >= 0' in capsys.readouterr().err
     assert classify_cli.main(['--domain-id', '400']) == classify_cli.EXIT_USAGE
     assert 'out of range' in capsys.readouterr().err
+
+
+def test_issue_12_timeout_beyond_any_timer_is_a_usage_error():
+    """Issue 12, item 1: `lightstage classify --timeout-s 1e10` failed building an rclpy timer
+    (TypeError); it is a usage error naming the option and its range, before any ROS set-up."""
+    p = subprocess.run(lightstage_command('classify', '--timeout-s', '1e10'),
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == classify_cli.EXIT_USAGE, p.stderr
+    assert p.stderr.strip() == ('lightstage classify: --timeout-s must be 0 (the classifier '
+                                'node\'s default) or between 0.1 and 600 s; got 10000000000.0')

@@ -32,6 +32,12 @@ def test_plan_takes_the_first_k_patterns_k_a_trained_count_and_the_artifacts_set
     noise_free = replace(stage_artifact, noise=None)
     plan = plan_acquisition(noise_free, 0)
     assert plan.exposure_us == 0 and math.isnan(plan.gain_db)  # driver / camera defaults
+    # a setting the Pattern message cannot carry (uint32 us, float32 dB) is refused, not sent
+    for exposure_ms, gain_db in [(4_294_968.0, 0.0), (22.5, 1e39)]:
+        odd = replace(stage_artifact, noise=dict(stage_artifact.noise, exposure_ms=exposure_ms,
+                                                 gain_db=gain_db))
+        with pytest.raises(InferenceError, match='beyond what a light pattern can carry'):
+            plan_acquisition(odd, 0)
 
 
 def test_image_from_buffer_decodes_mono16_with_row_padding_and_either_byte_order():

@@ -2,15 +2,30 @@
 
 Every node runs in its own process through the bring-up supervisor, in a domain id of this
 test's own with LOCALHOST discovery; the test talks to them from an in-process client.
+The classifier answers every request and survives every artifact file (issue 12): fuzzed
+Classify requests and artifact_path files.
+
+LIGHTSTAGE_FUZZ_EXAMPLES=N runs N examples per fuzz test here (default: a few, they go
+through the graph).
 """
+import itertools
 import json
+import math
+import os
 import subprocess
 import sys
+import threading
 import time
+import zipfile
+from typing import NamedTuple
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from lightstage_bringup.supervisor import Supervisor
+from mux_classifier.classify_request import MAX_IMAGES_MAX, TIMEOUT_MAX_S, TIMEOUT_MIN_S
 
+from artifact_mutations import mutated_artifacts
 from suite_helpers import RosClient, fresh_domain_id, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
@@ -21,11 +36,29 @@ SAMPLES = ['banana-fake/s0/p01', 'orange-real/s1/p02', 'banana-real/s1/p00',
            'orange-fake/s0/p00', 'banana-real/s0/p02', 'orange-real/s0/p01']
 
 
+def valid_timeout(timeout_s: float) -> bool:
+    return timeout_s == 0 or TIMEOUT_MIN_S <= timeout_s <= TIMEOUT_MAX_S
+
+
+def refusal(timeout_s: float) -> str:
+    """The node's answer to a request time limit outside its contract."""
+    return ("timeout_s must be 0 (the classifier node's default) or between 0.1 and 600 s; "
+            f"got {timeout_s!r}")
+
+
 def classify(client, max_images=0, timeout_s=10.0):
     from lightstage_interfaces.srv import Classify
+    # 0 = the node's default (10 s here); a time limit outside the contract is refused at once
+    limit_s = timeout_s if valid_timeout(timeout_s) and timeout_s > 0 else 10.0
     return client.call(Classify, '/lightstage/classify',
                        Classify.Request(max_images=max_images, timeout_s=timeout_s),
-                       timeout_s=timeout_s + 10)
+                       timeout_s=limit_s + 10)
+
+
+class Graph(NamedTuple):
+    client: RosClient
+    domain_id: int
+    supervisor: Supervisor
 
 
 @pytest.fixture(scope='module')
@@ -39,14 +72,14 @@ def graph(stage_capture, stage_artifact_path, tmp_path_factory):
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
             start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
-            yield client, domain_id
+            yield Graph(client, domain_id, supervisor)
     finally:
         client.close()
 
 
 def test_classify_over_samples_is_complete_consistent_and_accurate(graph):
     from lightstage_interfaces.msg import ClassificationResult
-    client, _ = graph
+    client = graph.client
     results = []
     client.node.create_subscription(ClassificationResult, '/lightstage/result', results.append, 10)
     answers = []
@@ -78,7 +111,7 @@ def test_classify_over_samples_is_complete_consistent_and_accurate(graph):
 
 
 def test_unknown_sample_is_rejected_and_the_stage_keeps_its_sample(graph):
-    client, _ = graph
+    client = graph.client
     (ok,) = client.set_parameters('camera', sample='orange-real/s0/p01')
     assert ok.successful
     (bad,) = client.set_parameters('camera', sample='kiwi-real/s9/p99')
@@ -88,7 +121,7 @@ def test_unknown_sample_is_rejected_and_the_stage_keeps_its_sample(graph):
 
 
 def test_classify_cli_prints_the_answer(graph):
-    _, domain_id = graph
+    domain_id = graph.domain_id
     p = subprocess.run([sys.executable, '-m', 'lightstage_bringup.classify_cli', '--domain-id',
                         str(domain_id), '--json', '--max-images', '4'],
                        capture_output=True, text=True, timeout=60)
@@ -96,6 +129,105 @@ def test_classify_cli_prints_the_answer(graph):
     answer = json.loads(p.stdout)
     assert answer['success'] and answer['images_used'] == 4
     assert answer['label'] in answer['class_names']
+
+
+FUZZ_EXAMPLES = int(os.environ.get('LIGHTSTAGE_FUZZ_EXAMPLES', 0))
+SPECIAL_TIMEOUTS = [0.0, -0.0, 1e-6, 0.1, 600.0, 600.0000001, 1e10, threading.TIMEOUT_MAX,
+                    math.inf, -math.inf, math.nan, -1.0, 5e-324]
+
+
+def test_issue_12_request_time_limits_outside_the_contract_are_refused(graph):
+    """Issue 12, item 1: timeout_s above threading.TIMEOUT_MAX killed the node (OverflowError
+    in the stage lock's acquire); negative and NaN were silently replaced by the default;
+    1e-6 answered 'timeout_s must be > 0, got -9.43e-06'. Each is refused, naming the value."""
+    for bad in [1e10, threading.TIMEOUT_MAX * 2, -1.0, math.nan, math.inf, -math.inf, 1e-6]:
+        r = classify(graph.client, timeout_s=bad)
+        assert not r.success and r.message == refusal(bad)
+    assert not graph.supervisor.exited()
+    r = classify(graph.client, max_images=4, timeout_s=0.0)  # 0: the node's timeout_s
+    assert r.success, r.message
+
+
+def test_issue_12_malformed_artifact_set_at_run_time_is_rejected_and_the_old_one_kept(
+        graph, tmp_path, monkeypatch):
+    """Issue 12, item 2: set at run time, this file made the parameter call go unanswered and
+    took the graph down."""
+    monkeypatch.chdir(tmp_path)
+    zipfile.ZipFile('x.npz', 'w').writestr('header.npy', b'garbage')
+    (bad,) = graph.client.set_parameters('classifier', artifact_path=str(tmp_path / 'x.npz'))
+    assert not bad.successful
+    assert bad.reason == (f"{str(tmp_path / 'x.npz')!r} is not a readable lightstage classifier "
+                          "file: its members ['header'] are not .npy arrays; retrain to get a new file")
+    r = classify(graph.client, max_images=4)
+    assert r.success, r.message
+    assert not graph.supervisor.exited()
+
+
+def test_fuzz_classify_answers_every_request_and_the_node_stays_up(graph):
+    """Any value of every request field (the .srv has max_images and timeout_s): an answer,
+    a refusal naming the value when the time limit is outside the contract."""
+    @settings(max_examples=FUZZ_EXAMPLES or 25, deadline=None, database=None,
+              suppress_health_check=[HealthCheck.too_slow])
+    @given(max_images=st.integers(0, MAX_IMAGES_MAX) | st.sampled_from([0, 1, 4, 5, 8, 9]),
+           timeout_s=st.floats() | st.floats(TIMEOUT_MIN_S, TIMEOUT_MAX_S)
+           | st.sampled_from(SPECIAL_TIMEOUTS))
+    def one_request(max_images, timeout_s):
+        r = classify(graph.client, max_images=max_images, timeout_s=timeout_s)
+        if not valid_timeout(timeout_s):
+            assert not r.success and r.message == refusal(timeout_s)
+        elif r.success:
+            assert r.images_used in (4, 8) and r.images_used <= (max_images or 8)
+            assert r.label in r.class_names and len(r.scores) == len(r.class_names)
+        else:
+            assert r.message, (max_images, timeout_s)
+        assert not graph.supervisor.exited()
+
+    one_request()
+    r = classify(graph.client, max_images=8)  # and the stage still classifies
+    assert r.success, r.message
+
+
+def test_issue_12_malformed_artifacts_leave_the_node_up_at_start_and_at_run_time(
+        stage_artifact_path, tmp_path, monkeypatch):
+    """Issue 12, item 2 at start-up (the node died), then fuzzed artifact files set through
+    artifact_path: every parameter call is answered and the node stays up."""
+    monkeypatch.chdir(tmp_path)
+    zipfile.ZipFile('x.npz', 'w').writestr('header.npy', b'garbage')
+    domain_id = fresh_domain_id()
+    params = write_params(tmp_path / 'params.yaml',
+                          {'classifier': {'artifact_path': str(tmp_path / 'x.npz')}})
+    client = RosClient(domain_id)
+    names = (tmp_path / f'fuzzed-{i}.npz' for i in itertools.count())
+    with Supervisor(sigint_timeout_s=5.0) as supervisor:
+        try:
+            start_nodes(supervisor, client, ['classifier'], domain_id, params)
+            r = classify(client, timeout_s=2.0)
+            assert not r.success
+            assert r.message == (f"no classifier loaded: {str(tmp_path / 'x.npz')!r} is not a "
+                                 "readable lightstage classifier file: its members ['header'] "
+                                 "are not .npy arrays; retrain to get a new file")
+
+            @settings(max_examples=FUZZ_EXAMPLES or 6, deadline=None, database=None,
+                      suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+            @given(data=mutated_artifacts(stage_artifact_path.read_bytes()))
+            def set_artifact(data):
+                path = next(names)
+                path.write_bytes(data)
+                (result,) = client.set_parameters('classifier', artifact_path=str(path))
+                assert result.successful or str(path) in result.reason, result.reason
+                assert not supervisor.exited()
+
+            set_artifact()
+            (ok,) = client.set_parameters('classifier', artifact_path=str(stage_artifact_path))
+            assert ok.successful, ok.reason
+            (bad,) = client.set_parameters('classifier', artifact_path=str(tmp_path / 'x.npz'))
+            assert not bad.successful
+            # the artifact stayed: the call gets as far as looking for the driver
+            r = classify(client, max_images=4, timeout_s=0.5)
+            assert not r.success and '/lightstage/apply_patterns' in r.message, r.message
+            assert not supervisor.exited()
+        finally:
+            client.close()
 
 
 def test_error_paths_missing_artifact_no_driver_no_camera(stage_artifact_path, tmp_path):

@@ -22,22 +22,25 @@ def child_environment(domain_id: int, **overrides: str) -> dict[str, str]:
 
 
 @contextlib.contextmanager
-def running_nodes(nodes: dict[str, str], domain_id: int, timeout_s: float = 20.0,
+def running_nodes(nodes: dict[str, str | list[str]], domain_id: int, timeout_s: float = 20.0,
                   wrap: list[str] | None = None, params_file: str | None = None,
-                  **env_overrides: str):
+                  env: dict[str, str] | None = None, **env_overrides: str):
     """Start `{ros node name: module}` as separate processes (as `lightstage up` does), wait
     until each spins, yield the Supervisor; on exit stop them and check they stopped cleanly.
 
-    `wrap` prefixes every command (e.g. strace); `params_file` is a ROS parameters YAML
-    keyed by these node names. Children's output is kept in `sup.output`.
+    A value may also be a whole command line (e.g. `ros2 run`'s), run as given. `wrap`
+    prefixes every command (e.g. strace); `params_file` is a ROS parameters YAML keyed by
+    these node names; `env` replaces the children's environment (default: the project's ROS
+    environment with this directory on PYTHONPATH). Children's output is kept in `sup.output`.
     """
     out = io.StringIO()
     sup = Supervisor(stdout=out, stderr=out, sigint_timeout_s=5, sigterm_timeout_s=2)
     sup.output = out
-    env = child_environment(domain_id, **env_overrides)
+    env = child_environment(domain_id, **env_overrides) if env is None else env
     try:
         for name, module in nodes.items():
-            sup.start(ProcessSpec(name, [*(wrap or []), *node_command(module, name, params_file)], env))
+            command = module if isinstance(module, list) else node_command(module, name, params_file)
+            sup.start(ProcessSpec(name, [*(wrap or []), *command], env))
         with GraphWatcher(domain_id) as graph:
             missing, dead = graph.wait_for(list(nodes), timeout_s, sup)
         assert dead is None, f'{dead} died during start-up:\n{out.getvalue()}'

@@ -168,3 +168,53 @@ def test_ros_node_process_sends_only_to_loopback(tmp_path):
     assert len(v4) + len(v6) > 20, f'too few sends traced to judge:\n{text[:2000]}'
     assert {a for a in v4 if not a.startswith('127.')} == set()
     assert {a for a in v6 if a != '::1'} == set()
+
+
+# -- the environment a node applies itself, and the setup file's commands -------------
+def test_the_install_prefix_goes_first_on_ament_prefix_path_once():
+    prefix = ros_env.ament_prefix()
+    assert prefix is not None, 'lightstage_bringup runs from an install with an ament index marker'
+    env = ros_env.ros_environment(None, base={'AMENT_PREFIX_PATH': '/opt/ros/jazzy'})
+    assert env['AMENT_PREFIX_PATH'] == f'{prefix}{os.pathsep}/opt/ros/jazzy'
+    again = ros_env.ros_environment(None, base=env)
+    assert again['AMENT_PREFIX_PATH'] == env['AMENT_PREFIX_PATH']
+
+
+def test_a_node_started_without_the_environment_applies_it_and_says_what_it_set(monkeypatch, saved_environ):
+    for name in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'FASTRTPS_DEFAULT_PROFILES_FILE', 'AMENT_PREFIX_PATH'):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv('ROS_STATIC_PEERS', '10.0.0.7')
+    message = ros_env.apply_node_environment()
+    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST' and 'ROS_STATIC_PEERS' not in os.environ
+    assert 'ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (was unset)' in message
+    assert f'FASTRTPS_DEFAULT_PROFILES_FILE={ros_env.fastdds_profile_path()} (was unset)' in message
+    assert 'unset ROS_STATIC_PEERS (was 10.0.0.7)' in message
+    assert ros_env.apply_node_environment() is None  # already the project's: nothing to say
+
+
+def test_shell_commands_turn_an_environment_into_the_projects():
+    base = {'PATH': '/bin', 'ROS_STATIC_PEERS': '10.0.0.7', 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
+            'FASTRTPS_DEFAULT_PROFILES_FILE': "/my profiles/it's.xml"}
+    out = subprocess.run(['sh', '-c', ros_env.shell_commands(base) + 'env'], env=base,
+                         capture_output=True, text=True, check=True).stdout
+    env = dict(line.split('=', 1) for line in out.splitlines() if '=' in line)
+    expected = ros_env.ros_environment(base=base)
+    for name in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'FASTRTPS_DEFAULT_PROFILES_FILE', 'RMW_IMPLEMENTATION',
+                 'AMENT_PREFIX_PATH'):
+        assert env[name] == expected[name], name
+    assert 'ROS_STATIC_PEERS' not in env and env['FASTRTPS_DEFAULT_PROFILES_FILE'] == "/my profiles/it's.xml"
+    assert ros_env.shell_commands(expected) == ''
+
+
+@pytest.mark.skipif(os.environ.get('LIGHTSTAGE_TEST_NETNS') != 'private',
+                    reason='not run by scripts/run_tests.sh in a private network namespace')
+def test_the_suite_runs_where_no_packet_can_leave_the_machine():
+    import errno
+    import socket
+
+    from suite_helpers import network_interfaces
+    assert network_interfaces() == ['lo']
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        with pytest.raises(OSError) as excinfo:
+            s.sendto(b'x', ('192.0.2.1', 9))  # TEST-NET-1: would need a route off the machine
+    assert excinfo.value.errno == errno.ENETUNREACH

@@ -55,27 +55,71 @@ def test_s_matrix_for_eight_sites():
 
 
 def test_search_starts_from_identity_and_never_gets_worse():
-    m = SnrOptimalMultiplexer(noise=(0.94, 117.37), n_iter=0).fit(50.0)
+    m = SnrOptimalMultiplexer(noise=(0.94, 117.37), n_iter=0, start="identity").fit(50.0)
     np.testing.assert_array_equal(m.W_, np.eye(8))
     assert m.mse_ == m.mse_identity_ and m.n_accepted_ == 0
-    m = SnrOptimalMultiplexer(noise=(0.94, 117.37), n_iter=3000).fit(50.0)
+    m = SnrOptimalMultiplexer(noise=(0.94, 117.37), n_iter=3000, start="identity").fit(50.0)
     assert m.mse_ <= m.mse_identity_
     mses = [v for _, v in m.history_]
-    assert mses[0] == m.mse_identity_ and all(b < a for a, b in zip(mses, mses[1:]))
+    # every kept step is a real gain, not a rounding tie (relative 1e-9)
+    assert mses[0] == m.mse_identity_ and all(b < a * (1 - 1e-9) for a, b in zip(mses, mses[1:]))
     assert m.mse_ == pytest.approx(multiplexing_mse(m.W_, 0.94, 117.37, 50.0))
 
 
-def test_search_improves_on_identity_for_signal_independent_noise():
-    m = SnrOptimalMultiplexer(n_sites=7, noise=(0.0, 10.0), n_iter=5000, seed=1).fit(100.0)
+@pytest.mark.parametrize("seed", range(6))
+def test_default_search_reaches_the_s_code_for_signal_independent_noise(seed):
+    # the S-code is optimal here (gain 2.29 over the identity for 7 sites); the default
+    # search starts from it too, so it can never end above it, on any CPU and BLAS kernel
+    m = SnrOptimalMultiplexer(n_sites=7, noise=(0.0, 10.0), n_iter=2000, seed=seed).fit(100.0)
     S_mse = multiplexing_mse(hadamard_s_matrix(7), 0.0, 10.0, 100.0)
-    assert m.mse_ < 0.5 * m.mse_identity_          # at least a 2x gain ...
-    assert m.mse_ <= 1.05 * S_mse                   # ... close to the optimal S-code (2.29x)
+    assert m.mse_ <= S_mse * (1 + 1e-9)
+    assert m.mse_ < 0.5 * m.mse_identity_
     assert set(np.unique(m.W_)) == {0.0, 1.0} and m.W_.dtype == np.float32
+
+
+@pytest.mark.parametrize("n_sites", [3, 5, 8, 12])
+@pytest.mark.parametrize("level", [10.0, 20.0, 50.0])
+def test_default_search_is_never_worse_than_the_s_code(n_sites, level):
+    sp, sr = 0.94, 117.37
+    s_mse = multiplexing_mse(s_matrix_for_sites(n_sites), sp, sr, level)
+    m = SnrOptimalMultiplexer(n_sites=n_sites, noise=(sp, sr), n_iter=300, seed=3).fit(level)
+    assert m.mse_ <= s_mse * (1 + 1e-9) and m.mse_ <= m.mse_identity_
+    assert np.linalg.cond(m.W_) < 100 and m.W_.any(axis=0).all()
+
+
+def test_paper_search_from_the_identity_improves_on_it_for_signal_independent_noise():
+    # how far the paper's search gets from the identity depends on the seed's luck (6.41
+    # or 4.44 of the identity's 10 were seen for one seed, before ties were refused); any
+    # seed finds some gain within 5000 flips
+    m = SnrOptimalMultiplexer(n_sites=7, noise=(0.0, 10.0), n_iter=5000, seed=1,
+                              start="identity").fit(100.0)
+    assert m.mse_ < 0.9 * m.mse_identity_ and m.n_accepted_ >= 1
+
+
+def test_rounding_ties_do_not_steer_the_search(monkeypatch):
+    # equal MSEs that differ in the last bit (as they do between BLAS kernels) must give the
+    # same search: perturb every MSE by a few ulps and compare paths
+    import mux_trainer.snr_optimal as so
+
+    exact = so.multiplexing_mse
+    a = SnrOptimalMultiplexer(n_sites=7, noise=(0.0, 10.0), n_iter=3000, seed=1,
+                              start="identity").fit(100.0)
+    jitter = np.random.default_rng(0)
+
+    def jittered(*args, **kwargs):
+        v = exact(*args, **kwargs)
+        return v * (1 + 4e-16 * jitter.integers(-4, 5)) if np.isfinite(v) else v
+
+    monkeypatch.setattr(so, "multiplexing_mse", jittered)
+    b = SnrOptimalMultiplexer(n_sites=7, noise=(0.0, 10.0), n_iter=3000, seed=1,
+                              start="identity").fit(100.0)
+    np.testing.assert_array_equal(a.W_, b.W_)
+    assert [i for i, _ in a.history_] == [i for i, _ in b.history_]
 
 
 def test_identity_stays_optimal_when_photon_noise_dominates():
     # sigma_p2 * R >> sigma_r2: lighting more sites only adds noise
-    m = SnrOptimalMultiplexer(noise=(1.0, 0.01), n_iter=2000).fit(1000.0)
+    m = SnrOptimalMultiplexer(noise=(1.0, 0.01), n_iter=2000, start="identity").fit(1000.0)
     np.testing.assert_array_equal(m.W_, np.eye(8))
 
 
@@ -90,9 +134,9 @@ def test_condition_limit_and_no_dark_image_are_respected(max_cond):
 
 
 def test_search_is_deterministic_for_a_seed():
-    a = SnrOptimalMultiplexer(noise="sigma3", n_iter=2000, seed=5).fit(40.0)
+    a = SnrOptimalMultiplexer(noise="sigma3", n_iter=2000, seed=5, start="identity").fit(40.0)
     b = clone(a).fit(40.0)
-    c = SnrOptimalMultiplexer(noise="sigma3", n_iter=2000, seed=6).fit(40.0)
+    c = SnrOptimalMultiplexer(noise="sigma3", n_iter=2000, seed=6, start="identity").fit(40.0)
     np.testing.assert_array_equal(a.W_, b.W_)
     assert a.history_ == b.history_
     assert a.history_ != c.history_
@@ -129,7 +173,8 @@ def test_compare_with_hadamard_reports_side_by_side():
     assert r["s_matrix_theory_gain"] == pytest.approx(64 / 28)
     # 8 sites = S_7 plus one site alone: (7 * 7/16 + 1) / 8 of the identity's MSE
     assert r["mse"]["s_matrix"] == pytest.approx((7 * 7 / 16 + 1) / 8)
-    assert r["gain_vs_identity"]["snr_optimal"] > 1.5
+    assert r["gain_vs_identity"]["snr_optimal"] > 1.0
+    assert r["mse"]["snr_optimal_from_both"] <= r["mse"]["s_matrix"] * (1 + 1e-9)
 
 
 def test_start_from_s_matrix_is_never_worse_than_the_s_code():
@@ -142,8 +187,9 @@ def test_start_from_s_matrix_is_never_worse_than_the_s_code():
     assert both.mse_ <= min(s_mse, ident.mse_ + 1e-12)
     with pytest.raises(ValueError, match="start must be"):
         SnrOptimalMultiplexer(noise=(sp, sr), start="random").fit(level)
-    with pytest.raises(ValueError, match="square"):
-        SnrOptimalMultiplexer(n_images=9, noise=(sp, sr), start="both").fit(level)
+    # more images than sites: the S-code's columns repeat, like the identity's
+    wide = SnrOptimalMultiplexer(n_images=10, noise=(sp, sr), n_iter=0, start="s_matrix").fit(level)
+    np.testing.assert_array_equal(wide.W_[:, 8:], s_matrix_for_sites(8)[:, :2])
 
 
 def test_command_line_prints_the_comparison(capsys):

@@ -1,7 +1,11 @@
 """Launch the light stage on a full ROS 2 Jazzy install: driver, camera and classifier.
 
     ros2 launch lightstage_bringup lightstage.launch.py [params_file:=FILE.yaml] [use_trainer:=true]
-        [use_acquisition:=true] [use_recorder:=true]
+        [use_acquisition:=true] [use_recorder:=false] [bag_dir:=DIR]
+
+The graph records itself by default, as with `lightstage up`: the recorder writes a new bag
+`bag_dir/rosbag2_YYYY_MM_DD-HH_MM_SS` (bag_dir default `out/bags`, relative to the working
+directory); `use_recorder:=false` leaves it out.
 
 The same nodes, names and parameters as `lightstage up` (lightstage_bringup.launcher), which
 is what runs where `launch` is not available (the pip-only setup). Node names are the keys
@@ -14,8 +18,10 @@ from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable, UnsetEnvironmentVariable
 from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
+
+from lightstage_bringup.bag_format import default_bag_name
 
 
 def generate_launch_description():
@@ -47,15 +53,22 @@ def generate_launch_description():
         DeclareLaunchArgument('use_acquisition', default_value='false',
                               description='also start the acquisition node (CaptureModel, '
                                           'CalibrateNoise actions)'),
-        DeclareLaunchArgument('use_recorder', default_value='false',
-                              description='also record every topic and service call to an MCAP '
-                                          'bag (recorder node; its section of params_file)'),
+        DeclareLaunchArgument('use_recorder', default_value='true',
+                              description='record every topic and service call to an MCAP bag '
+                                          '(recorder node; its section of params_file)'),
+        DeclareLaunchArgument('bag_dir', default_value=os.path.join('out', 'bags'),
+                              description='folder of the recorded bags; each launch writes a new '
+                                          'rosbag2_YYYY_MM_DD-HH_MM_SS in it'),
     ]
+    # a new bag per launch under bag_dir (overrides the params file's recorder output_dir)
+    extra_parameters = {'recorder': [{'output_dir': PathJoinSubstitution(
+        [LaunchConfiguration('bag_dir'), default_bag_name()])}]}
     for name, package, executable in nodes:
         actions.append(Node(package=package, executable=executable, name=name,
                             parameters=[params_file], output='screen', emulate_tty=True))
     for name, package, executable, argument in optional:
         actions.append(Node(package=package, executable=executable, name=name,
-                            parameters=[params_file], output='screen', emulate_tty=True,
+                            parameters=[params_file, *extra_parameters.get(name, [])],
+                            output='screen', emulate_tty=True,
                             condition=IfCondition(LaunchConfiguration(argument))))
     return LaunchDescription(actions)

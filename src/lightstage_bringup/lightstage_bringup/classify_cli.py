@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 
@@ -17,6 +18,7 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNAVAILABLE = 0, 1, 2, 3
 
 
 def _parser() -> argparse.ArgumentParser:
+    from mux_classifier.classify_request import TIMEOUT_MAX_S, TIMEOUT_MIN_S
     p = argparse.ArgumentParser(
         prog='lightstage classify',
         description='Classify the sample on the stage: the classifier node lights its learned '
@@ -26,7 +28,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--max-images', type=int, default=0,
                    help='use at most this many learned patterns (default 0: all the classifier has)')
     p.add_argument('--timeout-s', type=float, default=0.0,
-                   help='time limit of the classification [s] (default 0: the node\'s timeout_s)')
+                   help=f'time limit of the classification [s], {TIMEOUT_MIN_S:g} to '
+                        f'{TIMEOUT_MAX_S:g} (default 0: the node\'s timeout_s)')
     p.add_argument('--wait-s', type=float, default=5.0,
                    help='how long to wait for the classify service to appear [s] (default 5)')
     p.add_argument('--domain-id', type=int, default=None,
@@ -48,14 +51,15 @@ def format_answer(answer: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from mux_classifier.classify_request import (TIMEOUT_MAX_S, request_max_images,
+                                                 request_timeout_s)
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
-    if args.max_images < 0:
-        print('lightstage classify: --max-images must be >= 0 (0 = all)', file=sys.stderr)
-        return EXIT_USAGE
-    if args.timeout_s < 0 or args.wait_s < 0:
-        print('lightstage classify: --timeout-s and --wait-s must be >= 0', file=sys.stderr)
-        return EXIT_USAGE
     try:
+        # the node's own request checks, so that the answer is a usage error, not a refusal
+        request_max_images(args.max_images, '--max-images')
+        request_timeout_s(args.timeout_s, name='--timeout-s')
+        if not (math.isfinite(args.wait_s) and args.wait_s >= 0):
+            raise ValueError(f'--wait-s must be a finite number of seconds >= 0; got {args.wait_s!r}')
         apply_ros_environment(args.domain_id)  # before rclpy is imported: LOCALHOST discovery
     except ValueError as exc:
         print(f'lightstage classify: {exc}', file=sys.stderr)
@@ -82,8 +86,8 @@ def main(argv: list[str] | None = None) -> int:
         future = client.call_async(request)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
-        # the node enforces the timeout; the margin covers its own default when we sent 0
-        limit_s = (args.timeout_s if args.timeout_s > 0 else 60.0) + 5.0
+        # the node enforces the timeout; sent 0, its own default is at most TIMEOUT_MAX_S
+        limit_s = (args.timeout_s if args.timeout_s > 0 else TIMEOUT_MAX_S) + 5.0
         executor.spin_until_future_complete(future, timeout_sec=limit_s)
         if not future.done():
             client.remove_pending_request(future)

@@ -15,7 +15,8 @@ VERBS: dict[str, tuple[str, str, str]] = {
     'demo': ('lightstage_bringup.demo', 'main',
              'the whole method on the simulated light stage: synthesise, train, classify on the stage'),
     'up': ('lightstage_bringup.launcher', 'main',
-           'start project nodes as separate processes, wait until discoverable, forward logs'),
+           'start project nodes as separate processes, wait until discoverable, forward logs; '
+           'records the graph to out/bags/ unless --no-record'),
     'classify': ('lightstage_bringup.classify_cli', 'main',
                  'classify the sample on the stage through /lightstage/classify'),
     'record': ('lightstage_bringup.bag_cli', 'record_main',

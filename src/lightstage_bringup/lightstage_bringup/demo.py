@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
+from lightstage_camera.workers import jobs_type
 
 NOISE = 'sigma3'
 NODES = ('driver', 'camera', 'classifier')
@@ -40,7 +41,7 @@ def _parser() -> argparse.ArgumentParser:
                    help='random pose splits per candidate in the search (default: 400, the paper)')
     p.add_argument('--per-class', type=int, default=3,
                    help='held-out poses per class put on the stage (default: 3)')
-    p.add_argument('--jobs', type=int, default=2, help='worker processes (default: 2)')
+    p.add_argument('--jobs', type=jobs_type, default=2, help='worker processes (default: 2)')
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--domain-id', type=int, default=None,
                    help='ROS_DOMAIN_ID of the demo graph (default: $ROS_DOMAIN_ID, else 42)')

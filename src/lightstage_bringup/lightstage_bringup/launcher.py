@@ -6,6 +6,10 @@ launcher waits until every node is discoverable in the ROS graph and spinning, p
 `graph up: ...` line, forwards the children's output prefixed with their names, and stops
 them all in order on Ctrl-C / SIGTERM or as soon as one of them dies.
 
+The graph records itself by default: a recorder node (`recorder_node`, its section of the
+params file) writes every topic and service call to a new bag
+`--bag-dir/rosbag2_YYYY_MM_DD-HH_MM_SS` (default `out/bags/`); `--no-record` leaves it out.
+
 Exit codes: 0 clean run and shutdown; 1 a node died or did not stop cleanly; 2 bad
 arguments (unknown node, module missing, unreadable params file); 3 a node did not appear
 in the ROS graph within --timeout-s.
@@ -51,6 +55,8 @@ NODE_REGISTRY: dict[str, NodeEntry] = {
     'player': NodeEntry('lightstage_bringup.player_node', 'plays a bag into the graph (set its bag parameter)'),
 }
 DEFAULT_NODES = ('driver', 'camera', 'classifier')
+RECORDER = 'recorder'  # started as well unless --no-record
+DEFAULT_BAG_DIR = Path('out') / 'bags'
 
 
 def node_command(module: str, name: str, params_file: str | None = None,
@@ -83,6 +89,12 @@ def _parser() -> argparse.ArgumentParser:
                    help='ROS_DOMAIN_ID for the nodes and the graph check (default: $ROS_DOMAIN_ID or 0)')
     p.add_argument('--params', metavar='FILE.yaml', default=None,
                    help='ROS parameters file passed to every node (--params-file)')
+    p.add_argument('--no-record', action='store_true',
+                   help='do not start the recorder (by default the graph records every topic and '
+                        'service call to an MCAP bag under --bag-dir)')
+    p.add_argument('--bag-dir', metavar='DIR', default=str(DEFAULT_BAG_DIR),
+                   help='folder of the recorded bags; each run writes a new '
+                        'DIR/rosbag2_YYYY_MM_DD-HH_MM_SS (default: %(default)s)')
     p.add_argument('--log-dir', metavar='DIR', default=None,
                    help='write each node\'s output to DIR/NAME.log and ROS log files to DIR (ROS_LOG_DIR)')
     p.add_argument('--timeout-s', type=float, default=20.0,
@@ -217,6 +229,18 @@ class GraphWatcher:
             self._executor.spin_once(timeout_sec=0.05)
 
 
+def _new_bag_path(bag_dir: Path) -> Path:
+    """A new, absolute bag path under bag_dir (created), named as `ros2 bag record` names bags."""
+    from lightstage_bringup.bag_format import default_bag_name
+    bag_dir = bag_dir.resolve()
+    bag_dir.mkdir(parents=True, exist_ok=True)
+    bag = bag_dir / default_bag_name()
+    n = 1
+    while bag.exists():  # two runs within one second
+        bag, n = bag_dir / f'{default_bag_name()}_{n}', n + 1
+    return bag
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     err = sys.stderr
@@ -227,6 +251,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f'lightstage up: {e}', file=err)
         return EXIT_USAGE
     names = list(dict.fromkeys(args.nodes or DEFAULT_NODES))  # keep order, drop duplicates
+    if not args.no_record and RECORDER not in names:
+        names.insert(0, RECORDER)  # first: it records the others from their start
     unknown = [n for n in names if n not in registry]
     if unknown:
         print(f'lightstage up: unknown node(s) {", ".join(unknown)}; known: {", ".join(registry)} '
@@ -259,6 +285,18 @@ def main(argv: list[str] | None = None) -> int:
         Path(args.log_dir).mkdir(parents=True, exist_ok=True)
         env['ROS_LOG_DIR'] = str(Path(args.log_dir).resolve())
 
+    extra_ros_args: dict[str, list[str]] = {}
+    if RECORDER in names and not args.no_record:
+        try:
+            bag = _new_bag_path(Path(args.bag_dir))
+        except OSError as e:
+            print(f'lightstage up: cannot create the bag folder {args.bag_dir}: {e}; choose another '
+                  f'with --bag-dir, or --no-record', file=err)
+            return EXIT_USAGE
+        # node-qualified, so it wins over the params file's recorder section: a new bag per run
+        extra_ros_args[RECORDER] = ['-p', f'{RECORDER}:output_dir:={bag}']
+        print(f'recording to {bag} (--no-record: off)', flush=True)
+
     stop = threading.Event()
     stop_reason: list[str] = []
 
@@ -278,7 +316,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         t0 = time.monotonic()
         for n in names:
-            supervisor.start(ProcessSpec(n, node_command(registry[n].module, n, params), env))
+            supervisor.start(ProcessSpec(n, node_command(registry[n].module, n, params,
+                                                         extra_ros_args.get(n)), env))
         with GraphWatcher(domain_id) as graph:  # after the starts: rclpy loads while they do
             missing, dead = graph.wait_for(names, args.timeout_s, supervisor, stop)
         if dead is not None:

@@ -49,6 +49,7 @@ __all__ = ["CaptureSettings", "CaptureCancelled", "DestinationError", "ExposureE
            "check_exposure", "capture_model", "check_destination", "write_model",
            "capture_rig", "validate_name", "rig_differences", "Destination", "model_files",
            "folder_rig", "check_output_file", "acquire_pose", "save_rescued", "load_rescued",
+           "save_in_rescue_dir",
            "write_rescued", "rescue_dirs", "RescuedModel",
            "STAGING_DIR", "MAX_FRAMES_PER_REQUEST"]
 
@@ -423,14 +424,14 @@ def _writable_dir(path: Path) -> None:
             break
         probe_dir = probe_dir.parent
     if not probe_dir.is_dir():
-        raise DestinationError(f"{probe_dir} is not a folder; give a capture folder path")
+        raise DestinationError(f"{probe_dir} is not a folder; give a path in a folder")
     try:
         fd, name = tempfile.mkstemp(prefix=".lightstage-write-test-", dir=probe_dir)
         os.close(fd)
         os.unlink(name)
     except OSError as exc:
         raise DestinationError(f"cannot write into {probe_dir} ({exc.strerror or exc}); give a "
-                               f"folder this node's user can write to") from None
+                               "writable folder") from None
 
 
 def folder_rig(root) -> Rig | None:
@@ -651,21 +652,15 @@ def rescue_dirs() -> list[Path]:
                    Path(tempfile.gettempdir()) / "lightstage-rescued"]
 
 
-def save_rescued(rescued: RescuedModel) -> Path:
-    """Save a pose to the first rescue folder that takes it (an ``.npz`` that loads without
-    pickle: the model and a JSON header). Raises OSError when none does."""
-    header = json.dumps({"kind": RESCUE_KIND, "version": RESCUE_VERSION,
-                         "root": str(Path(rescued.root).absolute()), "label": rescued.label,
-                         "sample": rescued.sample, "pose": rescued.pose,
-                         "rig": rescued.rig.to_dict()})
-    stamp = time.strftime("%Y%m%d-%H%M%S")
+def save_in_rescue_dir(file_name: str, write: Callable[[Path], None]) -> Path:
+    """`write(path)` a file named `file_name` into the first rescue folder that takes it;
+    returns its path. Raises OSError naming each folder's error when none does."""
     errors = []
     for folder in rescue_dirs():
-        path = folder / f"{rescued.label}.{rescued.sample}.{rescued.pose}.{stamp}.{os.getpid()}.npz"
+        path = folder / file_name
         try:
             folder.mkdir(parents=True, exist_ok=True)
-            with open(path, "wb") as f:
-                np.savez(f, model=np.asarray(rescued.model, np.float32), header=np.array(header))
+            write(path)
             return path
         except OSError as exc:
             errors.append(f"{folder}: {exc.strerror or exc}")
@@ -674,6 +669,23 @@ def save_rescued(rescued: RescuedModel) -> Path:
             except OSError:
                 pass
     raise OSError("; ".join(errors))
+
+
+def save_rescued(rescued: RescuedModel) -> Path:
+    """Save a pose to the first rescue folder that takes it (an ``.npz`` that loads without
+    pickle: the model and a JSON header). Raises OSError when none does."""
+    header = json.dumps({"kind": RESCUE_KIND, "version": RESCUE_VERSION,
+                         "root": str(Path(rescued.root).absolute()), "label": rescued.label,
+                         "sample": rescued.sample, "pose": rescued.pose,
+                         "rig": rescued.rig.to_dict()})
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+
+    def write(path: Path) -> None:
+        with open(path, "wb") as f:
+            np.savez(f, model=np.asarray(rescued.model, np.float32), header=np.array(header))
+
+    return save_in_rescue_dir(
+        f"{rescued.label}.{rescued.sample}.{rescued.pose}.{stamp}.{os.getpid()}.npz", write)
 
 
 def load_rescued(path) -> RescuedModel:

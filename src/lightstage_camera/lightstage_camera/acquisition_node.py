@@ -42,7 +42,7 @@ from .frames import AcquisitionError, ImageMatcher, stamp_to_ns
 from .rig import Rig
 from .spinning import spin_until_stopped
 
-NODE_NAME = 'lightstage_acquisition'
+NODE_NAME = 'acquisition'
 CAPTURE_ACTION = '/lightstage/capture_model'
 CALIBRATE_ACTION = '/lightstage/calibrate_noise'
 APPLY_SERVICE = '/lightstage/apply_patterns'
@@ -338,7 +338,8 @@ class AcquisitionNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     from rclpy.executors import MultiThreadedExecutor
-    rclpy.init(args=sys.argv if argv is None else argv)
+    from .spinning import init_node
+    init_node(sys.argv if argv is None else argv)
     return spin_until_stopped(AcquisitionNode(), MultiThreadedExecutor(num_threads=4))
 
 if __name__ == '__main__':

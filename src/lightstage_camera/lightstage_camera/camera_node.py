@@ -32,7 +32,7 @@ from .noise import PAPER_CALIBRATION, NoiseModel, load_noise_file
 from .sim_camera import NOISE_CHOICES, SimCameraBackend, parse_noise, resolve_sample
 from .spinning import spin_until_stopped
 
-NODE_NAME = 'lightstage_camera'
+NODE_NAME = 'camera'
 IMAGE_TOPIC = '/image_raw'
 ILLUMINATION_TOPIC = '/illumination'
 BACKENDS = ('sim',)
@@ -262,7 +262,8 @@ class CameraNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    rclpy.init(args=sys.argv if argv is None else argv)
+    from .spinning import init_node
+    init_node(sys.argv if argv is None else argv)
     return spin_until_stopped(CameraNode())
 
 if __name__ == '__main__':

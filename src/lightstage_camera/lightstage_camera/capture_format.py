@@ -203,6 +203,28 @@ def load_capture(path, cache: bool = True, downscale_to: int | None = None) -> M
                     np.array(meta["instance"]), out_rig, noise_scale=factor)
 
 
+def check_equal_poses(modelset: ModelSet, source="capture") -> None:
+    """Refuse a ModelSet whose classes have different numbers of poses (CaptureFormatError).
+
+    Training and evaluation split by pose index, the same indices in every class: with
+    unequal counts a held-out index that only some classes have tests those classes alone,
+    and a smaller class is tested on fewer poses (or none) than the others, so accuracies
+    would not mean what they say. The loader itself allows it (a capture in progress).
+    """
+    counts = np.bincount(modelset.labels, minlength=len(modelset.class_names))
+    if len(set(counts.tolist())) <= 1:
+        return
+    by_count: dict[int, list[str]] = {}
+    for name, n in zip(modelset.class_names, counts.tolist()):
+        by_count.setdefault(n, []).append(name)
+    listed = "; ".join(f"{n} pose(s): {', '.join(names)}" for n, names in sorted(by_count.items()))
+    raise CaptureFormatError(
+        f"{source}: classes have different numbers of poses ({listed}); the pose splits hold "
+        "out the same pose indices in every class, so every class needs the same number of "
+        "poses (docs/CAPTURE_FORMAT.md): capture the missing poses, or move the extra pose "
+        "folders out of the capture folder")
+
+
 def _read_cache(cache_dir: Path, fingerprint: str, n: int, rig: Rig):
     index, data = cache_dir / "index.json", cache_dir / "models_u16.npy"
     try:

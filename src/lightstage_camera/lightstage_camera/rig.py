@@ -35,6 +35,25 @@ def led_index(site: int, channel: str | int) -> int:
     return int(site) * N_CHANNELS + channel_index(channel)
 
 
+def _yaml_number(value, key: str, source: str, whole: bool = False) -> float | int:
+    """A finite number (`whole`: a whole number) of a rig.yaml entry, else ValueError naming
+    the key and value. 11.9 is refused where a whole number belongs, not truncated (a bit
+    depth or an image size off by a fraction is a typo, not a setting). Numeric strings are
+    taken: YAML 1.1 reads `3e4` (no decimal point) as a string."""
+    if whole and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if not isinstance(value, bool):
+        try:
+            number = float(value)
+        except (TypeError, ValueError, OverflowError):
+            pass
+        else:
+            if number.is_integer() if whole else math.isfinite(number):
+                return int(number) if whole else number
+    raise ValueError(f"{source}: {key} must be a {'whole' if whole else 'finite'} number, "
+                     f"got {value!r}")
+
+
 @dataclass(frozen=True)
 class Site:
     """One illumination site: a diffused cluster of the four LEDs, position in mm.
@@ -142,37 +161,52 @@ class Rig:
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "rig") -> "Rig":
+        """A rig from its YAML mapping; ValueError naming the key and value of any wrong entry."""
         def need(mapping, key, where):
             if not isinstance(mapping, dict) or key not in mapping:
                 raise ValueError(f"{source}: missing key '{where}{key}'")
             return mapping[key]
 
+        def entries(key):
+            value = need(data, key, "")
+            if not isinstance(value, list):
+                raise ValueError(f"{source}: '{key}' must be a list, got {value!r}")
+            return value
+
+        def number(mapping, key, where, default=None, whole=False):
+            value = need(mapping, key, where) if default is None else mapping.get(key, default)
+            return _yaml_number(value, f"{where}{key}", source, whole)
+
+        sites = [Site(str(need(s, "name", f"sites[{i}].")), number(s, "x_mm", f"sites[{i}]."),
+                      number(s, "y_mm", f"sites[{i}]."), number(s, "z_mm", f"sites[{i}]."))
+                 for i, s in enumerate(entries("sites"))]
+        channel_entries = entries("channels")
+        names = tuple(str(need(c, "name", f"channels[{i}].")) for i, c in enumerate(channel_entries))
+        unknown = [n for n in names if n not in CHANNELS]
+        if unknown:
+            raise ValueError(f"{source}: unknown channel(s) {unknown}; "
+                             f"channels must be {list(CHANNELS)}")
+        wavelengths = {name: number(c, "wavelength_nm", f"channels[{i}].")
+                       for i, (name, c) in enumerate(zip(names, channel_entries))}
+        cam = need(data, "camera", "")
+        if not isinstance(cam, dict):
+            raise ValueError(f"{source}: 'camera' must be a mapping of camera settings, got {cam!r}")
         try:
-            sites = [Site(str(need(s, "name", "sites[].")), float(need(s, "x_mm", "sites[].")),
-                          float(need(s, "y_mm", "sites[].")), float(need(s, "z_mm", "sites[].")))
-                     for s in need(data, "sites", "")]
-            channel_entries = need(data, "channels", "")
-            names = tuple(str(need(c, "name", "channels[].")) for c in channel_entries)
-            unknown = [n for n in names if n not in CHANNELS]
-            if unknown:
-                raise ValueError(f"{source}: unknown channel(s) {unknown}; "
-                                 f"channels must be {list(CHANNELS)}")
-            wavelengths = {str(c["name"]): float(need(c, "wavelength_nm", "channels[]."))
-                           for c in channel_entries}
-            cam = need(data, "camera", "")
             return cls(
                 sites=sites, channels=names, wavelengths_nm=wavelengths,
-                bit_depth=int(need(cam, "bit_depth", "camera.")),
-                image_size=(int(need(cam, "image_height", "camera.")),
-                            int(need(cam, "image_width", "camera."))),
-                exposure_us=float(need(cam, "exposure_us", "camera.")),
-                gain_db=float(need(cam, "gain_db", "camera.")),
-                frames_averaged=int(cam.get("frames_averaged", 1)),
-                camera_height_mm=float(cam.get("height_mm", 240.0)),
-                field_of_view_mm=float(cam.get("field_of_view_mm", 160.0)),
+                bit_depth=number(cam, "bit_depth", "camera.", whole=True),
+                image_size=(number(cam, "image_height", "camera.", whole=True),
+                            number(cam, "image_width", "camera.", whole=True)),
+                exposure_us=number(cam, "exposure_us", "camera."),
+                gain_db=number(cam, "gain_db", "camera."),
+                frames_averaged=number(cam, "frames_averaged", "camera.", default=1, whole=True),
+                camera_height_mm=number(cam, "height_mm", "camera.", default=240.0),
+                field_of_view_mm=number(cam, "field_of_view_mm", "camera.", default=160.0),
             )
-        except (TypeError, AttributeError) as exc:
-            raise ValueError(f"{source}: malformed rig description ({exc})") from exc
+        except ValueError as exc:  # range checks of __post_init__
+            message = str(exc)
+            raise ValueError(message if message.startswith(source) else f"{source}: {message}") \
+                from None
 
     def save_yaml(self, path: str | Path) -> None:
         Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))

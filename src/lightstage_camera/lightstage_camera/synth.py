@@ -35,6 +35,7 @@ from scipy import ndimage
 
 from .capture_format import write_pose
 from .rig import CHANNELS, Rig
+from .workers import jobs_type
 
 OBJECT_TYPES = ("green_apple", "red_apple", "grape", "banana", "orange")
 VARIANTS = ("fake", "real")
@@ -466,7 +467,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="comma-separated object types (default: all five)")
     parser.add_argument("--strength", type=float, default=1.0,
                         help="scale of the real/fake differences (default 1)")
-    parser.add_argument("--jobs", type=int, default=2, help="parallel processes (default 2)")
+    parser.add_argument("--jobs", type=jobs_type, default=2, help="parallel processes (default 2)")
     parser.add_argument("--force", action="store_true",
                         help="write into a non-empty folder (same-named files are replaced)")
     parser.add_argument("--quiet", action="store_true")

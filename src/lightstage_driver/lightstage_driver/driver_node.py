@@ -43,7 +43,7 @@ from .stage import LightStage, Trigger
 
 SERVICE_NAME = '/lightstage/apply_patterns'
 ILLUMINATION_TOPIC = '/illumination'
-NODE_NAME = 'lightstage_driver'
+NODE_NAME = 'driver'
 
 
 def _int(description: str, lo: int, hi: int) -> ParameterDescriptor:
@@ -455,8 +455,16 @@ class LightStageDriverNode(LifecycleNode):
 
 def main(argv: list[str] | None = None) -> int:
     from rclpy.executors import ExternalShutdownException
+    try:  # the project's ROS environment however started; optional: lightstage_bringup depends on this package
+        from lightstage_bringup.ros_env import apply_node_environment
+        env_message = apply_node_environment()
+    except ImportError:
+        env_message = ('lightstage_bringup is not installed: running in the ROS environment given '
+                       '(the project expects ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)')
     rclpy.init(args=sys.argv if argv is None else argv)
     node = LightStageDriverNode()
+    if env_message:
+        node.get_logger().info(env_message)
     try:
         if node.p('autostart'):
             if node.trigger_configure() == TransitionCallbackReturn.SUCCESS:

@@ -19,10 +19,10 @@ are handled by other threads meanwhile.
 """
 from __future__ import annotations
 
-import math
 import sys
 import threading
 import time
+import traceback
 
 import numpy as np
 import rclpy
@@ -40,11 +40,12 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from rclpy.service_introspection import ServiceIntrospectionState
 from sensor_msgs.msg import Image
 
+from .classify_request import TIMEOUT_MAX_S, TIMEOUT_MIN_S, request_timeout_s
 from .inference import AcquisitionPlan, ImageMatcher, InferenceError, classify_on_stage
 from .model import ArtifactError, TrainedArtifact
 from .observe import SequenceObserver, TriggerState
 
-NODE_NAME = 'mux_classifier'
+NODE_NAME = 'classifier'
 CLASSIFY_SERVICE = '/lightstage/classify'
 APPLY_SERVICE = '/lightstage/apply_patterns'
 IMAGE_TOPIC = '/image_raw'
@@ -77,7 +78,8 @@ PARAMETERS = {
         description='trained classifier (.npz written by `lightstage train`); settable at run '
                     'time (a file that does not load is rejected and the old one kept)')),
     'timeout_s': (10.0, _float('default time limit of one classification (driver + images) [s]; '
-                               'a request\'s timeout_s > 0 overrides it', 0.1, 600.0)),
+                               'a request\'s timeout_s other than 0 overrides it', TIMEOUT_MIN_S,
+                               TIMEOUT_MAX_S)),
     'camera_bit_depth': (10, _int('significant bits of the camera\'s mono16 images '
                                   '(10: gray level = value >> 6)', 8, 16)),
     'image_buffer': (64, _int('images kept while waiting for their trigger stamps', 8, 1024,
@@ -141,25 +143,38 @@ class ClassifierNode(Node):
     # ------------------------------------------------------------------ artifact
     @staticmethod
     def _read(path: str) -> TrainedArtifact:
+        """The artifact at ``path``, ready to classify; any failure is an ArtifactError (the
+        node stays up and keeps the classifier it has)."""
         if not str(path).strip():
             raise ArtifactError('artifact_path is empty; set it to a classifier file written by '
                                 '`lightstage train` (a .npz)')
-        return TrainedArtifact.load(path)
+        try:
+            artifact = TrainedArtifact.load(path)
+            # first use of the HOG/linear code costs tens of ms: pay it now, not in a request
+            size = artifact.hog_config.image_size
+            artifact.predict_stack(np.zeros((artifact.n_images[-1], size, size), np.float32))
+        except ArtifactError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - last resort: a bad file never takes the node down
+            raise ArtifactError(f'{path!r} cannot be used as a classifier ({type(exc).__name__}: '
+                                f'{exc}); retrain to get a new file') from exc
+        return artifact
+
+    def _use(self, path: str, artifact: TrainedArtifact) -> None:
+        self.artifact, self.artifact_error = artifact, ''
+        self.get_logger().info(f'loaded {path}: {len(artifact.class_names)} classes, '
+                               f'{artifact.mode} patterns, classifiers for {artifact.n_images} '
+                               f'images, noise {artifact.noise.get("name")}')
 
     def _load_artifact(self, path: str) -> None:
         try:
-            self.artifact, self.artifact_error = self._read(path), ''
+            artifact = self._read(path)
         except ArtifactError as exc:
             self.artifact = None
             self.artifact_error = f'no classifier loaded: {exc}'
             self.get_logger().error(self.artifact_error)
             return
-        a = self.artifact
-        # first use of the HOG/linear code costs tens of ms: pay it now, not in a request
-        size = a.hog_config.image_size
-        a.predict_stack(np.zeros((a.n_images[-1], size, size), np.float32))
-        self.get_logger().info(f'loaded {path}: {len(a.class_names)} classes, {a.mode} patterns, '
-                               f'classifiers for {a.n_images} images, noise {a.noise.get("name")}')
+        self._use(path, artifact)
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         for param in params:
@@ -167,9 +182,11 @@ class ClassifierNode(Node):
                 try:
                     artifact = self._read(param.value)
                 except ArtifactError as exc:
+                    kept = ('the loaded classifier stays' if self.artifact is not None
+                            else 'still no classifier loaded')
+                    self.get_logger().warning(f'artifact_path {param.value!r} rejected ({kept}): {exc}')
                     return SetParametersResult(successful=False, reason=str(exc))
-                self.artifact, self.artifact_error = artifact, ''
-                self.get_logger().info(f'loaded {param.value}: classifiers for {artifact.n_images} images')
+                self._use(param.value, artifact)
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ driver
@@ -210,24 +227,38 @@ class ClassifierNode(Node):
 
     # ------------------------------------------------------------------ service
     def _on_classify(self, request: Classify.Request, response: Classify.Response):
+        try:
+            return self._classify(request, response)
+        except Exception as exc:  # noqa: BLE001 - last resort: the service answers every request
+            self.get_logger().error(f'classify failed unexpectedly: {traceback.format_exc()}')
+            return Classify.Response(
+                success=False, message=f'the classifier failed unexpectedly ({type(exc).__name__}: '
+                                       f'{exc}); this is a bug: report it with the node\'s log')
+
+    def _classify(self, request: Classify.Request, response: Classify.Response):
         response.success = False
+        try:
+            timeout_s = request_timeout_s(request.timeout_s, self.p('timeout_s'))
+        except ValueError as exc:
+            response.message = str(exc)
+            return response
         artifact = self.artifact
         if artifact is None:
             response.message = self.artifact_error
             return response
-        timeout_s = float(request.timeout_s) if request.timeout_s > 0 else float(self.p('timeout_s'))
-        if not math.isfinite(timeout_s):
-            response.message = f'timeout_s must be a finite number of seconds, got {request.timeout_s}'
-            return response
         start = time.monotonic()
+        busy = (f'another classification kept the stage busy for {timeout_s:g} s (this '
+                'request\'s time limit); try again, or give a longer timeout_s')
         if not self._busy.acquire(timeout=timeout_s):
-            response.message = (f'another classification kept the stage busy for {timeout_s:g} s; '
-                                'try again')
+            response.message = busy
             return response
         try:
+            remaining_s = timeout_s - (time.monotonic() - start)
+            if remaining_s <= 0:
+                response.message = busy
+                return response
             result = classify_on_stage(artifact, self._apply, self.matcher,
-                                       max_images=request.max_images,
-                                       timeout_s=timeout_s - (time.monotonic() - start),
+                                       max_images=request.max_images, timeout_s=remaining_s,
                                        bit_depth=self.p('camera_bit_depth'))
         except InferenceError as exc:
             response.message = str(exc)
@@ -277,7 +308,8 @@ class ClassifierNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     from rclpy.executors import MultiThreadedExecutor
-    rclpy.init(args=sys.argv if argv is None else argv)
+    from lightstage_camera.spinning import init_node
+    init_node(sys.argv if argv is None else argv)
     return spin_until_stopped(ClassifierNode(), MultiThreadedExecutor(num_threads=4))
 
 if __name__ == '__main__':

@@ -75,6 +75,12 @@ def plan_acquisition(artifact: TrainedArtifact, max_images: int = 0) -> Acquisit
     exposure_ms, gain_db = noise.get("exposure_ms"), noise.get("gain_db")
     exposure_us = int(round(float(exposure_ms) * 1000.0)) if exposure_ms else 0
     gain = float(gain_db) if gain_db is not None else math.nan
+    # what lightstage_interfaces/Pattern can carry (uint32 exposure_us, float32 gain_db)
+    if exposure_us > 0xFFFFFFFF or abs(gain) > float(np.finfo(np.float32).max):
+        raise InferenceError(
+            f"the classifier's noise setting asks for exposure {exposure_ms} ms / gain {gain_db} "
+            "dB, beyond what a light pattern can carry (uint32 us, float32 dB); retrain it with "
+            "a real camera setting")
     return AcquisitionPlan(np.ascontiguousarray(artifact.led_patterns[:, :k]), exposure_us, gain)
 
 

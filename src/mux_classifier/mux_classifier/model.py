@@ -17,8 +17,11 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
-import tempfile
+import reprlib
+import secrets
+import stat
 import zipfile
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -210,7 +213,20 @@ def noise_to_dict(noise, name: str | None = None) -> dict:
                 f"noise setting must be a dict or have attributes {keys} (a NoiseModel); "
                 f"got {type(noise).__name__}") from exc
         name = name or getattr(noise, "name", None) or "custom"
-    return {"name": str(name), **{k: (None if v is None else float(v)) for k, v in values.items()}}
+    result = {"name": str(name)}
+    for k, v in values.items():
+        if v is None:
+            result[k] = None
+            continue
+        try:
+            result[k] = float(v)
+        except (TypeError, ValueError, OverflowError):
+            raise ArtifactError(f"noise setting {k} must be a number or null, got "
+                                f"{reprlib.repr(v)}") from None
+        if not math.isfinite(result[k]) or (k != "gain_db" and result[k] < 0):
+            raise ArtifactError(f"noise setting {k} must be a finite number"
+                                f"{'' if k == 'gain_db' else ' >= 0'}, got {result[k]}")
+    return result
 
 
 @dataclass
@@ -249,13 +265,15 @@ class TrainedArtifact:
     provenance: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        self.led_patterns = np.asarray(self.led_patterns, dtype=np.float32)
+        with np.errstate(over="ignore"):  # out-of-range values become inf: refused below
+            self.led_patterns = np.asarray(self.led_patterns, dtype=np.float32)
         self.class_names = [str(c) for c in self.class_names]
         if isinstance(self.hog_config, dict):
             self.hog_config = HogConfig.from_dict(self.hog_config)
         self.noise = noise_to_dict(self.noise)
         if self.site_patterns is not None:
-            self.site_patterns = np.asarray(self.site_patterns, dtype=np.float32)
+            with np.errstate(over="ignore"):
+                self.site_patterns = np.asarray(self.site_patterns, dtype=np.float32)
         self.stages = [s if isinstance(s, LinearStage) else LinearStage(*s) for s in self.stages]
         self.stages.sort(key=lambda s: s.n_images)
         self._validate()
@@ -410,9 +428,12 @@ class TrainedArtifact:
             arrays[f"intercept_{s.n_images}"] = s.intercept
         path = os.fspath(path)
         directory = os.path.dirname(os.path.abspath(path))
-        fd, tmp = tempfile.mkstemp(prefix=".artifact-", suffix=".npz", dir=directory)
+        # a new file of its own ("x": never another's), created with the umask's mode as any
+        # other file (mkstemp's 0600 would survive the rename: unreadable to other users)
+        tmp = os.path.join(directory, f".artifact-{os.getpid()}-{secrets.token_hex(6)}.npz")
+        fh = open(tmp, "xb")
         try:
-            with os.fdopen(fd, "wb") as fh:
+            with fh:
                 np.savez_compressed(fh, **arrays)
             os.replace(tmp, path)
         except BaseException:
@@ -422,52 +443,125 @@ class TrainedArtifact:
 
     @classmethod
     def load(cls, path) -> "TrainedArtifact":
-        """Read an artifact written by :meth:`save`; never unpickles, never runs code."""
+        """Read an artifact written by :meth:`save`; never unpickles, never runs code.
+
+        Whatever else ``path`` holds (nothing, a directory, another kind of file, an archive
+        whose members are not .npy arrays, a malformed header or arrays) raises ArtifactError
+        saying what is wrong: a caller catches that one type.
+        """
         path = os.fspath(path)
         what = f"{path!r} is not a readable lightstage classifier file"
-        try:
-            with open(path, "rb") as fh:
-                data = fh.read()
-        except OSError as exc:
-            raise ArtifactError(f"cannot read classifier file {path!r}: {exc}") from exc
-        if not zipfile.is_zipfile(io.BytesIO(data)):
-            raise ArtifactError(
-                f"{what}: it is not an .npz archive (truncated, or another kind of file); "
-                "point to the .npz written by `lightstage train`, or retrain")
-        try:
-            with np.load(io.BytesIO(data), allow_pickle=False) as npz:
-                arrays = {name: npz[name] for name in npz.files}
-        except Exception as exc:  # corrupt members, pickled object arrays, bad CRC ...
-            raise ArtifactError(f"{what}: {type(exc).__name__}: {exc}; retrain to get a new file") from exc
-        if "header" not in arrays:
-            raise ArtifactError(f"{what}: it has no header (an .npz from something else?)")
-        try:
-            header = json.loads(arrays["header"].astype(np.uint8).tobytes().decode("utf-8"))
-        except (UnicodeDecodeError, ValueError) as exc:
-            raise ArtifactError(f"{what}: its header is not valid JSON ({exc})") from exc
-        if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
-            raise ArtifactError(f"{what}: header format is {header.get('format') if isinstance(header, dict) else header!r}, "
-                                f"expected {FORMAT_NAME!r}")
+        arrays = _read_npz(path, what)
+        header = _read_header(arrays, what)
         version = header.get("format_version")
         if version != FORMAT_VERSION:
             raise ArtifactError(
-                f"{path!r} is classifier format version {version}; this lightstage reads version "
-                f"{FORMAT_VERSION}. Retrain with this version (`lightstage train`) or use the "
-                "lightstage release that wrote it")
+                f"{path!r} is classifier format version {reprlib.repr(version)}; this lightstage "
+                f"reads version {FORMAT_VERSION}. Retrain with this version (`lightstage train`) "
+                "or use the lightstage release that wrote it")
         try:
-            n_images = [int(k) for k in header["n_images"]]
-            stages = [LinearStage(k, arrays[f"coef_{k}"], arrays[f"intercept_{k}"]) for k in n_images]
-            return cls(
-                led_patterns=arrays["led_patterns"],
-                class_names=list(header["class_names"]),
-                stages=stages,
-                noise=header["noise"],
-                hog_config=HogConfig.from_dict(header["hog_config"]),
-                mode=header["mode"],
-                site_patterns=arrays["site_patterns"] if header.get("has_site_patterns") else None,
-                provenance=dict(header.get("provenance") or {}),
-            )
+            return cls._from_file(header, arrays)
         except ArtifactError as exc:
             raise ArtifactError(f"{what}: {exc}") from None
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ArtifactError(f"{what}: missing or malformed field {exc}; retrain to get a new file") from exc
+        except Exception as exc:  # noqa: BLE001 - whatever else a malformed file trips over
+            raise ArtifactError(f"{what}: malformed content ({type(exc).__name__}: {exc}); "
+                                "retrain to get a new file") from exc
+
+    @classmethod
+    def _from_file(cls, header: dict, arrays: dict) -> "TrainedArtifact":
+        def field_of(key, kind, description):
+            value = header.get(key)
+            if not isinstance(value, kind):
+                raise ArtifactError(f"header field {key!r} must be {description}, got "
+                                    f"{reprlib.repr(value)}")
+            return value
+
+        def array(name):
+            if name not in arrays:
+                raise ArtifactError(f"it has no array {name!r}; retrain to get a new file")
+            a = arrays[name]
+            if a.dtype.kind not in "biuf":
+                raise ArtifactError(f"array {name!r} holds {a.dtype} values, not real numbers")
+            return a
+
+        n_images = field_of("n_images", list, "a list of image counts")
+        if not all(isinstance(k, int) and not isinstance(k, bool) for k in n_images):
+            raise ArtifactError(f"header field 'n_images' must list integers, got "
+                                f"{reprlib.repr(n_images)}")
+        class_names = field_of("class_names", list, "a list of class names")
+        if not all(isinstance(c, str) for c in class_names):
+            raise ArtifactError(f"header field 'class_names' must list strings, got "
+                                f"{reprlib.repr(class_names)}")
+        return cls(
+            led_patterns=array("led_patterns"),
+            class_names=class_names,
+            stages=[LinearStage(k, array(f"coef_{k}"), array(f"intercept_{k}")) for k in n_images],
+            noise=field_of("noise", dict, "an object (the noise setting)"),
+            hog_config=HogConfig.from_dict(field_of("hog_config", dict, "an object")),
+            mode=field_of("mode", str, f"one of {MODES}"),
+            site_patterns=(array("site_patterns")
+                           if field_of("has_site_patterns", bool, "true or false") else None),
+            provenance=dict(field_of("provenance", (dict, type(None)), "an object") or {}),
+        )
+
+
+def _read_npz(path: str, what: str) -> dict:
+    """The arrays of the .npz at ``path``; ArtifactError for anything else."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
+        raise ArtifactError(f"cannot read classifier file {path!r}: {exc}") from exc
+    if not stat.S_ISREG(mode):  # a directory, a device (endless), a pipe (blocks)
+        raise ArtifactError(f"{path!r} is not a regular file; point to the .npz written by "
+                            "`lightstage train`")
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except OSError as exc:
+        raise ArtifactError(f"cannot read classifier file {path!r}: {exc}") from exc
+    if not zipfile.is_zipfile(io.BytesIO(data)):
+        raise ArtifactError(
+            f"{what}: it is not an .npz archive (truncated, or another kind of file); "
+            "point to the .npz written by `lightstage train`, or retrain")
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+            arrays = {name: npz[name] for name in npz.files}
+    except Exception as exc:  # noqa: BLE001 - corrupt members, pickled object arrays, bad CRC ...
+        raise ArtifactError(f"{what}: {type(exc).__name__}: {exc}; retrain to get a new file") from exc
+    # np.load hands a member that is not an .npy file back as its raw bytes
+    not_arrays = sorted(name for name, a in arrays.items() if not isinstance(a, np.ndarray))
+    if not_arrays:
+        raise ArtifactError(f"{what}: its members {not_arrays} are not .npy arrays; retrain to "
+                            "get a new file")
+    return arrays
+
+
+def _finite_json_number(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"number {text} is out of range")
+    return value
+
+
+def _no_json_constant(name: str):
+    raise ValueError(f"{name} is not allowed")
+
+
+def _read_header(arrays: dict, what: str) -> dict:
+    """The artifact's JSON header (format name checked); ArtifactError if there is none."""
+    if "header" not in arrays:
+        raise ArtifactError(f"{what}: it has no header (an .npz from something else?)")
+    raw = arrays["header"]
+    if raw.dtype != np.uint8 or raw.ndim != 1:
+        raise ArtifactError(f"{what}: its header is a {raw.dtype} array of shape {raw.shape}, "
+                            "not the bytes of a JSON document (uint8, 1-D)")
+    try:
+        header = json.loads(raw.tobytes().decode("utf-8"), parse_float=_finite_json_number,
+                            parse_constant=_no_json_constant)
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise ArtifactError(f"{what}: its header is not valid JSON ({exc})") from exc
+    found = header.get("format") if isinstance(header, dict) else header
+    if found != FORMAT_NAME or not isinstance(header, dict):
+        raise ArtifactError(f"{what}: header format is {reprlib.repr(found)}, expected "
+                            f"{FORMAT_NAME!r}")
+    return header

@@ -6,7 +6,8 @@
   trains the final classifier on them ("a classifier was trained for each image count using noise-accurate
   rendered imagery").
 - `SnrOptimalClassifier`: the matrix from `snr_optimal.SnrOptimalMultiplexer` (stochastic
-  bit flips from the identity, cond < 100, lowest demultiplexing MSE) for the data's noise
+  bit flips from the identity and from the S-code, `start='identity'` for the paper's search
+  alone; cond < 100, lowest demultiplexing MSE) for the data's noise
   setting and mean single-site level; classifiers use its first k columns (the paper's
   shortcut evaluation). With noise 'none' the MSE criterion is undefined and the Hadamard
   S-matrix code (optimal for signal-independent noise) is used instead.
@@ -97,7 +98,7 @@ class SnrOptimalClassifier(FixedPatternClassifier):
     def __init__(self, n_images=None, n_iter=20000, mode='per_colour', n_repeats=400,
                  test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5, C=1.0,
                  final_classifier='linear_svm', final_C=1.0, final_alpha=0.1, noise='sigma3',
-                 dimmer=0.45, hog_config=None, seed=0, n_jobs=1):
+                 dimmer=0.45, hog_config=None, seed=0, n_jobs=1, start='both'):
         super().__init__(patterns=None, mode=mode, n_repeats=n_repeats,
                          test_fraction=test_fraction, inner_classifier=inner_classifier,
                          alpha=alpha, C=C, final_classifier=final_classifier, final_C=final_C,
@@ -105,6 +106,7 @@ class SnrOptimalClassifier(FixedPatternClassifier):
                          hog_config=hog_config, seed=seed, n_jobs=n_jobs)
         self.n_images = n_images
         self.n_iter = n_iter
+        self.start = start
 
     def _patterns_for(self, data: SearchData) -> np.ndarray:
         if self.mode != 'per_colour':
@@ -118,7 +120,7 @@ class SnrOptimalClassifier(FixedPatternClassifier):
             mean_level = float(np.mean(data.basis, dtype=np.float64))
             self.multiplexer_ = SnrOptimalMultiplexer(
                 n_sites=n_sites, noise=(data.noise_a, data.noise_b), n_iter=self.n_iter,
-                seed=self.seed).fit(mean_level)
+                start=self.start, seed=self.seed).fit(mean_level)
             W = self.multiplexer_.W_
         if self.n_images is not None:
             W = W[:, :int(self.n_images)]

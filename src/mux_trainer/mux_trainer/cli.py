@@ -9,6 +9,8 @@ import json
 import sys
 from pathlib import Path
 
+from lightstage_camera.workers import jobs_type, usable_cores
+
 from .data import NOISE_HELP, resolve_noise
 from .greedy import REFINE_TOP
 from .report import DEFAULT_METHODS, METHODS
@@ -23,15 +25,19 @@ def _hog_config(args):
         raise SystemExit(f'lightstage: bad feature options: {exc}') from None
 
 
-def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument('capture_dir', metavar='CAPTURE_DIR', help='capture folder (holds rig.yaml)')
+def _common(p: argparse.ArgumentParser, capture_optional: bool = False) -> None:
+    p.add_argument('capture_dir', metavar='CAPTURE_DIR', nargs='?' if capture_optional else None,
+                   help='capture folder (holds rig.yaml)'
+                        + ('; omit it with --from-results' if capture_optional else ''))
     p.add_argument('--repeats', type=int, default=400,
                    help='random 75/25 pose splits per candidate (default: 400, the paper)')
     p.add_argument('--max-images', type=int, default=8,
                    help='most pattern columns to select (default: 8)')
     p.add_argument('--seed', type=int, default=0, help='seed of splits and noise (default: 0)')
-    p.add_argument('--jobs', type=int, default=1,
-                   help='joblib workers for candidate evaluation (default: 1; -1 = all cores)')
+    p.add_argument('--jobs', type=jobs_type, default=usable_cores(),
+                   help='joblib workers for candidate evaluation (default: the cores this process '
+                        f'may use, {usable_cores()} here; -1 = all of them). The results do not '
+                        'depend on it')
     p.add_argument('--json', action='store_true', help='print the results as one JSON document')
     p.add_argument('--quiet', action='store_true', help='no progress on stderr')
     g = p.add_argument_group('features (defaults: the paper\'s HOG, 900 values per image)')
@@ -90,8 +96,13 @@ def train_main(argv: list[str] | None = None) -> int:
     if args.refine_top < 0:
         raise SystemExit(f'lightstage: --refine-top must be >= 0, got {args.refine_top}')
     hog_config = _hog_config(args)
+    from .training import ArtifactNotWritten, check_artifact_path, train_modelset
+    try:  # before the capture is loaded: a run must not end in an unwritable path
+        check_artifact_path(args.out)
+    except ValueError as exc:
+        raise SystemExit(f'lightstage train: {exc}') from None
     modelset = _load(args.capture_dir, hog_config)
-    from .training import train_modelset
+    not_written = None
     try:
         doc = train_modelset(
             modelset, args.out, capture=args.capture_dir, method=args.method, mode=args.mode, noise=args.noise,
@@ -101,13 +112,18 @@ def train_main(argv: list[str] | None = None) -> int:
             beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet)
     except ValueError as exc:
         raise SystemExit(f'lightstage train: {exc}') from None
+    except ArtifactNotWritten as exc:  # the result is printed all the same
+        not_written, doc = exc, exc.summary
     out, seconds = doc['artifact'], doc['train_seconds']
     if args.json:
         print(json.dumps(doc))
-    elif not args.quiet:
-        print(f'wrote {out}: {len(doc["patterns"][0])} pattern column(s), split accuracy by '
-              f'image count {doc["accuracy_by_images"]}, best at {doc["best_n_images"]}; '
-              f'{seconds:.1f} s')
+    elif not args.quiet or not_written:
+        print(f'{"kept" if not_written else "wrote"} {out}: {len(doc["patterns"][0])} pattern '
+              f'column(s), split accuracy by image count {doc["accuracy_by_images"]}, best at '
+              f'{doc["best_n_images"]}; {seconds:.1f} s')
+    if not_written:
+        print(f'lightstage train: {not_written}', file=sys.stderr)
+        return 1
     return 0
 
 
@@ -117,7 +133,7 @@ def eval_main(argv: list[str] | None = None) -> int:
         description='Evaluate naive, naive + BoW, SNR-optimal and greedy illumination on a '
                     'capture folder (Table 1 and accuracy vs image count of the paper), on '
                     'held-out poses rendered with fresh noise.')
-    _common(p)
+    _common(p, capture_optional=True)
     p.add_argument('--noise', default='sigma3',
                    help='comma-separated noise settings, e.g. sigma1,sigma2,sigma3 (default: '
                         'sigma3); the JSON\'s top-level "methods" are those of the first. Each '
@@ -136,7 +152,14 @@ def eval_main(argv: list[str] | None = None) -> int:
                         'exposures)')
     p.add_argument('--out', metavar='DIR', help='write results.json, CSVs and PNG plots here')
     p.add_argument('--no-plots', action='store_true', help='with --out: skip the PNG plots')
+    p.add_argument('--from-results', metavar='FILE',
+                   help='with --out: write the CSVs and plots of an earlier run from its '
+                        'results.json (e.g. one kept in the rescue folder), evaluate nothing')
     args = p.parse_args(argv)
+    if args.from_results:
+        return _outputs_from_results(p, args)
+    if not args.capture_dir:
+        p.error('give CAPTURE_DIR (or --from-results FILE --out DIR)')
     _positive(args, 'repeats', 'max_images', 'renders', 'beam_width')
     if args.joint_max_images is not None:
         _positive(args, 'joint_max_images')
@@ -154,8 +177,13 @@ def eval_main(argv: list[str] | None = None) -> int:
     if not 0 < args.holdout < 1:
         raise SystemExit(f'lightstage eval: --holdout must be in (0, 1), got {args.holdout}')
     hog_config = _hog_config(args)
+    from .report import check_output_dir, json_ready, keep_outputs, run_evaluation, write_outputs
+    if args.out:
+        try:  # before the evaluation: its results must not end in an unwritable folder
+            check_output_dir(args.out)
+        except ValueError as exc:
+            raise SystemExit(f'lightstage eval: {exc}') from None
     modelset = _load(args.capture_dir, hog_config)
-    from .report import json_ready, run_evaluation, write_outputs
     try:
         results = run_evaluation(modelset, noises, methods, n_repeats=args.repeats,
                                  max_images=args.max_images, holdout_fraction=args.holdout,
@@ -169,13 +197,9 @@ def eval_main(argv: list[str] | None = None) -> int:
                            'joint_max_images': args.joint_max_images or args.max_images,
                            'holdout': args.holdout, 'renders': args.renders, 'seed': args.seed,
                            'methods': methods, 'noise': noises}
-    if args.out:
-        for path in write_outputs(results, args.out, plots=not args.no_plots):
-            if not args.quiet:
-                print(f'wrote {path}', file=sys.stderr)
     doc = json_ready(results)
     if args.json:
-        print(json.dumps(doc))
+        print(json.dumps(doc), flush=True)
     else:
         for noise, r in doc['by_noise'].items():
             print(f'noise {noise}: held-out accuracy (test poses {r["test_poses"]})')
@@ -183,6 +207,42 @@ def eval_main(argv: list[str] | None = None) -> int:
                 types = ', '.join(f'{t} {100 * a:.1f}' for t, a in m['accuracy_by_type'].items())
                 print(f'  {name:<13} {100 * m["accuracy"]:6.2f} %  at {m["n_images"]} image(s)'
                       f'  [{types}]')
+        sys.stdout.flush()
+    if args.out:
+        try:
+            written = write_outputs(results, args.out, plots=not args.no_plots)
+        except OSError as exc:  # the folder changed during the run: keep the results
+            print(f'lightstage eval: {keep_outputs(doc, args.out, exc)}', file=sys.stderr)
+            return 1
+        for path in written:
+            if not args.quiet:
+                print(f'wrote {path}', file=sys.stderr)
+    return 0
+
+
+def _outputs_from_results(p: argparse.ArgumentParser, args) -> int:
+    """`eval --from-results FILE --out DIR`: the outputs of a finished run, no evaluation."""
+    from .report import check_output_dir, write_outputs
+    if not args.out or args.capture_dir:
+        p.error('--from-results FILE takes --out DIR and no CAPTURE_DIR')
+    try:
+        doc = json.loads(Path(args.from_results).read_text())
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f'lightstage eval: cannot read {args.from_results} as JSON '
+                         f'({getattr(exc, "strerror", None) or exc}); give the results.json '
+                         'named in the message of the run') from None
+    try:
+        check_output_dir(args.out)
+        written = write_outputs(doc, args.out, plots=not args.no_plots)
+    except (OSError, ValueError) as exc:
+        raise SystemExit(f'lightstage eval: {exc}') from None
+    except (KeyError, TypeError, AttributeError) as exc:  # JSON, but not an eval's results
+        raise SystemExit(f'lightstage eval: {args.from_results} is not a results.json of '
+                         f'lightstage eval ({type(exc).__name__}: {exc}); give one it wrote') \
+            from None
+    for path in written:
+        if not args.quiet:
+            print(f'wrote {path}', file=sys.stderr)
     return 0
 
 

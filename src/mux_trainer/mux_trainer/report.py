@@ -11,11 +11,14 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import shlex
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from lightstage_camera.workers import check_jobs
 
 from .baselines import NaiveClassifier, SnrOptimalClassifier
 from .data import search_data
@@ -63,6 +66,7 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f'unknown methods {sorted(unknown)}; choose from {", ".join(METHODS)}')
+    check_jobs(n_jobs)
     data = search_data(modelset, noise, hog_config=hog_config)
     train_idx, test_idx = holdout_split(data, holdout_fraction, seed)
     train, test = data.subset(train_idx), data.subset(test_idx)
@@ -120,13 +124,45 @@ def json_ready(results: dict) -> dict:
     return out
 
 
+RESULTS_FILE = 'results.json'
+
+
+def check_output_dir(out_dir) -> Path:
+    """Refuse, before an evaluation, an output folder that cannot take its files: a regular
+    file, a path under one, a folder this user cannot create files in (checked by creating
+    one). Raises ValueError naming the folder and what to do."""
+    from lightstage_camera.acquisition import DestinationError, check_output_file
+    try:
+        return check_output_file(Path(out_dir) / RESULTS_FILE, overwrite=True).parent
+    except DestinationError as exc:
+        raise ValueError(f'cannot write the results into {out_dir}: {exc}') from None
+
+
+def keep_outputs(doc: dict, out_dir, error: Exception) -> str:
+    """Keep a JSON-ready result document whose outputs could not be written into `out_dir`
+    in a rescue folder; returns the message saying where (or that it could not be kept)."""
+    from lightstage_camera.acquisition import save_in_rescue_dir
+    failed = f'could not write the results into {out_dir} ({getattr(error, "strerror", None) or error})'
+    name = f'eval-{time.strftime("%Y%m%d-%H%M%S")}.{os.getpid()}.{RESULTS_FILE}'
+    try:
+        kept = save_in_rescue_dir(name, lambda path: path.write_text(json.dumps(doc, indent=2)))
+    except OSError as exc:
+        return (f'{failed}, nor in a rescue folder ({exc}); the results printed above are all '
+                'that is left of this run')
+    return (f'{failed}; the results are printed above and kept in {kept}: once the folder '
+            f'takes files, write the tables and plots from them with `lightstage eval '
+            f'--from-results {shlex.quote(str(kept))} --out {shlex.quote(str(out_dir))}`, no '
+            'need to evaluate again')
+
+
 def write_outputs(results: dict, out_dir, plots: bool = True) -> list[Path]:
-    """results.json, table1.csv, accuracy_vs_images.csv and (plots) PNG figures."""
+    """results.json, table1.csv, accuracy_vs_images.csv and (plots) PNG figures. `results`
+    is `run_evaluation`'s, or its JSON-ready document (`json_ready`, a results.json)."""
+    doc = json_ready(results)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    doc = json_ready(results)
-    path = out / 'results.json'
+    path = out / RESULTS_FILE
     path.write_text(json.dumps(doc, indent=2, sort_keys=False))
     written.append(path)
     types = results['object_types']

@@ -13,6 +13,7 @@ import time
 
 import rclpy
 from lightstage_camera.spinning import spin_until_stopped
+from lightstage_camera.workers import usable_cores
 from lightstage_interfaces.action import Train
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -24,8 +25,9 @@ from .greedy import REFINE_TOP
 from .training import train_from_capture
 
 ACTION_NAME = '/lightstage/train'
-NODE_NAME = 'mux_trainer'
+NODE_NAME = 'trainer'
 SITE_CANDIDATES = 254  # per-colour mode: patterns with 1..7 of 8 sites lit
+MAX_JOBS = 256
 
 
 class _Cancelled(Exception):
@@ -43,10 +45,13 @@ def goal_options(goal, n_jobs: int, refine_top: int = REFINE_TOP) -> dict:
 class TrainerNode(Node):
     def __init__(self, node_name: str = NODE_NAME, **kwargs):
         super().__init__(node_name, **kwargs)
-        self.declare_parameter('n_jobs', 2, ParameterDescriptor(
+        # 1..256: a range cannot hold -1 ("all cores") without 0, which means nothing to
+        # joblib; the default is all the cores this process may use
+        self.declare_parameter('n_jobs', min(usable_cores(), MAX_JOBS), ParameterDescriptor(
             type=ParameterType.PARAMETER_INTEGER,
-            description='joblib workers for candidate evaluation (-1 = all cores)',
-            integer_range=[IntegerRange(from_value=-1, to_value=256, step=1)]))
+            description='joblib worker processes for candidate evaluation (default: the cores '
+                        'this process may use)',
+            integer_range=[IntegerRange(from_value=1, to_value=MAX_JOBS, step=1)]))
         self.declare_parameter('refine_top', REFINE_TOP, ParameterDescriptor(
             type=ParameterType.PARAMETER_INTEGER,
             description='greedy: candidates per column re-scored with the exact linear SVM '
@@ -120,7 +125,8 @@ class TrainerNode(Node):
 
 
 def main(args=None) -> int:
-    rclpy.init(args=args)
+    from lightstage_camera.spinning import init_node
+    init_node(args)
     return spin_until_stopped(TrainerNode(), MultiThreadedExecutor(num_threads=2))
 
 if __name__ == '__main__':

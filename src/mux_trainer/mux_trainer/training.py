@@ -5,8 +5,11 @@ build the same estimator from the same options and write the same artifact.
 """
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
+
+from lightstage_camera.workers import check_jobs
 
 from .data import resolve_noise
 
@@ -25,6 +28,50 @@ def check_options(method: str, mode: str, noise: str, max_images: int, repeats: 
         raise ValueError(f'max_images and repeats must be >= 1, got {max_images} and {repeats}')
 
 
+class ArtifactNotWritten(OSError):
+    """A finished training whose artifact could not be written where asked. `summary` is the
+    run's summary ('artifact': where it was kept instead, None if nowhere); the message says
+    what to do."""
+
+    def __init__(self, message: str, summary: dict):
+        super().__init__(message)
+        self.summary = summary
+
+
+def check_artifact_path(out_path) -> Path:
+    """Refuse, before any work, an artifact path that cannot take the file: a folder, a path
+    under a regular file, a folder this user cannot create files in (checked by creating
+    one). Raises ValueError naming the path and what to do."""
+    from lightstage_camera.acquisition import DestinationError, check_output_file
+    try:
+        return check_output_file(out_path, overwrite=True)
+    except DestinationError as exc:
+        raise ValueError(f'cannot write the artifact {out_path}: {exc}') from None
+
+
+def _save_artifact(artifact, out: Path, summary: dict) -> None:
+    """Save to `out`; if that fails after all, keep it in a rescue folder and raise
+    ArtifactNotWritten saying where (the training is not lost)."""
+    from lightstage_camera.acquisition import save_in_rescue_dir
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        artifact.save(out)
+        return
+    except OSError as exc:
+        error = f'could not write the artifact {out} ({exc.strerror or exc})'
+    name = f'{out.stem}.{time.strftime("%Y%m%d-%H%M%S")}.{os.getpid()}{out.suffix or ".npz"}'
+    try:
+        kept = save_in_rescue_dir(name, artifact.save)
+    except OSError as exc:
+        summary['artifact'] = None
+        raise ArtifactNotWritten(f'{error}, nor in a rescue folder ({exc}); the trained '
+                                 'artifact is lost: free space or set LIGHTSTAGE_RESCUE_DIR '
+                                 'to a writable folder, then train again', summary) from None
+    summary['artifact'] = str(kept)
+    raise ArtifactNotWritten(f'{error}; the trained artifact is kept in {kept}: move it where '
+                             f'you want it (mv {kept} {out}); no need to train again', summary)
+
+
 def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8, repeats=400,
                 seed=0, n_jobs=1, hog_config=None, fixed_count=False, inner_classifier=None,
                 final_classifier='linear_svm', beam_width=1, progress=False, callback=None,
@@ -40,6 +87,7 @@ def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8
     from .greedy import REFINE_TOP, GreedyPatternSelector
 
     check_options(method, mode, noise, max_images, repeats)
+    check_jobs(n_jobs)
     common = dict(n_repeats=repeats, seed=seed, n_jobs=n_jobs, noise=noise, hog_config=hog_config,
                   final_classifier=final_classifier)
     if method == 'greedy':
@@ -56,14 +104,17 @@ def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8
 
 
 def load_training_set(capture_dir, image_size: int = 120):
-    """The capture folder's models, downscaled to the classifier's image size."""
-    from lightstage_camera.capture_format import load_capture
+    """The capture folder's models, downscaled to the classifier's image size; every class
+    must have the same number of poses (the pose splits need it)."""
+    from lightstage_camera.capture_format import check_equal_poses, load_capture
 
     path = Path(capture_dir)
     if not path.is_dir():
         raise ValueError(f'{capture_dir}: no such capture folder (write one with '
                          '`lightstage synth OUT_DIR`)')
-    return load_capture(path, downscale_to=image_size)
+    modelset = load_capture(path, downscale_to=image_size)
+    check_equal_poses(modelset, str(path))
+    return modelset
 
 
 def train_from_capture(capture_dir, out_path, *, image_size: int = 120, **options) -> dict:
@@ -74,6 +125,8 @@ def train_from_capture(capture_dir, out_path, *, image_size: int = 120, **option
     check_options(options.get('method', 'greedy'), options.get('mode', 'per_colour'),
                   options.get('noise', 'sigma3'), options.get('max_images', 8),
                   options.get('repeats', 400))
+    check_jobs(options.get('n_jobs', 1))
+    check_artifact_path(out_path)
     modelset = load_training_set(capture_dir, image_size)
     return train_modelset(modelset, out_path, capture=capture_dir, **options)
 
@@ -82,8 +135,11 @@ def train_modelset(modelset, out_path, *, capture=None, **options) -> dict:
     """Fit `build_model(**options)` on a ModelSet and save its artifact to `out_path`.
 
     Returns a JSON-ready summary: method, mode, noise, artifact path, class names, patterns,
-    images per pattern, split accuracy by column count, best column count, seconds.
+    images per pattern, split accuracy by column count, best column count, seconds. The
+    artifact path is checked first; an artifact that cannot be written at the end after all
+    is kept in a rescue folder (ArtifactNotWritten, an OSError, says where).
     """
+    out = check_artifact_path(out_path)
     model = build_model(**options)
     t0 = time.perf_counter()
     model.fit(modelset)
@@ -92,9 +148,6 @@ def train_modelset(modelset, out_path, *, capture=None, **options) -> dict:
     if capture is not None:
         provenance['capture'] = str(Path(capture).resolve())
     artifact = model.to_artifact(provenance=provenance)
-    out = Path(out_path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    artifact.save(out)
     summary = {
         'method': options.get('method', 'greedy'), 'mode': model.mode,
         'noise': options.get('noise', 'sigma3'), 'artifact': str(out),
@@ -107,4 +160,5 @@ def train_modelset(modelset, out_path, *, capture=None, **options) -> dict:
     }
     if hasattr(model, 'improved_'):
         summary['improved'] = [bool(v) for v in model.improved_]
+    _save_artifact(artifact, out, summary)
     return summary
