@@ -2,6 +2,22 @@
 from __future__ import annotations
 
 
+def child_pids(pid: int, command_has: str = '') -> list[int]:
+    """Ids of the live child processes of process `pid` whose command line contains
+    `command_has` (Linux /proc)."""
+    from pathlib import Path
+    out = []
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            fields = stat.read_text().rsplit(')', 1)[1].split()
+            command = (stat.parent / 'cmdline').read_bytes().replace(b'\0', b' ').decode()
+        except (OSError, IndexError):
+            continue      # gone meanwhile
+        if int(fields[1]) == pid and fields[0] != 'Z' and command_has in command:
+            out.append(int(stat.parent.name))
+    return out
+
+
 def wait_until(predicate, timeout_s: float, interval_s: float = 0.01) -> bool:
     import time
     deadline = time.monotonic() + timeout_s

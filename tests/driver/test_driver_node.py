@@ -12,7 +12,7 @@ import pytest
 from lightstage_bringup.ros_env import ros_environment
 from lightstage_driver.sim_backend import PythonSimBackend
 
-from driver_helpers import distinct_words, wait_until
+from driver_helpers import child_pids, distinct_words, wait_until
 
 pytestmark = pytest.mark.ros
 
@@ -105,6 +105,27 @@ class Client:
             self.executor.spin_once(timeout_sec=0.05)
         return predicate()
 
+    def wait_status(self, predicate, timeout_s=20.0):
+        """The first /diagnostics status from now on with predicate(status, values) true, and its
+        values (a key -> value dict); fails the test if none comes within timeout_s."""
+        self.diagnostics.clear()
+        found = []
+
+        def check():
+            for array in self.diagnostics:
+                status = array.status[0]
+                values = {kv.key: kv.value for kv in status.values}
+                if predicate(status, values):
+                    found.append((status, values))
+                    return True
+            return False
+        seen = lambda: [{kv.key: kv.value for kv in a.status[0].values}.get('state') for a in self.diagnostics]
+        assert self.spin_until(check, timeout_s), f'no such /diagnostics status within {timeout_s} s: {seen()}'
+        return found[0]
+
+    def wait_state(self, state, timeout_s=20.0):
+        return self.wait_status(lambda status, values: values['state'] == state, timeout_s)
+
     def close(self):
         self.executor.shutdown()
         self.node.destroy_node()
@@ -127,6 +148,10 @@ def eye(*leds):
     pattern = np.zeros(32)
     pattern[list(leds)] = 1.0
     return pattern
+
+
+ALL_ON = (1 << 32) - 1
+ONE_SECOND_US = 1_000_000
 
 
 def test_apply_triggers_stamps_and_publishes_illumination(rig):
@@ -156,7 +181,10 @@ def test_apply_triggers_stamps_and_publishes_illumination(rig):
 
 def test_bad_request_is_refused_and_nothing_is_sent(rig):
     backend, proc, client = rig
-    client.apply([eye(1)], trigger=True)
+    backend.reset_observations()
+    assert client.apply([eye(1)], trigger=True).success
+    # the simulator reports the pulse and the dark word after the reply: let them in first
+    assert wait_until(lambda: len(backend.trigger_pulses()) == 1 and backend.current_word() == 0, 5.0)
     backend.reset_observations()
     bad = eye(2)
     bad[6] = 1.7
@@ -193,18 +221,99 @@ def test_deactivate_darkens_and_refuses_then_activate_serves_again(rig):
     assert client.apply([eye(1)]).success
 
 
-def test_a_fault_is_reported_and_the_link_recovers(rig):
+def test_a_lost_port_is_reported_requests_fail_at_once_and_the_link_comes_back(rig):
+    # issue 12, item 10, for a port that is not the driver's own simulator (as a real serial
+    # port): the firmware process is killed, its pty goes
     backend, proc, client = rig
-    backend.kill()
+    client.wait_state('armed')
+    os.kill(backend.pid, signal.SIGKILL)
+    status, values = client.wait_state('link down')      # the heartbeat noticed
+    assert status.level == DiagnosticStatus.ERROR
+    assert 'heartbeat failed' in status.message and 'went away' in status.message
+    assert f'the driver tries to reopen {backend.port} every 1 s' in status.message
     response = client.apply([eye(3)])
-    assert not response.success and ('went away' in response.message or 'does not exist' in response.message)
-    client.diagnostics.clear()
-    assert client.spin_until(lambda: any(
-        {kv.key: kv.value for kv in d.status[0].values}['state'] == 'fault' for d in client.diagnostics))
+    assert not response.success
+    assert 'the link to the stage is down (heartbeat failed' in response.message   # the reason, at once
+    assert 'nothing was sent' in response.message and 'tries to reopen' in response.message
     backend.restart()
+    status, values = client.wait_state('armed', 30.0)
+    assert int(values['reconnects']) >= 1
     response = client.apply([eye(3)])
     assert response.success, response.message
-    assert backend.current_word() == 0
+    assert wait_until(lambda: backend.current_word() == 0, 5.0)
+
+
+def test_firmware_killed_mid_sequence_the_reply_says_the_leds_state_is_unknown(rig):
+    # issue 12, item 9: the reply said "LEDs switched off" while the driver could not switch
+    # them off and the last latched word was all 32 LEDs on
+    backend, proc, client = rig
+    client.wait_state('armed')
+    backend.reset_observations()
+    request = ApplyPatterns.Request(trigger=True)
+    for _ in range(4):
+        request.patterns.append(Pattern(intensities=np.ones(32, dtype=np.float32), exposure_us=ONE_SECOND_US))
+    future = client.apply_client.call_async(request)
+    assert backend.wait_for(lambda words, pulses: bool(words) and words[-1].word == ALL_ON, 20.0)
+    os.kill(backend.pid, signal.SIGKILL)                   # mid-sequence, all 32 LEDs lit
+    client.executor.spin_until_future_complete(future, timeout_sec=30.0)
+    assert future.done(), 'no reply'
+    response = future.result()
+    assert not response.success
+    message = response.message
+    assert 'went away' in message and 'LEDs switched off' not in message
+    assert 'The board is unreachable, so the state of its LEDs is unknown' in message
+    assert 'its watchdog (watchdog_ms = 1000)' in message
+    assert 'the driver switches them off when it reconnects' in message
+    assert 'trigger(s) happened and were published' in message
+    status, values = client.wait_state('link down')
+    assert status.level == DiagnosticStatus.ERROR and 'apply failed' in status.message
+    backend.restart()
+    client.wait_state('armed', 30.0)
+    assert client.apply([eye(7)]).success
+
+
+def test_the_drivers_own_simulator_killed_is_noticed_reported_and_restarted():
+    # issue 12, item 10: with port sim, the simulator child killed was never restarted and every
+    # request waited 10-12 s for "driver did not answer"
+    domain = own_domain(5)
+    proc = start_node('sim', 'stage_driver_sim_killed', 'reconnect_period_s:=5.0', domain_id=domain)
+    client = Client('stage_driver_sim_killed', domain)
+    try:
+        assert client.apply([eye(0)], trigger=False).success
+        status, values = client.wait_state('armed')
+        sims = child_pids(proc.pid, 'lightstage_driver.firmware_sim')
+        assert sims == [int(values['simulator_pid'])]
+        os.kill(sims[0], signal.SIGKILL)
+        # the next request: a reply with the reason (the link down, or the port gone under it),
+        # never a wait for a dead simulator
+        response = client.apply([eye(1)])
+        assert not response.success
+        assert 'the link to the stage is down' in response.message or 'went away' in response.message
+        response = client.apply([eye(1)])
+        assert not response.success
+        assert 'the link to the stage is down' in response.message
+        assert 'the driver restarts its firmware simulator and reconnects every 5 s' in response.message
+        status, values = client.wait_state('link down')
+        assert status.level == DiagnosticStatus.ERROR
+        status, values = client.wait_status(
+            lambda status, values: values['state'] == 'armed' and values['simulator_restarts'] == '1', 60.0)
+        restarted = int(values['simulator_pid'])
+        assert restarted != sims[0] and restarted in child_pids(proc.pid)
+        response = client.apply([eye(2)])
+        assert response.success, response.message
+
+        # inactive (no heartbeats), the simulator's exit alone is noticed
+        assert client.transition(Transition.TRANSITION_DEACTIVATE)
+        os.kill(restarted, signal.SIGKILL)
+        status, values = client.wait_state('link down')
+        assert 'the firmware simulator process was killed by signal 9 (SIGKILL)' in status.message
+        assert client.transition(Transition.TRANSITION_ACTIVATE)
+        status, values = client.wait_status(
+            lambda status, values: values['state'] == 'armed' and values['simulator_restarts'] == '2', 60.0)
+        assert client.apply([eye(3)]).success
+    finally:
+        client.close()
+        assert stop_node(proc) == 0
 
 
 def test_shutdown_switches_the_leds_off():
@@ -241,10 +350,16 @@ def test_port_sim_starts_its_own_simulator():
 
 @pytest.mark.parametrize('port, params, reason', [
     ('/nonexistent/ttyACM9', (), '/nonexistent/ttyACM9 does not exist'),
+    # issue 12, item 8: these gave "Could not configure port: (25, 'Inappropriate ioctl for device')"
+    ('/dev/null', (), '/dev/null is not a serial device'),
+    ('REGULAR_FILE', (), 'is a regular file, not a serial device'),
     ('sim', ('sites:=6',), 'drives 8 sites x 4 channels, but this rig is configured as 6 x 4'),
     ('sim', ('heartbeat_period_s:=0.8',), 'heartbeat_period_s 0.8 is too long for watchdog_ms 1000'),
 ])
-def test_a_configure_failure_leaves_the_node_up_unconfigured_with_the_reason(port, params, reason):
+def test_a_configure_failure_leaves_the_node_up_unconfigured_with_the_reason(port, params, reason, tmp_path):
+    if port == 'REGULAR_FILE':
+        port = str(tmp_path / 'ttyACM0')
+        Path(port).write_bytes(b'')
     proc = start_node(port, 'stage_driver_no_port', *params, domain_id=own_domain(3))
     client = Client('stage_driver_no_port', own_domain(3))
     try:
@@ -252,6 +367,8 @@ def test_a_configure_failure_leaves_the_node_up_unconfigured_with_the_reason(por
         status = client.diagnostics[-1].status[0]
         assert status.level == DiagnosticStatus.ERROR
         assert 'unconfigured' in status.message and reason in status.message
+        if 'serial device' in reason:      # and what to give instead
+            assert 'usb:SERIAL' in status.message and '`sim`' in status.message
         response = client.apply([eye(0)])
         assert not response.success and 'not active' in response.message
         assert proc.poll() is None

@@ -1,5 +1,8 @@
 """Injected faults (Python simulator): each leads to a retry or a clear error in time, LEDs end dark."""
 import errno
+import os
+import signal
+import termios
 import time
 
 import numpy as np
@@ -7,8 +10,8 @@ import pytest
 import serial
 
 from lightstage_driver import link as link_module
-from lightstage_driver.errors import (DisconnectedError, LinkError, NoReplyError, PortNotFoundError,
-                                      PortPermissionError, ReplyChecksumError)
+from lightstage_driver.errors import (DisconnectedError, LinkError, NoReplyError, NotASerialPortError,
+                                      PortNotFoundError, PortPermissionError, ReplyChecksumError)
 from lightstage_driver.stage import LightStage
 
 from driver_helpers import wait_until
@@ -129,6 +132,26 @@ def test_a_lost_sequence_event_is_an_error_and_leds_end_dark(sim, stage):
     assert wait_until(lambda: sim.current_word() == 0, 1.0)
 
 
+def test_a_sequence_that_never_ends_on_a_dead_line_does_not_claim_the_leds_are_off(sim, stage):
+    # the end-of-sequence event is lost and, once the first trigger is reported, the firmware
+    # stops answering: the host's ALL_OFF goes unanswered, so nothing is known of the LEDs
+    sim.set_faults(corrupt_only_cmd=0x42, corrupt_tx_next=1)
+    patterns = np.ones((3, 32))
+    with pytest.raises(LinkError, match='did not finish') as info:
+        stage.apply(patterns, 1000, on_trigger=lambda trigger: sim.set_faults(mute_all=True))
+    message = str(info.value)
+    assert 'switching the LEDs off failed too' in message and 'their state is unknown' in message
+    assert 'LEDs switched off' not in message
+
+
+def test_a_sequence_that_never_ends_says_the_leds_were_switched_off_when_they_were(sim, stage):
+    sim.set_faults(corrupt_only_cmd=0x42, corrupt_tx_next=1)   # only the end-of-sequence event lost
+    with pytest.raises(LinkError, match='did not finish') as info:
+        stage.apply(np.ones((3, 32)), 1000)
+    assert str(info.value).endswith('LEDs switched off')
+    assert wait_until(lambda: sim.current_word() == 0, 1.0)
+
+
 def test_disconnect_mid_use_then_replug_recovers(sim, stage):
     stage.set_pattern(one_hot(9))
     assert wait_until(lambda: sim.current_word() == 1 << 9, 1.0)
@@ -140,6 +163,17 @@ def test_disconnect_mid_use_then_replug_recovers(sim, stage):
     assert not status.leds_lit                 # the device reset on re-plug: dark
     assert stage.link.stats.reconnects == 1
     stage.apply(one_hot(4), 500)
+
+
+def test_a_port_failing_in_tcdrain_is_a_disconnect(sim, stage):
+    # seen when the simulator died between a command's write and its flush: termios.error is
+    # no OSError, and it took the driver node down
+    def fail():
+        raise termios.error(5, 'Input/output error')
+    stage.link._serial.flush = fail
+    with pytest.raises(DisconnectedError, match='went away'):
+        stage.heartbeat()
+    assert not stage.link.is_open
 
 
 def test_port_gone_for_good_is_port_not_found(sim):
@@ -154,11 +188,38 @@ def test_port_gone_for_good_is_port_not_found(sim):
     assert time.monotonic() - start < 0.3 + 1.0     # connect timeout + slack for a loaded machine
 
 
+def test_a_killed_simulator_leaves_no_link_to_its_pty(sim):
+    # else a reconnecting driver would open whatever pty next gets the dead one's number
+    assert os.path.realpath(sim.port) == sim.pty_path
+    os.kill(sim.pid, signal.SIGKILL)
+    assert wait_until(lambda: not os.path.lexists(sim.port), 5.0)
+    sim.restart()
+    assert os.path.realpath(sim.port) == sim.pty_path
+
+
 def test_missing_port_and_unknown_usb_serial_are_named():
     with pytest.raises(PortNotFoundError, match='/nonexistent/ttyACM7 does not exist'):
         LightStage('/nonexistent/ttyACM7', connect_timeout_s=0.2).connect()
     with pytest.raises(PortNotFoundError, match="serial number 'NOSUCHSTAGE'"):
         LightStage('usb:NOSUCHSTAGE', connect_timeout_s=0.2).connect()
+
+
+@pytest.mark.parametrize('kind', ['regular file', 'directory', '/dev/null'])
+def test_a_path_that_is_no_serial_device_is_named_so(kind, tmp_path):
+    # issue 12, item 8: a regular file or /dev/null gave "Could not configure port: (25,
+    # 'Inappropriate ioctl for device')"
+    if kind == 'regular file':
+        port, said = tmp_path / 'ttyACM0', 'is a regular file, not a serial device'
+        port.write_bytes(b'')
+    elif kind == 'directory':
+        port, said = tmp_path, 'is a directory, not a serial device'
+    else:
+        port, said = '/dev/null', '/dev/null is not a serial device'
+    with pytest.raises(NotASerialPortError) as info:
+        LightStage(str(port), connect_timeout_s=0.2).connect()
+    message = str(info.value)
+    assert said in message
+    assert '/dev/ttyACM0' in message and 'usb:SERIAL' in message and '`sim`' in message   # what to give
 
 
 def test_usb_serial_number_resolves_to_its_device(monkeypatch):
@@ -174,6 +235,7 @@ def test_usb_serial_number_resolves_to_its_device(monkeypatch):
 def test_permission_denied_says_what_to_do(monkeypatch, tmp_path):
     device = tmp_path / 'ttyACM0'
     device.touch()
+    monkeypatch.setattr(link_module, 'not_a_serial_device', lambda path: '')  # the file stands in for a tty
 
     def refuse(*args, **kwargs):
         raise serial.SerialException(errno.EACCES, f"could not open port {device}: [Errno 13] Permission denied")

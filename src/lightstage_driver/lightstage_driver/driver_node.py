@@ -7,12 +7,22 @@ activate   arms it: `/lightstage/apply_patterns` is served, `/illumination` is p
 deactivate switches every LED off; cleanup closes the port; shutdown does both.
 With `autostart` (default) the node configures and activates itself, so the graph comes
 up without a lifecycle manager. `/diagnostics` reports the link in every state.
+
+A lost link (the port gone, the firmware silent, the node's own simulator exited) is noticed
+by the failing heartbeat or command, or at once by the simulator's exit: the state becomes
+`link down` (ERROR on `/diagnostics`), requests fail at once with the reason, and a thread
+reopens the port (restarting the simulator first for `port:=sim`) every
+`reconnect_period_s` until the firmware answers; then every LED is switched off and the
+node is armed again.
 """
 from __future__ import annotations
 
 import math
+import signal
 import sys
+import threading
 import time
+import traceback
 
 import numpy as np
 import rclpy
@@ -27,7 +37,7 @@ from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_services_default
 from rclpy.service_introspection import ServiceIntrospectionState
 
-from .errors import FirmwareMismatchError, LightStageError, PatternError
+from .errors import DisconnectedError, FirmwareMismatchError, LightStageError, PatternError
 from .sim_backend import backend_from_url, is_sim_url
 from .stage import LightStage, Trigger
 
@@ -50,6 +60,11 @@ def _text(description: str, ptype=ParameterType.PARAMETER_STRING) -> ParameterDe
     return ParameterDescriptor(type=ptype, description=description)
 
 
+def _sentence(text: str) -> str:
+    """`text` ending in one full stop, to go before another sentence."""
+    return text.rstrip('. ') + '.'
+
+
 PARAMETERS = {
     'port': ('sim', _text('serial port path, usb:SERIAL, or sim / sim://?pwm_bits=8&latency_ms=1 '
                           'to start the Python firmware simulator')),
@@ -64,6 +79,8 @@ PARAMETERS = {
     'watchdog_ms': (1000, _int('firmware watchdog: LEDs off after this much host silence [ms]',
                                50, 60_000)),
     'diagnostics_period_s': (1.0, _float('/diagnostics period [s]', 0.1, 60.0)),
+    'reconnect_period_s': (1.0, _float('while the link is down: time between attempts to reopen the port '
+                                       '(restarting the simulator first for port sim) [s]', 0.1, 60.0)),
     'sites': (8, _int('rig layout: illumination sites the firmware must report', 1, 32)),
     'channels': (4, _int('rig layout: LEDs (colour channels) per site the firmware must report', 1, 32)),
     'frame_id': ('lightstage', _text('frame id of the rig in IlluminationState headers')),
@@ -91,6 +108,11 @@ class LightStageDriverNode(LifecycleNode):
         self._illumination_pub = None
         self._heartbeat_timer = None
         self._active = False
+        self.link_down = ''              # why the link is down ('' while it is up)
+        self.simulator_restarts = 0
+        self._link_guard = threading.Lock()       # link_down and the reconnect thread
+        self._reconnect_thread: threading.Thread | None = None
+        self._stop_reconnect = threading.Event()
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._diag_timer = self.create_timer(self.p('diagnostics_period_s'), self._publish_diagnostics)
         self._service = self.create_service(ApplyPatterns, SERVICE_NAME, self._on_apply)
@@ -114,13 +136,14 @@ class LightStageDriverNode(LifecycleNode):
             if is_sim_url(port):
                 self.backend = backend_from_url(port)
                 self.backend.start()
+                self.backend.on_exit = self._on_simulator_exit
                 device = self.backend.port
                 self.get_logger().info(f'started the Python firmware simulator on {device}')
             else:
                 device = port
             self.stage = LightStage(device, self.p('baud'), self.p('timeout_ms') / 1000.0, self.p('retries'),
                                     self.p('connect_timeout_s'), watchdog_ms=self.p('watchdog_ms'),
-                                    on_watchdog=self._on_watchdog)
+                                    on_watchdog=self._on_watchdog, auto_reopen=False)
             ident = self.stage.connect()
             layout = (self.p('sites'), self.p('channels'))
             if (ident.sites, ident.channels) != layout:
@@ -134,6 +157,7 @@ class LightStageDriverNode(LifecycleNode):
             self._release()
             return TransitionCallbackReturn.FAILURE
         self.link_state = 'connected'
+        self.link_down = ''
         self.get_logger().info(
             f'connected to {ident.name} {ident.version_string} on {device}: {ident.led_count} LEDs '
             f'({ident.sites} sites x {ident.channels} channels), pwm_bits {ident.pwm_bits}, exposure '
@@ -182,6 +206,9 @@ class LightStageDriverNode(LifecycleNode):
 
     def _release(self) -> None:
         """LEDs off (best effort), port closed, simulator stopped."""
+        if self.backend is not None:
+            self.backend.on_exit = None    # stopping it now is no fault
+        self._stop_reconnecting()
         if self.stage is not None:
             self.stage.close(all_off=True)
             self.stage = None
@@ -192,15 +219,92 @@ class LightStageDriverNode(LifecycleNode):
             self.destroy_lifecycle_publisher(self._illumination_pub)
             self._illumination_pub = None
 
-    def _leds_off(self, why: str) -> None:
+    def _leds_off(self, why: str) -> str:
+        """Switch every LED off: '' when done, else why not (logged)."""
         if self.stage is None:
-            return
-        try:
-            self.stage.all_off()
-        except LightStageError as exc:
-            # the firmware watchdog darkens the LEDs anyway once we fall silent
-            self._note_error(f'could not switch LEDs off ({why}): {exc}')
+            return ''
+        failed = f'the link is down ({self.link_down})' if self.link_down else self.stage.try_all_off()
+        if failed:
+            self._note_error(f'could not switch LEDs off ({why}): {_sentence(failed)} {self._leds_unknown()}')
             self.get_logger().error(self.last_error)
+        return failed
+
+    def _leds_unknown(self) -> str:
+        """What is known of the LEDs when the board does not answer."""
+        return (f'The board is unreachable, so the state of its LEDs is unknown (the last command may '
+                f'have left them lit): a board that still runs switches them off itself once its '
+                f'watchdog (watchdog_ms = {self.p("watchdog_ms")}) has heard nothing for that long, and '
+                f'the driver switches them off when it reconnects')
+
+    # ------------------------------------------------------------------ lost link
+    def _recovery_plan(self) -> str:
+        what = 'restarts its firmware simulator and reconnects' if self.backend is not None else \
+            f'tries to reopen {self.p("port")}'
+        return f'the driver {what} every {self.p("reconnect_period_s"):g} s'
+
+    def _on_simulator_exit(self, code: int | None) -> None:
+        # the simulator's reader thread: its process is gone, the pty with it
+        if code is None:
+            how = 'closed its output'
+        elif code < 0:
+            names = {int(sig): sig.name for sig in signal.Signals}
+            how = f'was killed by signal {-code} ({names.get(-code, "unnamed")})'
+        else:
+            how = f'exited with status {code}'
+        self._link_lost(f'the firmware simulator process {how}')
+
+    def _link_lost(self, reason: str) -> None:
+        """Mark the link down (requests fail at once) and reconnect in the background.
+        Called from the executor or the simulator's reader thread."""
+        with self._link_guard:
+            if self.stage is None or self.link_down:
+                return
+            self.link_down = reason
+            self._note_error(f'link down: {reason}')
+            self.get_logger().error(f'{_sentence(self.last_error)} {self._leds_unknown()}; {self._recovery_plan()}')
+            self._stop_reconnect.clear()
+            self._reconnect_thread = threading.Thread(
+                target=self._reconnect, args=(self.stage, self.backend, reason, self.p('reconnect_period_s')),
+                daemon=True, name='lightstage-reconnect')
+            self._reconnect_thread.start()
+
+    def _reconnect(self, stage: LightStage, backend, reason: str, period_s: float) -> None:
+        """Until the firmware answers again: (restart the simulator,) reopen, identify, LEDs off."""
+        if stage.link.is_open:
+            stage.try_all_off()      # the port still works (a silent firmware): worth one try
+        stage.link.close()
+        # wait first: a re-plugged board needs a moment, and a simulator that dies at once must
+        # not be restarted in a tight loop
+        while not self._stop_reconnect.wait(period_s):
+            try:
+                if backend is not None and not backend.running:
+                    backend.restart()
+                    self.simulator_restarts += 1
+                    self.get_logger().info(f'restarted the firmware simulator (pid {backend.pid})')
+                stage.link.ensure_open()
+                stage.all_off()      # a known state: dark
+            except Exception as exc:  # noqa: BLE001 (this thread must outlive any failure)
+                stage.link.close()
+                with self._link_guard:
+                    if not self._stop_reconnect.is_set():
+                        self.link_down = f'{reason}; reconnecting failed: {exc}'
+                continue
+            with self._link_guard:
+                if self._stop_reconnect.is_set():
+                    return
+                self.link_down = ''
+                self.link_state = 'armed' if self._active else 'connected'
+            self.get_logger().info(f'link to the stage is back ({stage.link.device}); LEDs switched off')
+            return
+
+    def _stop_reconnecting(self) -> None:
+        self._stop_reconnect.set()
+        thread = self._reconnect_thread
+        if thread is not None and thread is not threading.current_thread():
+            # at most one attempt in flight: a simulator start and a connect
+            thread.join(self.p('connect_timeout_s') + 15.0)
+        self._reconnect_thread = None
+        self.link_down = ''
 
     def _note_error(self, message: str) -> None:
         self.errors += 1
@@ -213,38 +317,44 @@ class LightStageDriverNode(LifecycleNode):
 
     # ------------------------------------------------------------------ periodic work
     def _heartbeat(self) -> None:
-        if self.stage is None:
+        if self.stage is None or self.link_down:
             return
         try:
             self.stage.heartbeat()
             self.link_state = 'armed'
-        except LightStageError as exc:
+        except Exception as exc:  # noqa: BLE001 (a timer callback that raises stops the node)
+            if not isinstance(exc, LightStageError):
+                self.get_logger().error(f'unexpected error in the heartbeat: {traceback.format_exc()}')
             self.faults += 1
-            self.link_state = 'fault'
-            self._note_error(f'heartbeat failed: {exc}')
-            self.get_logger().error(self.last_error)
-            self._leds_off('fault')
+            self._link_lost(f'heartbeat failed: {exc}')
 
     def _publish_diagnostics(self) -> None:
         status = DiagnosticStatus(name=f'{self.get_name()}: light stage link')
         ident = self.stage.link.identity if self.stage is not None else None
         stats = self.stage.link.stats.as_dict() if self.stage is not None else {}
-        healthy = self.link_state in ('armed', 'connected')
+        state = 'link down' if self.link_down else self.link_state
+        healthy = state in ('armed', 'connected')
         if healthy:
             status.level = DiagnosticStatus.OK
-        elif self.link_state == 'unconfigured' and not self.last_error:
+        elif state == 'unconfigured' and not self.last_error:
             status.level = DiagnosticStatus.WARN
         else:
             status.level = DiagnosticStatus.ERROR
-        status.message = self.link_state if not self.last_error or healthy else \
-            f'{self.link_state}: {self.last_error}'
+        if self.link_down:
+            status.message = f'link down: {self.link_down}; {self._recovery_plan()}'
+        elif not self.last_error or healthy:
+            status.message = state
+        else:
+            status.message = f'{state}: {self.last_error}'
         status.hardware_id = f'{ident.name} {ident.version_string}' if ident else ''
-        values = {'state': self.link_state, 'port': str(self.p('port')),
+        values = {'state': state, 'port': str(self.p('port')),
                   'device': self.stage.link.device if self.stage else '',
                   'firmware': ident.name if ident else '', 'firmware_version': ident.version_string if ident else '',
                   'pwm_bits': ident.pwm_bits if ident else '', 'triggers': self.sequence,
                   'requests': self.request_id, 'errors': self.errors, 'faults': self.faults,
                   'watchdog_trips': self.stage.watchdog_trips if self.stage else 0,
+                  'simulator_pid': (self.backend.pid or '') if self.backend is not None else '',
+                  'simulator_restarts': self.simulator_restarts,
                   'last_error': self.last_error,
                   'clock_uncertainty_us': (round(self.stage.clock.uncertainty_s * 1e6, 1)
                                            if self.stage and self.stage.clock.synced else ''),
@@ -260,6 +370,10 @@ class LightStageDriverNode(LifecycleNode):
         if not self._active or self.stage is None:
             response.message = (f'the driver is not active (state {self.link_state}); configure and '
                                 f'activate it (or start it with autostart:=true)')
+            return response
+        if self.link_down:
+            response.message = (f'the link to the stage is down ({self.link_down}); nothing was sent; '
+                                f'{self._recovery_plan()}: retry when /diagnostics reports "armed"')
             return response
         if not request.patterns:
             response.message = 'no patterns in the request: send at least one Pattern'
@@ -286,13 +400,22 @@ class LightStageDriverNode(LifecycleNode):
         except PatternError as exc:
             response.message = f'rejected, nothing was sent: {exc}'
             return response
-        except LightStageError as exc:
+        except Exception as exc:  # noqa: BLE001 (no request may take the node down)
+            if not isinstance(exc, LightStageError):
+                self.get_logger().error(f'unexpected error while applying: {traceback.format_exc()}')
+                exc = LightStageError(f'{type(exc).__name__}: {exc}')
             self.faults += 1
-            self.link_state = 'fault'
             self._note_error(f'apply failed: {exc}')
             self.get_logger().error(self.last_error)
-            self._leds_off('fault')
-            response.message = f'{exc} (LEDs switched off; {len(published)} trigger(s) happened and were published)'
+            happened = f'{len(published)} trigger(s) happened and were published'
+            # a port that went away takes no ALL_OFF: do not wait for it
+            off_failed = str(exc) if isinstance(exc, DisconnectedError) else self._leds_off('fault')
+            if not off_failed:
+                self.link_state = 'fault'
+                response.message = f'{exc} (LEDs switched off; {happened})'
+                return response
+            self._link_lost(f'apply failed: {exc}')
+            response.message = f'{_sentence(str(exc))} {self._leds_unknown()}; {self._recovery_plan()}. {happened}.'
             return response
         self.link_state = 'armed'
         if len(published) != len(triggers):    # a callback missed: should not happen, be explicit

@@ -47,6 +47,10 @@ class PortPermissionError(LinkError):
     """The serial port exists but this user may not open it."""
 
 
+class NotASerialPortError(LinkError):
+    """The port path exists but is no serial device (a regular file, a directory, /dev/null)."""
+
+
 class NoReplyError(LinkError):
     """The firmware did not answer within the timeout, after every retry."""
 

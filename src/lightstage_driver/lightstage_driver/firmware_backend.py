@@ -14,7 +14,10 @@ from __future__ import annotations
 
 import abc
 import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass
+
+from .firmware_sim import remove_link
 
 
 @dataclass(frozen=True)
@@ -110,10 +113,29 @@ class ChildProcessBackend(FirmwareBackend):
 
     Subclasses start both in `start()` and say how to ask the child to exit politely
     (`_request_exit`); stopping, killing and reaping are the same for every such backend.
+    Their reader calls `_notify_exit(proc)` when the child's output ends: `port` stops pointing
+    at the child's pty (a SIGKILLed child cannot remove its link itself), and the child's exit
+    status goes to `on_exit` (if set) from the reader's thread, so an owner that did not stop
+    the child learns at once that its firmware is gone. An owner that stops the child on
+    purpose clears `on_exit` first.
     """
 
     _proc = None
     _reader = None
+    pty_path = ''      # the child's current pty (`port` links to it)
+    #: called with the exit status (None: still running after its output ended) when a child exits
+    on_exit: Callable[[int | None], None] | None = None
+
+    def _notify_exit(self, proc) -> None:
+        remove_link(self.port, self.pty_path)
+        callback = self.on_exit
+        if callback is None:
+            return
+        try:
+            code = proc.wait(5)
+        except subprocess.TimeoutExpired:
+            code = None
+        callback(code)
 
     def _request_exit(self, proc) -> None:
         proc.terminate()

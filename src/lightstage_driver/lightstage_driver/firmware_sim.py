@@ -70,6 +70,18 @@ def point_link(link: str, target: str) -> None:
     os.replace(tmp, link)
 
 
+def remove_link(link: str, target: str) -> None:
+    """Remove `link` if it still points at `target` (a pty that is going away).
+
+    As udev removes /dev/serial/by-id/... on unplug: a link left pointing at a closed pty
+    would lead whoever opens it to the next pty that reuses its number (another program's)."""
+    try:
+        if target and os.readlink(link) == target:
+            os.unlink(link)
+    except OSError:
+        pass      # no link, or not ours any more
+
+
 class PtyFirmware:
     """Runs a `FirmwareModel` on a pty in real time, with fault injection."""
 
@@ -110,6 +122,8 @@ class PtyFirmware:
         """Close the pty like a pulled cable; come back (reset) after a delay if given."""
         if self.model is not None and self.model.lit_word:
             self.model._latch(time.monotonic(), 0)    # a USB-powered board loses power: dark
+        if self.link:
+            remove_link(self.link, self.slave_path)
         for fd in (self.master, self.slave):
             if fd >= 0:
                 os.close(fd)
@@ -228,6 +242,8 @@ class PtyFirmware:
         self.outgoing.sort(key=lambda item: item[0])
 
     def close(self) -> None:
+        if self.link:
+            remove_link(self.link, self.slave_path)
         for fd in (self.master, self.slave):
             if fd >= 0:
                 os.close(fd)

@@ -6,13 +6,17 @@ re-plug under whatever /dev name it gets), sends one command at a time and waits
 reply. A reply lost or corrupted is retried with the same sequence number (the firmware
 answers a duplicate from its cache instead of executing it twice); a NAK raises
 `NakError` with the firmware's reason. If the port goes away the command in flight
-raises `DisconnectedError`; the next command reopens the port and re-identifies.
+raises `DisconnectedError`; the next command reopens the port and re-identifies (unless
+`auto_reopen` is off: then a closed link fails at once, and its owner reopens it with
+`ensure_open`, as the driver node does from a thread of its own).
 Events (sequence triggers, watchdog) that arrive are handed to `on_event`.
 """
 from __future__ import annotations
 
 import errno
 import os
+import stat
+import termios
 import threading
 import time
 from collections.abc import Callable
@@ -23,10 +27,14 @@ from serial.tools import list_ports
 
 from . import protocol as p
 from .errors import (DisconnectedError, FirmwareMismatchError, LinkError, NakError, NoReplyError,
-                     PortNotFoundError, PortPermissionError, ProtocolError, ReplyChecksumError)
+                     NotASerialPortError, PortNotFoundError, PortPermissionError, ProtocolError,
+                     ReplyChecksumError)
 
 USB_PREFIX = 'usb:'
 DEFAULT_BAUD = 115200
+PORT_FORMS = ('give the stage\'s serial port: a tty path such as /dev/ttyACM0 (better its '
+              '/dev/serial/by-id/... link) or usb:SERIAL (its USB serial number); the driver node\'s '
+              '`port` also takes `sim` for its built-in firmware simulator')
 
 
 @dataclass
@@ -69,11 +77,26 @@ def resolve_port(port: str) -> str:
     return port
 
 
+def not_a_serial_device(device: str) -> str:
+    """What `device` is if it exists but is plainly no serial device ('' otherwise)."""
+    try:
+        mode = os.stat(device).st_mode
+    except OSError:
+        return ''        # missing or unreadable: opening it says which
+    if stat.S_ISCHR(mode):
+        return ''        # a character device: only opening it tells a tty from /dev/null
+    if stat.S_ISREG(mode):
+        return 'a regular file'
+    if stat.S_ISDIR(mode):
+        return 'a directory'
+    return 'not a character device'
+
+
 class SerialLink:
     def __init__(self, port: str, baud: int = DEFAULT_BAUD, timeout_s: float = 0.1, retries: int = 3,
                  connect_timeout_s: float = 3.0,
                  on_event: Callable[[p.Frame, float], None] | None = None,
-                 on_connect: Callable[[p.Identity], None] | None = None):
+                 on_connect: Callable[[p.Identity], None] | None = None, auto_reopen: bool = True):
         if timeout_s <= 0 or retries < 0 or connect_timeout_s <= 0:
             raise ValueError('timeout_s and connect_timeout_s must be > 0 and retries >= 0')
         self.port = port
@@ -83,6 +106,7 @@ class SerialLink:
         self.connect_timeout_s = connect_timeout_s
         self.on_event = on_event or (lambda frame, t: None)
         self.on_connect = on_connect or (lambda identity: None)
+        self.auto_reopen = auto_reopen
         self.stats = LinkStats()
         self.identity: p.Identity | None = None
         self.device = ''
@@ -142,6 +166,9 @@ class SerialLink:
 
     def _open_port(self) -> None:
         device = resolve_port(self.port)
+        kind = not_a_serial_device(device)
+        if kind:
+            raise NotASerialPortError(f'{device} is {kind}, not a serial device: {PORT_FORMS}')
         try:
             ser = serial.Serial(device, self.baud, timeout=0, write_timeout=1.0, exclusive=True)
         except serial.SerialException as exc:
@@ -157,6 +184,11 @@ class SerialLink:
                     f'(usually `sudo usermod -aG dialout $USER`, then log in again)') from exc
             if code in (errno.EBUSY, errno.EAGAIN) or 'lock' in text.lower():
                 raise LinkError(f'serial port {device} is in use by another process: stop it first') from exc
+            if code == errno.ENOTTY or 'Inappropriate ioctl' in text:
+                # /dev/null and the like open fine but refuse the line settings
+                raise NotASerialPortError(
+                    f'{device} is not a serial device (a character device that takes no serial line '
+                    f'settings: {exc}): {PORT_FORMS}') from exc
             raise LinkError(f'cannot open serial port {device}: {exc}') from exc
         self._serial = ser
         self.device = device
@@ -175,8 +207,18 @@ class SerialLink:
         self.stats.disconnects += 1
         self.close()
         self.last_error = f'{self.port} disconnected: {exc}'
+        then = ' The next command reopens the port; check the cable.' if self.auto_reopen else ''
         return DisconnectedError(f'{self.port} went away ({exc}); the command may or may not have '
-                                 f'run. The next command reopens the port; check the cable.')
+                                 f'run.{then}')
+
+    def require_open(self) -> None:
+        """Reopen a closed link (`auto_reopen`) or fail at once with why it is closed."""
+        with self.lock:
+            if self._serial is not None:
+                return
+            if not self.auto_reopen:
+                raise DisconnectedError(f'{self.port} is not open ({self.last_error or "closed"})')
+            self.ensure_open()
 
     def ensure_open(self) -> None:
         """Reopen (and re-identify) after a disconnect, waiting up to connect_timeout_s."""
@@ -189,8 +231,9 @@ class SerialLink:
                     self.open()
                     self.stats.reconnects += 1
                     return
-                except (PortNotFoundError, NoReplyError, DisconnectedError, LinkError) as exc:
-                    if isinstance(exc, PortPermissionError) or time.monotonic() >= deadline:
+                except LinkError as exc:
+                    if isinstance(exc, (PortPermissionError, NotASerialPortError)) \
+                            or time.monotonic() >= deadline:
                         raise
                     time.sleep(0.05)
 
@@ -202,8 +245,7 @@ class SerialLink:
     def transact(self, cmd: int, payload: bytes = b'', extra_timeout_s: float = 0.0) -> Reply:
         """Send a command and return its reply; retries, NAKs and disconnects as described above."""
         with self.lock:
-            if self._serial is None:
-                self.ensure_open()
+            self.require_open()
             self.stats.commands += 1
             reply = self._transact_once(cmd, payload, self.timeout_s + extra_timeout_s, self.retries)
             if reply is None:
@@ -239,7 +281,8 @@ class SerialLink:
         try:
             self._serial.write(data)
             self._serial.flush()
-        except (OSError, serial.SerialException) as exc:
+        except (OSError, serial.SerialException, termios.error) as exc:
+            # termios.error: tcdrain on a pty whose other end just closed (EIO)
             raise self._lost(exc) from exc
         return time.monotonic()
 
@@ -251,7 +294,7 @@ class SerialLink:
             if data and ser.in_waiting:
                 data += ser.read(ser.in_waiting)
             return data
-        except (OSError, serial.SerialException, TypeError) as exc:
+        except (OSError, serial.SerialException, termios.error, TypeError) as exc:
             # TypeError: pyserial on a port closed under it
             raise self._lost(exc) from exc
 
@@ -316,8 +359,7 @@ class SerialLink:
     def poll_events(self, timeout_s: float) -> None:
         """Read for up to timeout_s and dispatch whatever events arrive (no command sent)."""
         with self.lock:
-            if self._serial is None:
-                self.ensure_open()
+            self.require_open()
             deadline = time.monotonic() + timeout_s
             while True:
                 now = time.monotonic()

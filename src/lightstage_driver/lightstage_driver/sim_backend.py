@@ -92,6 +92,7 @@ class PythonSimBackend(ChildProcessBackend):
                 elif ev == 'ack':
                     self._acks[record['id']] = record
                 self._lock.notify_all()
+        self._notify_exit(proc)
 
     def close(self) -> None:
         """Stop and remove the temp dir holding the port link."""
@@ -105,6 +106,12 @@ class PythonSimBackend(ChildProcessBackend):
     @property
     def running(self) -> bool:
         return self._proc is not None and self._proc.poll() is None
+
+    @property
+    def pid(self) -> int | None:
+        """The simulator process's id while it runs."""
+        proc = self._proc
+        return proc.pid if proc is not None and proc.poll() is None else None
 
     # ------------------------------------------------------------------ observations
     def led_words(self) -> list[LatchedWord]:

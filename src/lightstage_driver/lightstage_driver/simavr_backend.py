@@ -203,6 +203,7 @@ class SimavrBackend(ChildProcessBackend):
         with self._lock:
             self._output_ended = True
             self._lock.notify_all()
+        self._notify_exit(proc)
 
     def _request_exit(self, proc) -> None:
         try:

@@ -35,12 +35,13 @@ class LightStage:
 
     def __init__(self, port: str, baud: int = DEFAULT_BAUD, timeout_s: float = 0.1, retries: int = 3,
                  connect_timeout_s: float = 3.0, watchdog_ms: int | None = None,
-                 on_watchdog: Callable[[int], None] | None = None):
+                 on_watchdog: Callable[[int], None] | None = None, auto_reopen: bool = True):
         self.clock = FirmwareClock()
         self.watchdog_ms = watchdog_ms
         self.on_watchdog = on_watchdog or (lambda t_us: None)
         self.link = SerialLink(port, baud, timeout_s, retries, connect_timeout_s,
-                               on_event=self._on_event, on_connect=self._on_connect)
+                               on_event=self._on_event, on_connect=self._on_connect,
+                               auto_reopen=auto_reopen)
         self.watchdog_trips = 0
         self._seq_events: list[p.TriggerEvent] = []
         self._seq_done: p.SequenceDone | None = None
@@ -56,10 +57,7 @@ class LightStage:
     def close(self, all_off: bool = True) -> None:
         """Switch the LEDs off (best effort) and close the port."""
         if all_off and self.link.is_open:
-            try:
-                self.all_off()
-            except LinkError:
-                pass
+            self.try_all_off()
         self.link.close()
 
     def __enter__(self) -> 'LightStage':
@@ -126,6 +124,14 @@ class LightStage:
     def all_off(self) -> None:
         reply = self.link.transact(p.Command.ALL_OFF)
         self._add_probe(reply, p.unpack_u32(reply.frame.payload, 'ALL_OFF reply'))
+
+    def try_all_off(self) -> str:
+        """Switch every LED off if the board answers: '' when done, else why it failed."""
+        try:
+            self.all_off()
+        except LinkError as exc:
+            return str(exc)
+        return ''
 
     def _set_watchdog_raw(self, timeout_ms: int) -> None:
         reply = self.link._transact_once(p.Command.SET_WATCHDOG, struct.pack('<H', timeout_ms),
@@ -227,16 +233,18 @@ class LightStage:
         self._seq_entries, self._seq_first, self._seq_on_trigger = entries, first_index, on_trigger
         payload = p.pack_sequence(int(gap_us), entries)
         with self.link.lock:
-            self.link.ensure_open()
+            self.link.require_open()
             self._running_seq = self.link._seq % 255 + 1   # the seq transact will use
             try:
                 self.link.transact(p.Command.RUN_SEQUENCE, payload)
                 budget = sum(exposures_us) / 1e6 + len(entries) * (gap_us / 1e6 + 0.005) \
                     + self.link.timeout_s * (self.link.retries + 1)
                 if not self.link.wait_until(lambda: self._seq_done is not None, budget):
-                    self._abort_quietly()
+                    off_failed = self.try_all_off()
+                    leds = (f'switching the LEDs off failed too ({off_failed}): their state is unknown'
+                            if off_failed else 'LEDs switched off')
                     raise LinkError(f'{self.link.port}: sequence of {len(entries)} did not finish within '
-                                    f'{budget:.3f} s (got {len(self._seq_events)} triggers); LEDs switched off')
+                                    f'{budget:.3f} s (got {len(self._seq_events)} triggers); {leds}')
             finally:
                 self._running_seq = -1
                 self._seq_on_trigger = None
@@ -252,9 +260,3 @@ class LightStage:
                             f'line (corrupted); the camera was triggered but their stamps are unknown')
         return [self._trigger(first_index + k, entries[k].word, entries[k].exposure_us, got[k].t_trigger_us)
                 for k in range(len(entries))]
-
-    def _abort_quietly(self) -> None:
-        try:
-            self.all_off()
-        except LinkError:
-            pass
