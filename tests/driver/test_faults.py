@@ -64,8 +64,18 @@ def test_a_missing_reply_is_retried(sim, stage):
 
 def test_a_corrupted_command_gets_a_bad_crc_nak_and_is_resent(sim, stage):
     # line noise that looks like a frame start right before the command: the firmware reads
-    # A5 05 + the command's first bytes as one frame, finds the CRC wrong and NAKs BAD_CRC
-    stage.link._serial.write(bytes([0xA5, 0x05]))
+    # A5 05 + the command's first bytes as one frame, finds the CRC wrong and NAKs BAD_CRC.
+    # The noise goes out in the command's own write: written separately, a loaded machine
+    # can leave an inter-byte gap that makes the firmware drop it as a stale partial frame
+    # (it did: no NAK, no retry)
+    serial = stage.link._serial
+    write = serial.write
+
+    def write_after_noise(data):
+        serial.write = write
+        return write(bytes([0xA5, 0x05]) + bytes(data)) - 2
+
+    serial.write = write_after_noise
     word = stage.set_pattern(one_hot(2), show_now=True)
     assert stage.link.stats.firmware_crc_naks == 1 and stage.link.stats.retries == 1
     assert wait_until(lambda: sim.current_word() == word, 1.0)
