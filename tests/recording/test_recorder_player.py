@@ -29,7 +29,8 @@ def test_killed_recorder_bag_is_readable_and_replay_keeps_the_recorded_qos(tmp_p
     domain_id = fresh_domain_id()
     bag = tmp_path / 'killed'
     params = write_params(tmp_path / 'params.yaml', {
-        'recorder': {'output_dir': str(bag), 'flush_period_s': 0.1,
+        # split into small files: a killed recorder's closed files and its file in progress
+        'recorder': {'output_dir': str(bag), 'flush_period_s': 0.1, 'max_bag_size_bytes': 4096,
                      'topics': ['/stage_status', '/illumination'], 'include_regex': '^/late_'},
         'player': {'bag': str(tmp_path / 'fixed'), 'loop': True, 'rate': 5.0,
                    'topics': ['/stage_status', '/illumination']}})
@@ -63,6 +64,7 @@ def test_killed_recorder_bag_is_readable_and_replay_keeps_the_recorded_qos(tmp_p
         reader = BagReader(bag)
         info = reader.info()
         assert not info.complete and not info.has_metadata_yaml
+        assert len(info.files) > 1 and info.files[0].name == 'killed_0.mcap'
         assert any('no metadata.yaml' in p for p in info.problems)
         got = [deserialize_message(m.data, IlluminationState).request_id
                for m in reader.messages(['/illumination'])]
