@@ -132,4 +132,40 @@ def test_command_line_errors_say_what_to_do(tmp_path):
     assert p.returncode == 2 and 'already exists' in p.stderr
     p = run('record', '-o', str(tmp_path / 'new'), '-x', '(unclosed')
     assert p.returncode == 2 and 'not a valid regular expression' in p.stderr
+    p = run('record', '-o', str(tmp_path / 'new'), '-b', '100')
+    assert p.returncode == 2 and '--max-bag-size-bytes must be 0 (no limit) or >= 1024' in p.stderr
     assert not (tmp_path / 'new').exists()
+
+
+def test_record_splits_by_duration_and_keeps_the_newest_files(tmp_path):
+    """`lightstage record -d S --max-bag-files N`: the options reach the recorder node."""
+    from lightstage_interfaces.msg import IlluminationState
+    import yaml
+    domain_id = fresh_domain_id()
+    bag = tmp_path / 'rolling'
+    client = RosClient(domain_id)
+    try:
+        pub = client.node.create_publisher(IlluminationState, '/illumination', 100)
+        recorder = subprocess.Popen(
+            lightstage_command('record', '/illumination', '-o', str(bag), '-d', '0.5',
+                               '--max-bag-files', '2', '--domain-id', str(domain_id)),
+            env=ros_environment(domain_id), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True)
+        try:
+            client.spin_until(lambda: pub.get_subscription_count() > 0, 30.0,
+                              'the recorder to subscribe')
+            for i in range(60):  # 3 s at 20 Hz: 6 files of 0.5 s
+                pub.publish(illumination(seq=i))
+                client.spin_for(0.05)
+        finally:
+            recorder.send_signal(signal.SIGINT)
+            report, _ = recorder.communicate(timeout=60)
+    finally:
+        client.close()
+    assert recorder.returncode == 0, report
+    meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert len(meta['relative_file_paths']) == 2 == len(list(bag.glob('*.mcap')))
+    assert 'were deleted to keep max_bag_files 2' in meta['custom_data']['deleted_files']
+    assert 'not kept: ' in report and 'in 2 files)' in report, report
+    held = BagReader(bag).info(verify=True)
+    assert held.complete and 0 < held.message_count < 60
