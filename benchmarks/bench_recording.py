@@ -7,7 +7,12 @@ per classification.
 2. recorder: a publisher in this process sends N images over a reliable topic (keep-last
    depth 32, as the camera) to the recorder node in its own process, as fast as it can and
    at a fixed rate; what arrived in the bag, and at what rate;
-3. size: bytes per classification in a recorded bag (default bags/sim_session), per topic.
+3. size: bytes per classification in a recorded bag (default bags/sim_session), per topic,
+   as recorded (120 px images) and with each image at full resolution (--full-size, 800 px:
+   the same session written again by `BagWriter`, every image replaced by a camera-like frame
+   of that size with the same header);
+4. verify: `BagReader.info` trusting the summaries vs reading every chunk back and checking
+   its CRC (what `lightstage bag info` does by default), on both bags of 3.
 
 The frames are synthetic but camera-like: a smooth gradient plus Gaussian noise of about
 Sigma3's level, 10-bit values MSB-aligned in 16 bits as the camera publishes them (random
@@ -15,6 +20,7 @@ noise compresses little; these compress as the camera's frames do).
 
     .venv/bin/python benchmarks/bench_recording.py
     .venv/bin/python benchmarks/bench_recording.py --images 100 --size 800 --rates 30 60 --bag bags/sim_session
+    .venv/bin/python benchmarks/bench_recording.py --parts size verify     # 3 and 4 only (~1 min)
 """
 from __future__ import annotations
 
@@ -129,6 +135,49 @@ def bench_recorder(data: list[bytes], tmp: Path, rates: list[float], domain_id: 
         client.close()
 
 
+def full_size_copy(bag: Path, size: int, out: Path) -> Path:
+    """The session of `bag` written again with every image at size x size (camera-like
+    content, the recorded header), everything else as recorded."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import Image
+
+    from lightstage_bringup.bag_format import BagReader, BagWriter
+    reader = BagReader(bag)
+    info = reader.info()
+    frame = deserialize_message(frames(1, size)[0], Image)
+    with BagWriter(out) as w:
+        for t in info.topics.values():
+            w.add_topic(t.name, t.type, t.offered_qos, type_hash=t.type_hash,
+                        schema=(t.schema_encoding, t.schema_text))
+        for i, m in enumerate(reader.messages()):
+            data = m.data
+            if m.type == 'sensor_msgs/msg/Image':
+                frame.header = deserialize_message(m.data, Image).header
+                frame.data = deserialize_message(frames(1, size, seed=i)[0], Image).data
+                data = serialize_message(frame)
+            w.write(m.topic, data, m.log_time_ns, m.publish_time_ns, m.sequence)
+    return out
+
+
+def bench_verify(bags: list[Path]) -> None:
+    from lightstage_bringup.bag_format import BagReader
+    print('verify: `lightstage bag info` trusting the summaries vs reading every chunk back (CRCs)')
+    for bag in bags:
+        times = {}
+        for verify in (False, True):
+            best = float('inf')
+            for _ in range(3):
+                t0 = time.perf_counter()
+                info = BagReader(bag).info(verify=verify)
+                best = min(best, time.perf_counter() - t0)
+            times[verify] = best
+        size = sum(f.stat().st_size for f in info.files)
+        print(f'  {bag.name}: {size / 1e6:.1f} MB, {info.message_count} messages recorded in '
+              f'{info.duration_ns / 1e9:.1f} s: summary {1e3 * times[False]:.0f} ms, every chunk '
+              f'checked {1e3 * times[True]:.0f} ms ({size / 1e6 / times[True]:.0f} MB/s, '
+              f'{100 * times[True] / (info.duration_ns / 1e9):.1f} % of the recording\'s duration)')
+
+
 def bench_size(bag: Path) -> None:
     from lightstage_bringup.bag_format import BagReader
     reader = BagReader(bag)
@@ -152,6 +201,8 @@ def bench_size(bag: Path) -> None:
     print(f'  {"all of the above":<45} {stage / n / 1e3:8.1f} kB per classification '
           f'({stage / images / 1e3:.1f} kB per image; file ~{file_size * stage / raw / n / 1e3:.0f} kB '
           f'per classification after compression)')
+    print(f'  the whole file per classification (with the graph\'s other topics): '
+          f'{file_size / n / 1e3:.0f} kB')
 
 
 def main(argv=None) -> int:
@@ -161,14 +212,29 @@ def main(argv=None) -> int:
     p.add_argument('--rates', type=float, nargs='*', default=[30.0, 60.0, 120.0],
                    help='fixed send rates [Hz] (default 30 60 120)')
     p.add_argument('--bag', default=str(Path(__file__).resolve().parents[1] / 'bags' / 'sim_session'))
+    p.add_argument('--full-size', type=int, default=800,
+                   help='image size [px] of the full-resolution copy of --bag (default 800)')
+    p.add_argument('--parts', nargs='+', default=['writer', 'recorder', 'size', 'verify'],
+                   choices=['writer', 'recorder', 'size', 'verify'])
     p.add_argument('--domain-id', type=int, default=int(os.environ.get('ROS_DOMAIN_ID') or 61))
     args = p.parse_args(argv)
     apply_ros_environment(args.domain_id)
-    data = frames(args.images, args.size)
     with tempfile.TemporaryDirectory() as tmp:
-        bench_writer(data, Path(tmp))
-        bench_recorder(data, Path(tmp), args.rates, args.domain_id)
-    bench_size(Path(args.bag))
+        if {'writer', 'recorder'} & set(args.parts):
+            data = frames(args.images, args.size)
+            if 'writer' in args.parts:
+                bench_writer(data, Path(tmp))
+            if 'recorder' in args.parts:
+                bench_recorder(data, Path(tmp), args.rates, args.domain_id)
+        bags = [Path(args.bag)]
+        if {'size', 'verify'} & set(args.parts):
+            bags.append(full_size_copy(bags[0], args.full_size,
+                                       Path(tmp) / f'{bags[0].name}_{args.full_size}px'))
+        if 'size' in args.parts:
+            for bag in bags:
+                bench_size(bag)
+        if 'verify' in args.parts:
+            bench_verify(bags)
     return 0
 
 

@@ -29,7 +29,8 @@ def test_killed_recorder_bag_is_readable_and_replay_keeps_the_recorded_qos(tmp_p
     domain_id = fresh_domain_id()
     bag = tmp_path / 'killed'
     params = write_params(tmp_path / 'params.yaml', {
-        'recorder': {'output_dir': str(bag), 'flush_period_s': 0.1,
+        # split into small files: a killed recorder's closed files and its file in progress
+        'recorder': {'output_dir': str(bag), 'flush_period_s': 0.1, 'max_bag_size_bytes': 4096,
                      'topics': ['/stage_status', '/illumination'], 'include_regex': '^/late_'},
         'player': {'bag': str(tmp_path / 'fixed'), 'loop': True, 'rate': 5.0,
                    'topics': ['/stage_status', '/illumination']}})
@@ -63,6 +64,7 @@ def test_killed_recorder_bag_is_readable_and_replay_keeps_the_recorded_qos(tmp_p
         reader = BagReader(bag)
         info = reader.info()
         assert not info.complete and not info.has_metadata_yaml
+        assert len(info.files) > 1 and info.files[0].name == 'killed_0.mcap'
         assert any('no metadata.yaml' in p for p in info.problems)
         got = [deserialize_message(m.data, IlluminationState).request_id
                for m in reader.messages(['/illumination'])]
@@ -130,4 +132,40 @@ def test_command_line_errors_say_what_to_do(tmp_path):
     assert p.returncode == 2 and 'already exists' in p.stderr
     p = run('record', '-o', str(tmp_path / 'new'), '-x', '(unclosed')
     assert p.returncode == 2 and 'not a valid regular expression' in p.stderr
+    p = run('record', '-o', str(tmp_path / 'new'), '-b', '100')
+    assert p.returncode == 2 and '--max-bag-size-bytes must be 0 (no limit) or >= 1024' in p.stderr
     assert not (tmp_path / 'new').exists()
+
+
+def test_record_splits_by_duration_and_keeps_the_newest_files(tmp_path):
+    """`lightstage record -d S --max-bag-files N`: the options reach the recorder node."""
+    from lightstage_interfaces.msg import IlluminationState
+    import yaml
+    domain_id = fresh_domain_id()
+    bag = tmp_path / 'rolling'
+    client = RosClient(domain_id)
+    try:
+        pub = client.node.create_publisher(IlluminationState, '/illumination', 100)
+        recorder = subprocess.Popen(
+            lightstage_command('record', '/illumination', '-o', str(bag), '-d', '0.5',
+                               '--max-bag-files', '2', '--domain-id', str(domain_id)),
+            env=ros_environment(domain_id), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True)
+        try:
+            client.spin_until(lambda: pub.get_subscription_count() > 0, 30.0,
+                              'the recorder to subscribe')
+            for i in range(60):  # 3 s at 20 Hz: 6 files of 0.5 s
+                pub.publish(illumination(seq=i))
+                client.spin_for(0.05)
+        finally:
+            recorder.send_signal(signal.SIGINT)
+            report, _ = recorder.communicate(timeout=60)
+    finally:
+        client.close()
+    assert recorder.returncode == 0, report
+    meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert len(meta['relative_file_paths']) == 2 == len(list(bag.glob('*.mcap')))
+    assert 'were deleted to keep max_bag_files 2' in meta['custom_data']['deleted_files']
+    assert 'not kept: ' in report and 'in 2 files)' in report, report
+    held = BagReader(bag).info(verify=True)
+    assert held.complete and 0 < held.message_count < 60

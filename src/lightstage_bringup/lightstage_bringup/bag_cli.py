@@ -63,6 +63,15 @@ def record_parser() -> argparse.ArgumentParser:
                    help='also record hidden topics (e.g. action feedback)')
     p.add_argument('--max-duration-s', type=float, default=0.0, metavar='S',
                    help='stop after S seconds (default: until Ctrl-C)')
+    p.add_argument('-b', '--max-bag-size-bytes', type=int, default=0, metavar='N',
+                   help='split: start the next file of the bag before one reaches N bytes (as '
+                        '`ros2 bag record --max-bag-size`; default 0: no limit, else >= 1024)')
+    p.add_argument('-d', '--max-bag-duration-s', type=float, default=0.0, metavar='S',
+                   help='split: start the next file once one spans S seconds (as `ros2 bag '
+                        'record --max-bag-duration`; default 0: no limit)')
+    p.add_argument('--max-bag-files', type=int, default=0, metavar='N',
+                   help='keep only the newest N files of a split bag, deleting the oldest '
+                        '(default 0: keep all)')
     p.add_argument('--compression', choices=('lz4', 'none'), default='lz4')
     p.add_argument('--chunk-size-bytes', type=int, default=1 << 20, metavar='N')
     p.add_argument('--qos-depth', type=int, default=100, metavar='N',
@@ -79,6 +88,10 @@ def record_main(argv: list[str] | None = None) -> int:
     prog = 'lightstage record'
     checks = [(args.max_duration_s >= 0, '--max-duration-s must be >= 0'),
               (args.chunk_size_bytes >= 1024, '--chunk-size-bytes must be >= 1024'),
+              (args.max_bag_size_bytes == 0 or args.max_bag_size_bytes >= 1024,
+               '--max-bag-size-bytes must be 0 (no limit) or >= 1024'),
+              (0 <= args.max_bag_duration_s <= 1e9, '--max-bag-duration-s must be in 0..1e9 (0: no limit)'),
+              (args.max_bag_files >= 0, '--max-bag-files must be >= 0 (0: keep all)'),
               (args.qos_depth >= 1, '--qos-depth must be >= 1'),
               (0.05 <= args.discovery_period_s <= 60, '--discovery-period-s must be in 0.05..60')]
     rc = _usage_error(args, prog, checks)
@@ -93,6 +106,9 @@ def record_main(argv: list[str] | None = None) -> int:
               'max_duration_s': float(args.max_duration_s), 'compression': args.compression,
               'chunk_size_bytes': args.chunk_size_bytes, 'qos_depth': args.qos_depth,
               'discovery_period_s': float(args.discovery_period_s),
+              'max_bag_size_bytes': args.max_bag_size_bytes,
+              'max_bag_duration_s': float(args.max_bag_duration_s),
+              'max_bag_files': args.max_bag_files,
               'topics': list(args.topics) or None}
     try:
         return recorder_node.run(args=['lightstage-record'], parameter_overrides=_params(values))
@@ -154,13 +170,19 @@ def bag_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest='command', required=True, metavar='COMMAND')
     info = sub.add_parser('info', help='summarise a bag (like `ros2 bag info`)',
                           description='Summarise a bag: files, size, duration, topics with types '
-                                      'and counts, recorded services. Exit 1 when the bag is '
-                                      'incomplete or damaged (its intact part is summarised).')
+                                      'and counts, recorded services. Every chunk is read back '
+                                      'and its CRC checked (--no-verify: trust the summaries). '
+                                      'Exit 1 when the bag is incomplete or damaged (its intact '
+                                      'part is summarised).')
     info.add_argument('bag', metavar='BAG')
     info.add_argument('--json', action='store_true', help='print JSON')
     info.add_argument('-v', '--verbose', action='store_true', help='also the recorded QoS')
-    info.add_argument('--verify', action='store_true',
-                      help='read every message (checks chunk CRCs) instead of trusting the summary')
+    info.add_argument('--no-verify', dest='verify', action='store_false',
+                      help='trust the files\' summaries instead of reading every chunk back and '
+                           'checking its CRC (faster on very large bags; the output then says '
+                           'the CRCs were not checked)')
+    info.add_argument('--verify', action='store_true', default=True,
+                      help='read every chunk back and check its CRC (the default)')
     recover = sub.add_parser(
         'recover', help='copy the intact part of an incomplete or damaged bag into a complete bag',
         description='Copy every intact message of BAG into a new, complete bag (summary, footer, '

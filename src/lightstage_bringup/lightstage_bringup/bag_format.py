@@ -1,7 +1,8 @@
 """rosbag2-compatible MCAP bags: write, read, summarise, recover. Pure Python, no rclpy.
 
-A bag is a directory ``NAME/`` holding ``NAME_0.mcap`` and ``metadata.yaml``, as
-``ros2 bag record -s mcap`` (Jazzy) writes it:
+A bag is a directory ``NAME/`` holding ``NAME_0.mcap`` (split by size or duration:
+``NAME_0.mcap``, ``NAME_1.mcap``, ..., each a complete MCAP file) and ``metadata.yaml``
+listing every file, as ``ros2 bag record -s mcap`` (Jazzy) writes it:
 
 - the MCAP header has profile ``ros2``;
 - one schema per message type: name ``pkg/msg/Type``, encoding ``ros2msg``, the ``.msg``
@@ -19,7 +20,7 @@ the file, metadata.yaml and the directory. A write error (disk full) stops the w
 file is cut back to its last complete chunk and closed with a summary and metadata.yaml
 listing exactly what it holds, as far as the disk allows (`BagWriteError`, `BagWriter.error`).
 
-Reading walks the file record by record, so a bag whose writer was killed (no summary, no
+Reading walks the files record by record, so a bag whose writer was killed (no summary, no
 footer, no metadata.yaml) or whose file is damaged still yields every intact message; what
 was wrong is in ``BagInfo.problems`` / ``BagReader.problems``, and `recover_bag` writes a
 complete copy of the intact part and says what was lost. Files that cannot be read at all
@@ -199,6 +200,9 @@ class BagInfo:
     has_metadata_yaml: bool = False
     storage_identifier: str = 'mcap'
     custom_data: dict = field(default_factory=dict)  # metadata.yaml's (e.g. of a recovery)
+    verified: bool = False        # every chunk was read back (CRCs checked where they have one)
+    chunks: int = 0               # chunks read back
+    chunks_without_crc: int = 0   # of those, chunks that carry no CRC (rosbag2's default)
 
     @property
     def duration_ns(self) -> int:
@@ -210,7 +214,8 @@ class BagInfo:
                 'ros_distro': self.ros_distro, 'start_ns': self.start_ns, 'end_ns': self.end_ns,
                 'duration_ns': self.duration_ns, 'message_count': self.message_count,
                 'complete': self.complete, 'problems': list(self.problems),
-                'custom_data': dict(self.custom_data),
+                'custom_data': dict(self.custom_data), 'verified': self.verified,
+                'chunks_checked': self.chunks, 'chunks_without_crc': self.chunks_without_crc,
                 'topics': [{'name': t.name, 'type': t.type, 'count': t.count,
                             'serialization_format': t.serialization_format,
                             'type_hash': t.type_hash,
@@ -361,6 +366,32 @@ class _Topic:
     qos_yaml: str
 
 
+@dataclass
+class _FileStats:
+    """What one file of a bag being written holds (message counts by channel id, log times)."""
+    path: Path
+    count: int = 0
+    start_ns: int | None = None
+    end_ns: int | None = None
+    per_channel: dict = field(default_factory=dict)
+
+    def add(self, channel_id: int, log_time_ns: int) -> None:
+        self.count += 1
+        self.per_channel[channel_id] = self.per_channel.get(channel_id, 0) + 1
+        self.start_ns = log_time_ns if self.start_ns is None else min(self.start_ns, log_time_ns)
+        self.end_ns = log_time_ns if self.end_ns is None else max(self.end_ns, log_time_ns)
+
+    def to_metadata(self) -> dict:
+        """Its entry of metadata.yaml's ``files``."""
+        return {'path': self.path.name,
+                'starting_time': {'nanoseconds_since_epoch': int(self.start_ns or 0)},
+                'duration': {'nanoseconds': int((self.end_ns - self.start_ns) if self.count else 0)},
+                'message_count': int(self.count)}
+
+
+MIN_SPLIT_SIZE_BYTES = 1024  # rosbag2's MCAP storage refuses smaller max_bag_size too
+
+
 class BagWriter:
     """Write a bag directory. Thread-safe; `close` (or the context manager) finishes it.
 
@@ -370,9 +401,19 @@ class BagWriter:
     `flush` hands the chunk to the OS (``write``), it does not ``fsync``; `close` fsyncs the
     MCAP file, ``metadata.yaml`` and the directory.
 
+    Splitting, as ``ros2 bag record --max-bag-size / --max-bag-duration`` does: with
+    ``max_bag_size_bytes`` the file in progress is closed (summary, footer, fsync) before the
+    message that would take it to that size (counting the chunk in progress uncompressed), with
+    ``max_bag_duration_s`` before the first message logged that long after the file's first;
+    the next goes to ``NAME_1.mcap``, ``NAME_2.mcap``, ... Each file is a complete MCAP file
+    with every schema and channel. ``max_bag_files`` (0: all) keeps only the newest that many:
+    older files are deleted as new ones start, and ``metadata.yaml`` (``custom_data``) says
+    how many files and messages were deleted. `events` (and ``on_event``) tell each split and
+    deletion.
+
     Write errors (disk full, I/O error): the call that hit one raises `BagWriteError`; the
     file is cut back to the end of the last complete chunk and the writer takes nothing more.
-    The counts (`message_count`, `topics`) then are those of the messages in the file, and
+    The counts (`message_count`, `topics`) then are those of the messages in the files, and
     `close` still writes what it can: a summary and footer for them, then ``metadata.yaml``.
     `error` keeps the message ('' while all is well); `close` does not raise, the context
     manager does (`BagWriteError`) if an error was not raised before. ``retry``: what to do
@@ -381,14 +422,21 @@ class BagWriter:
 
     def __init__(self, path, *, compression: str = 'lz4', chunk_size_bytes: int = 1 << 20,
                  library: str = 'lightstage_bringup', ros_distro: str = ROS_DISTRO,
-                 custom_data: dict | None = None, retry: str = 'record again'):
-        from mcap.writer import CompressionType, Writer
-
+                 custom_data: dict | None = None, retry: str = 'record again',
+                 max_bag_size_bytes: int = 0, max_bag_duration_s: float = 0.0,
+                 max_bag_files: int = 0, on_event=None):
         if compression not in COMPRESSIONS:
             raise BagError(f'compression {compression!r} is not supported; use one of '
                            f'{", ".join(COMPRESSIONS)}')
         if chunk_size_bytes < 1024:
             raise BagError(f'chunk size {chunk_size_bytes} B is too small; use at least 1024 B')
+        if max_bag_size_bytes and not MIN_SPLIT_SIZE_BYTES <= max_bag_size_bytes:
+            raise BagError(f'max_bag_size_bytes {max_bag_size_bytes} is too small; use 0 (no '
+                           f'splitting by size) or at least {MIN_SPLIT_SIZE_BYTES}')
+        if max_bag_size_bytes < 0 or not 0 <= max_bag_duration_s < float('inf') or max_bag_files < 0:
+            raise BagError(f'max_bag_size_bytes ({max_bag_size_bytes}), max_bag_duration_s '
+                           f'({max_bag_duration_s}) and max_bag_files ({max_bag_files}) must be '
+                           '>= 0 (0: no limit) and finite')
         self.path = Path(path)
         check_output_dir(self.path)
         self.created_dir = not self.path.exists()
@@ -397,8 +445,12 @@ class BagWriter:
         except OSError as exc:
             raise BagError(f'cannot create the bag directory {self.path}: {exc.strerror}; choose '
                            'a writable location') from None
-        self.file_path = self.path / f'{self.path.name}_0.mcap'
         self.compression = compression
+        self.chunk_size_bytes = int(chunk_size_bytes)
+        self.max_bag_size_bytes = int(max_bag_size_bytes)
+        self.max_bag_duration_ns = int(max_bag_duration_s * 1e9)
+        self.max_bag_files = int(max_bag_files)
+        self.on_event = on_event
         self.ros_distro = ros_distro
         self.custom_data: dict[str, str] = dict(custom_data or {})
         self.retry = retry
@@ -407,41 +459,167 @@ class BagWriter:
             mcap_version = version('mcap')
         except Exception:  # noqa: BLE001 - only decorates the library string
             mcap_version = '?'
+        self._library = f'{library}; mcap-python {mcap_version}'
+        self._lock = threading.Lock()
+        self._schemas: dict[str, int] = {}
+        self._schema_records: dict = {}   # id -> mcap Schema: for each new file and a summary
+        self._channel_records: dict = {}  # id -> mcap Channel   written after an error
+        self._topics: dict[str, _Topic] = {}
+        self._sequence: dict[str, itertools.count] = {}
+        self._files: list[_FileStats] = []     # the files the bag holds, the one in progress last
+        self.deleted_files: list[_FileStats] = []  # deleted to keep max_bag_files
+        self.events: list[str] = []           # splits and deletions, as told to on_event
         self._sink = None
+        self._writer = None
+        self.bytes_written = 0
+        self.warnings: list[str] = []
+        self.error = ''
+        self.closed = False
         try:
-            self._sink = _Sink(self.file_path)
-            kind = CompressionType.LZ4 if compression == 'lz4' else CompressionType.NONE
-            self._writer = Writer(self._sink, chunk_size=int(chunk_size_bytes), compression=kind)
-            self._writer.start(profile='ros2', library=f'{library}; mcap-python {mcap_version}')
+            self._open_file()
         except OSError as exc:
             self._discard()
             raise BagWriteError(_write_error_text(exc, self.path, 'nothing was written',
                                                   self.retry)) from None
-        self._lock = threading.Lock()
-        self._schemas: dict[str, int] = {}
-        self._schema_records: dict = {}   # id -> mcap Schema, for a summary written after an error
-        self._channel_records: dict = {}  # id -> mcap Channel
-        self._topics: dict[str, _Topic] = {}
-        self._sequence: dict[str, itertools.count] = {}
+
+    # -- files
+    def _open_file(self) -> None:
+        """Start the next file (``NAME_<i>.mcap``) with every schema and channel known so far."""
+        from mcap.writer import CompressionType, Writer
+
+        index = len(self._files) + len(self.deleted_files)
+        self.file_path = self.path / f'{self.path.name}_{index}.mcap'
+        self._sink = _Sink(self.file_path)
+        self._files.append(_FileStats(self.file_path))
+        kind = CompressionType.LZ4 if self.compression == 'lz4' else CompressionType.NONE
+        writer = Writer(self._sink, chunk_size=self.chunk_size_bytes, compression=kind)
+        writer.start(profile='ros2', library=self._library)
+        # the same ids in every file: registered again in the order they were first
+        for schema_id, s in self._schema_records.items():
+            if writer.register_schema(s.name, s.encoding, s.data) != schema_id:
+                raise AssertionError('schema ids differ between the files of a bag')
+        for channel_id, c in self._channel_records.items():
+            if writer.register_channel(c.topic, c.message_encoding, c.schema_id, c.metadata) != channel_id:
+                raise AssertionError('channel ids differ between the files of a bag')
+        self._writer = writer
+        self._unchunked = 0           # bytes added since the file last grew: the chunk in progress
+        self._file_size_seen = self._sink.pos
         self._chunk_indexes: list = []    # after an error: those of the chunks in the file
         self._torn = False                # after an error the file could not be cut back
         self._unread = False              # ... or read back: its counts are not known
-        self.start_ns: int | None = None
-        self.end_ns: int | None = None
-        self.message_count = 0
-        self.bytes_written = 0
-        self.warnings: list[str] = []
-        self.error = ''
         self.summary_written = False
         self.metadata_written = False
-        self.closed = False
+
+    @property
+    def files(self) -> list[Path]:
+        """The files the bag holds now, oldest first."""
+        return [f.path for f in self._files]
+
+    @property
+    def size_bytes(self) -> int:
+        return sum(p.stat().st_size for p in self.files if p.exists())
+
+    @property
+    def message_count(self) -> int:
+        return sum(f.count for f in self._files)
+
+    @property
+    def start_ns(self) -> int | None:
+        return min((f.start_ns for f in self._files if f.count), default=None)
+
+    @property
+    def end_ns(self) -> int | None:
+        return max((f.end_ns for f in self._files if f.count), default=None)
+
+    def _sync_topic_counts(self) -> None:
+        for t in self._topics.values():
+            t.info.count = sum(f.per_channel.get(t.channel_id, 0) for f in self._files)
+
+    def _event(self, text: str) -> None:
+        self.events.append(text)
+        if self.on_event is not None:
+            self.on_event(text)
+
+    def _split_reason(self, log_time_ns: int, size: int) -> str:
+        """Why the file in progress must end before a message (''; it need not)."""
+        current = self._files[-1]
+        if not current.count:
+            return ''  # every file gets at least one message
+        if self._sink.pos != self._file_size_seen:  # a chunk went out: it is in the file size
+            self._file_size_seen, self._unchunked = self._sink.pos, 0
+        if self.max_bag_size_bytes and (self._sink.pos + self._unchunked + size
+                                        >= self.max_bag_size_bytes):
+            return f'max_bag_size_bytes {self.max_bag_size_bytes} reached'
+        if self.max_bag_duration_ns and log_time_ns - current.start_ns >= self.max_bag_duration_ns:
+            return f'max_bag_duration_s {self.max_bag_duration_ns / 1e9:g} reached'
+        return ''
+
+    def _split(self, why: str) -> None:
+        """Close the file in progress completely, start the next, delete the oldest beyond
+        max_bag_files. OSError: the writer stops (`_fail`), as for any write error."""
+        done = self._files[-1]
+        mark = self._sink.pos
+        try:
+            self._writer.add_metadata('rosbag2', self._rosbag2_record())
+            self._writer.finish()
+        except OSError as exc:
+            self._fail(exc, mark)
+            raise BagWriteError(self.error) from exc
+        self.summary_written = True
+        self._close_fd()
+        try:
+            self._open_file()
+        except OSError as exc:
+            failed = self._files.pop()
+            if self._sink is not None:
+                os.close(self._sink.fd)
+                self._sink = None
+                failed.path.unlink(missing_ok=True)
+            self._writer = None
+            self.file_path = done.path
+            held = (f'the bag holds everything up to {format_time(self.end_ns)} in its '
+                    f'{len(self._files)} complete file{"s" if len(self._files) > 1 else ""}: '
+                    f'{self.message_count} messages')
+            self.error = _write_error_text(exc, failed.path, held, self.retry)
+            raise BagWriteError(self.error) from exc
+        self._event(f'{done.path.name} closed ({done.count} messages, '
+                    f'{format_size(done.path.stat().st_size)}; {why}); now writing '
+                    f'{self.file_path.name}')
+        while self.max_bag_files and len(self._files) > self.max_bag_files:
+            oldest = self._files[0]
+            try:
+                oldest.path.unlink()
+            except OSError as exc:
+                self.warnings.append(f'could not delete {oldest.path.name} to keep max_bag_files '
+                                     f'{self.max_bag_files}: {exc.strerror}')
+                break
+            self.deleted_files.append(self._files.pop(0))
+            self._sync_topic_counts()
+            gone = self.deleted_files
+            self.custom_data['deleted_files'] = (
+                f'{len(gone)} oldest files ({gone[0].path.name} .. {gone[-1].path.name}, '
+                f'{sum(f.count for f in gone)} messages logged from {format_time(gone[0].start_ns)} '
+                f'to {format_time(gone[-1].end_ns)}) were deleted to keep max_bag_files '
+                f'{self.max_bag_files}')
+            self._event(f'{oldest.path.name} deleted ({oldest.count} messages) to keep '
+                        f'max_bag_files {self.max_bag_files}')
+
+    def _close_fd(self) -> None:
+        try:
+            os.fsync(self._sink.fd)
+        except OSError as exc:
+            self._note(f'fsync of {self.file_path.name} failed ({exc.strerror}): what the OS '
+                       'has not written back is lost if the power fails')
+        os.close(self._sink.fd)
+        self._sink = None
 
     def _discard(self) -> None:
         """Remove what this writer created (a failed constructor; a recovery that found
         nothing)."""
-        if self._sink is not None and not getattr(self, 'closed', False):
+        if self._sink is not None and not self.closed:
             os.close(self._sink.fd)
-        for name in (self.file_path, self.path / METADATA_FILE, self.path / (METADATA_FILE + '.tmp')):
+            self._sink = None
+        for name in self.files + [self.path / METADATA_FILE, self.path / (METADATA_FILE + '.tmp')]:
             name.unlink(missing_ok=True)
         if self.created_dir:
             try:
@@ -509,21 +687,25 @@ class BagWriter:
     def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None,
               sequence: int | None = None) -> None:
         """Add one serialized message of a registered topic (`BagWriteError`: the disk failed,
-        the writer stopped; see the class)."""
+        the writer stopped; see the class). Starts the next file first when a split limit is
+        reached."""
         with self._lock:
             self._check_writable()
             t = self._topics.get(topic)
             if t is None:
                 raise BagError(f'topic {topic} was not added to the bag; call add_topic first')
             log_time_ns = int(log_time_ns)
+            data = bytes(data)
+            why = self._split_reason(log_time_ns, len(data))
+            if why:
+                self._split(why)
             seq = next(self._sequence[topic]) if sequence is None else int(sequence) & 0xFFFFFFFF
-            self._io(self._writer.add_message, t.channel_id, log_time_ns, bytes(data),
+            self._io(self._writer.add_message, t.channel_id, log_time_ns, data,
                      int(publish_time_ns if publish_time_ns is not None else log_time_ns), seq)
+            self._unchunked += len(data) + 31  # + the message record's header
             t.info.count += 1
-            self.message_count += 1
+            self._files[-1].add(t.channel_id, log_time_ns)
             self.bytes_written += len(data)
-            self.start_ns = log_time_ns if self.start_ns is None else min(self.start_ns, log_time_ns)
-            self.end_ns = log_time_ns if self.end_ns is None else max(self.end_ns, log_time_ns)
 
     def flush(self) -> None:
         """Finish the chunk in progress and hand it to the OS (no fsync: it survives the
@@ -547,6 +729,7 @@ class BagWriter:
 
     def _fail(self, exc: OSError, mark: int) -> None:
         self._writer = None  # its state no longer matches the file
+        current = self._files[-1]
         try:
             self._sink.cut(mark)
         except OSError:
@@ -559,15 +742,15 @@ class BagWriter:
                 exc, self.path, f'the file cannot be read back ({read_error.strerror}), so what '
                 f'it holds is not known; `lightstage bag info {self.path}` tells', self.retry)
             return
-        for t in self._topics.values():
-            t.info.count = counts.get(t.channel_id, 0)
-        self.message_count = sum(counts.values())
+        current.per_channel = counts
+        current.count = sum(counts.values())
         timed = [c for c in self._chunk_indexes if c.message_start_time or c.message_end_time]
-        self.start_ns = min((c.message_start_time for c in timed), default=None)
-        self.end_ns = max((c.message_end_time for c in timed), default=None)
+        current.start_ns = min((c.message_start_time for c in timed), default=None)
+        current.end_ns = max((c.message_end_time for c in timed), default=None)
+        self._sync_topic_counts()
+        n = self.message_count
         held = (f'the bag holds everything up to {format_time(self.end_ns)}: '
-                f'{self.message_count} message{"s" if self.message_count != 1 else ""}'
-                if self.message_count else 'the bag holds no message')
+                f'{n} message{"s" if n != 1 else ""}' if n else 'the bag holds no message')
         self.error = _write_error_text(exc, self.path, held, self.retry)
 
     def _note(self, text: str) -> None:
@@ -581,7 +764,7 @@ class BagWriter:
 
     # -- closing
     def metadata(self) -> dict:
-        """The ``rosbag2_bagfile_information`` mapping (version 9) of what was written."""
+        """The ``rosbag2_bagfile_information`` mapping (version 9) of what the bag holds."""
         start = self.start_ns or 0
         duration = (self.end_ns - self.start_ns) if self.message_count else 0
         return {
@@ -599,11 +782,8 @@ class BagWriter:
                 for t in self._topics.values()],
             'compression_format': '',
             'compression_mode': '',
-            'relative_file_paths': [self.file_path.name],
-            'files': [{'path': self.file_path.name,
-                       'starting_time': {'nanoseconds_since_epoch': int(start)},
-                       'duration': {'nanoseconds': int(duration)},
-                       'message_count': int(self.message_count)}],
+            'relative_file_paths': [f.path.name for f in self._files],
+            'files': [f.to_metadata() for f in self._files],
             'custom_data': dict(self.custom_data) or None,
             'ros_distro': self.ros_distro,
         }
@@ -616,27 +796,23 @@ class BagWriter:
         """Write the rosbag2 metadata record, the summary and footer, fsync the file, then
         write metadata.yaml (through a fsynced temporary file, renamed) and fsync the
         directory. Never raises for I/O errors: after a write error (before or here) it writes
-        what the disk allows for the messages in the file, and `error` says what happened."""
+        what the disk allows for the messages in the files, and `error` says what happened."""
         with self._lock:
             if self.closed:
                 return
             self.closed = True
-            if self._writer is not None:
-                mark = self._sink.pos
-                try:
-                    self._writer.add_metadata('rosbag2', self._rosbag2_record())
-                    self._writer.finish()
-                    self.summary_written = True
-                except OSError as exc:
-                    self._fail(exc, mark)
-            if not self.summary_written and not self._torn:
-                self._finish_after_error()
-            try:
-                os.fsync(self._sink.fd)
-            except OSError as exc:
-                self._note(f'fsync of {self.file_path.name} failed ({exc.strerror}): what the OS '
-                           'has not written back is lost if the power fails')
-            os.close(self._sink.fd)
+            if self._sink is not None:  # None: the next file of a split could not be created
+                if self._writer is not None:
+                    mark = self._sink.pos
+                    try:
+                        self._writer.add_metadata('rosbag2', self._rosbag2_record())
+                        self._writer.finish()
+                        self.summary_written = True
+                    except OSError as exc:
+                        self._fail(exc, mark)
+                if not self.summary_written and not self._torn:
+                    self._finish_after_error()
+                self._close_fd()
             if not self._unread:
                 self._write_metadata_yaml()
             _fsync_dir(self.path)
@@ -658,15 +834,16 @@ class BagWriter:
         summary_start = start + data.count
         summary = RecordBuilder()
         offsets = []
-        counts = {t.channel_id: t.info.count for t in self._topics.values() if t.info.count}
+        current = self._files[-1]  # this file's own statistics, not the bag's
+        counts = {cid: n for cid, n in current.per_channel.items() if n}
         groups = [
             (Opcode.SCHEMA, list(self._schema_records.values())),
             (Opcode.CHANNEL, list(self._channel_records.values())),
             (Opcode.STATISTICS, [Statistics(
                 attachment_count=0, channel_count=len(self._channel_records),
                 channel_message_counts=counts, chunk_count=len(self._chunk_indexes),
-                message_count=self.message_count, message_end_time=self.end_ns or 0,
-                message_start_time=self.start_ns or 0, metadata_count=1,
+                message_count=current.count, message_end_time=current.end_ns or 0,
+                message_start_time=current.start_ns or 0, metadata_count=1,
                 schema_count=len(self._schema_records))]),
             (Opcode.CHUNK_INDEX, self._chunk_indexes),
             (Opcode.METADATA_INDEX, [MetadataIndex(offset=start, length=metadata_length,
@@ -769,6 +946,7 @@ class _FileScan:
         self.complete = False
         self.library = ''
         self.summary = None
+        self.chunks = self.chunks_without_crc = 0  # read back by the last walk
         with open(path, 'rb') as f:
             head = f.read(16)
         if head[:len(MCAP_MAGIC)] != MCAP_MAGIC:
@@ -803,6 +981,7 @@ class _FileScan:
 
         problems: list[str] = []
         found_footer = False
+        self.chunks = self.chunks_without_crc = 0
         with open(self.path, 'rb') as f:
             f.seek(len(MCAP_MAGIC))
             offset = len(MCAP_MAGIC)
@@ -835,6 +1014,8 @@ class _FileScan:
                     reader = StreamReader(io.BytesIO(head + body), skip_magic=True, emit_chunks=True)
                     record = next(iter(reader.records))
                     if isinstance(record, Chunk):
+                        self.chunks += 1
+                        self.chunks_without_crc += record.uncompressed_crc == 0
                         records = breakup_chunk(record, validate_crc=True)
                     else:
                         records = [record]
@@ -964,9 +1145,11 @@ class BagReader:
         complete = True
         distro = ''
         library = ''
+        walked = True  # every file read through, not summarised from its summary
         for scan in self._scans:
             library = library or scan.library
             if scan.summary is not None and not verify:
+                walked = False
                 stats = scan.summary.statistics
                 for cid, n in stats.channel_message_counts.items():
                     t = self._merge_topic(topics, scan, cid)
@@ -1007,7 +1190,9 @@ class BagReader:
             ros_distro=distro or (self.metadata_yaml or {}).get('ros_distro', ''),
             library=library, has_metadata_yaml=self.metadata_yaml is not None,
             custom_data={str(k): str(v) for k, v in
-                         ((self.metadata_yaml or {}).get('custom_data') or {}).items()})
+                         ((self.metadata_yaml or {}).get('custom_data') or {}).items()},
+            verified=walked, chunks=sum(s.chunks for s in self._scans) if walked else 0,
+            chunks_without_crc=sum(s.chunks_without_crc for s in self._scans) if walked else 0)
         return self._info
 
     def _merge_topic(self, topics: dict, scan: _FileScan, channel_id: int) -> TopicInfo | None:
@@ -1195,6 +1380,16 @@ def format_info(info: BagInfo, verbose: bool = False) -> str:
     n_events = sum(s.count for s in services)
     lines.append(f'Messages:          {info.message_count}' + (
         f' ({info.message_count - n_events} on topics, {n_events} service events)' if n_events else ''))
+    if info.verified:
+        lines.append(f'Checked:           every message read back from its chunk ({info.chunks} '
+                     'chunks, CRCs verified' + (
+                         f'; {info.chunks_without_crc} carry no CRC, as rosbag2 writes by default: '
+                         'those were only decompressed and parsed' if info.chunks_without_crc
+                         else '') + ')')
+    else:
+        lines.append('Checked:           NO: summarised from the files\' summaries, chunk CRCs '
+                     f'not checked; `lightstage bag info {info.path}` (without --no-verify) checks '
+                     'them')
     width = max([len(t.name) for t in topics] + [1])
     for i, t in enumerate(topics):
         head = 'Topic information: ' if i == 0 else ' ' * 19
@@ -1214,6 +1409,10 @@ def format_info(info: BagInfo, verbose: bool = False) -> str:
         head = 'Service information: ' if i == 0 else ' ' * 21
         lines.append(f'{head}Service: {s.service_name:<{swidth}} | Type: {s.service_type} | '
                      f'Event Count: {s.count} | Serialization Format: {s.serialization_format}')
+    deleted = info.custom_data.get('deleted_files')
+    if deleted:
+        lines.append('')
+        lines.append(f'NOT KEPT: {deleted}; the bag holds the newest files only')
     stopped = info.custom_data.get('recovery_stopped')
     if stopped:
         lines.append('')

@@ -4,10 +4,14 @@
 2. Train on the models of some physical samples per class: the greedy illumination
    search (the paper's method) and the naive all-LEDs-on baseline, at noise setting Sigma3.
 3. Bring up the graph (driver on the simulated firmware, simulated camera, classifier) as
-   separate processes, put each held-out sample -- a physical sample never seen in
-   training, the paper's captured-imagery experiment -- on the stage, and classify it
-   through `/lightstage/classify`, with the greedy patterns and then the naive one.
-4. Print accuracy, images used and timings per method; write them to `OUT/demo_results.json`.
+   separate processes, with the recorder writing everything the graph says to the bag
+   `OUT/stage_session` (replacing the previous demo's), put each held-out sample -- a physical
+   sample never seen in training, the paper's captured-imagery experiment -- on the stage,
+   and classify it through `/lightstage/classify`, with the greedy patterns and then the
+   naive one.
+4. Print accuracy, images used and timings per method; write them to `OUT/demo_results.json`;
+   print the commands that replay the bag into a classifier that only observes
+   (`classify_observed`), which gives the greedy calls' labels again.
 
 Steps 1 and 2 are cached in OUT (delete it or pass --fresh to redo them).
 """
@@ -25,6 +29,11 @@ from lightstage_camera.workers import jobs_type
 
 NOISE = 'sigma3'
 NODES = ('driver', 'camera', 'classifier')
+RECORDER = 'recorder'  # registry key of the recorder started alongside NODES
+BAG = 'stage_session'  # the bag of the stage session, in OUT
+# what the recorder must have subscribed to before the first call, so that no call is cut
+RECORDED = ('/illumination', '/image_raw', '/lightstage/result',
+            '/lightstage/classify/_service_event', '/lightstage/apply_patterns/_service_event')
 
 
 def _say(text: str) -> None:
@@ -150,6 +159,23 @@ class _GraphClient:
     def close(self) -> None:
         self._rclpy.shutdown(context=self.context)
 
+    def wait_for_subscriptions(self, node: str, topics, timeout_s: float) -> None:
+        """Until `node` subscribes to every topic, then 1 s more: the publishers match a new
+        subscription a little after the graph shows it."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            missing = [t for t in topics if not any(
+                i.node_name == node for i in self.node.get_subscriptions_info_by_topic(t))]
+            if not missing:
+                break
+            if time.monotonic() >= deadline:
+                raise RuntimeError(f'{node} did not subscribe to {", ".join(missing)} within '
+                                   f'{timeout_s:g} s')
+            self.executor.spin_once(timeout_sec=0.1)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.1)
+
     def _call(self, srv_type, name: str, request, timeout_s: float, attempts: int = 3):
         client = self._clients.get(name)
         if client is None:
@@ -183,42 +209,71 @@ class _GraphClient:
                           Classify.Request(max_images=max_images, timeout_s=10.0), 15.0)
 
 
-def _write_params(out: Path, capture: Path, artifact: str, first_sample: str) -> Path:
+def _params_file(path: Path, sections: dict) -> Path:
+    """A ROS params YAML: {node: {parameter: value}}."""
     import yaml
 
-    params = {
-        'driver': {'ros__parameters': {'port': 'sim'}},
-        'camera': {'ros__parameters': {'backend': 'sim', 'capture_dir': str(capture.resolve()),
-                                       'sample': first_sample, 'noise': 'auto'}},
-        'classifier': {'ros__parameters': {'artifact_path': str(Path(artifact).resolve())}},
-    }
-    path = out / 'demo_params.yaml'
-    path.write_text(yaml.safe_dump(params, sort_keys=False))
+    path.write_text(yaml.safe_dump({node: {'ros__parameters': values}
+                                    for node, values in sections.items()}, sort_keys=False))
     return path
 
 
-def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domain_id: int) -> dict:
+def _write_params(out: Path, capture: Path, artifact: str, first_sample: str,
+                  recorder: dict) -> Path:
+    return _params_file(out / 'demo_params.yaml', {
+        'driver': {'port': 'sim'},
+        'camera': {'backend': 'sim', 'capture_dir': str(capture.resolve()),
+                   'sample': first_sample, 'noise': 'auto'},
+        'classifier': {'artifact_path': str(Path(artifact).resolve())},
+        RECORDER: recorder,
+    })
+
+
+def replay_commands(bag: Path, artifact: str, out: Path, domain_id: int) -> list[list[str]]:
+    """The two commands (two terminals) that replay the stage session's /illumination and
+    /image_raw from `bag` into a classifier that only observes, with `artifact`: it publishes
+    the recorded labels of the calls made with that artifact again on /lightstage/result."""
+    params = _params_file(out / 'replay_params.yaml', {
+        'classifier': {'artifact_path': str(Path(artifact).resolve()), 'classify_observed': True}})
+    domain = ['--domain-id', str(domain_id)]
+    return [['lightstage', 'up', 'classifier', '--params', str(params), *domain],
+            ['lightstage', 'play', str(bag), '--topics', '/illumination', '/image_raw',
+             '--wait-for', '/illumination', '/image_raw', '--delay-s', '1', *domain]]
+
+
+def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domain_id: int,
+              recorder: dict | None = None) -> dict:
+    """Classify `samples` on the stage with each method of `summary`, recorded into the bag
+    OUT/BAG (`recorder`: more parameters of the recorder, e.g. max_bag_size_bytes)."""
+    import shutil
+
     from lightstage_bringup.launcher import NODE_REGISTRY, GraphWatcher, node_command
     from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 
-    params = _write_params(out, capture, summary['greedy']['artifact'], samples[0])
+    bag = out / BAG
+    if bag.is_dir():
+        shutil.rmtree(bag)  # the previous demo's: OUT is the demo's own working folder
+    params = _write_params(out, capture, summary['greedy']['artifact'], samples[0],
+                           {'output_dir': str(bag.resolve()), **(recorder or {})})
     env = ros_environment(domain_id)
     log_dir = out / 'logs'
     results = {}
+    names = [*NODES, RECORDER]
     with open(os.devnull, 'w') as quiet, \
             Supervisor(stdout=quiet, stderr=quiet, log_dir=log_dir) as supervisor:
         t0 = time.monotonic()
-        for name in NODES:
+        for name in names:
             supervisor.start(ProcessSpec(name, node_command(NODE_REGISTRY[name].module, name, params), env))
         with GraphWatcher(domain_id) as graph:
-            missing, dead = graph.wait_for(list(NODES), 60.0, supervisor)
+            missing, dead = graph.wait_for(names, 60.0, supervisor)
         if missing or dead:
             raise RuntimeError(f'the graph did not come up (missing {missing}, died {dead}); '
                                f'see the node logs in {log_dir}')
         _say(f'graph up in {time.monotonic() - t0:.1f} s (ROS_DOMAIN_ID={domain_id}): driver on the '
-             f'simulated firmware, simulated camera, classifier; node logs in {log_dir}')
+             f'simulated firmware, simulated camera, classifier, recorder; node logs in {log_dir}')
         client = _GraphClient(domain_id)
         try:
+            client.wait_for_subscriptions(RECORDER, RECORDED, 30.0)
             for method in ('greedy', 'naive'):
                 client.set_parameter('classifier', 'artifact_path', summary[method]['artifact'])
                 n_images = summary[method]['best_n_images']
@@ -237,7 +292,30 @@ def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domai
                 _say(f'{method}: {correct}/{len(rows)} unseen samples right on the stage')
         finally:
             client.close()
+    # leaving the Supervisor stopped the recorder with SIGINT: the bag is closed
+    _report_bag(bag, summary['greedy']['artifact'], out, domain_id)
     return results
+
+
+def _report_bag(bag: Path, artifact: str, out: Path, domain_id: int) -> None:
+    """Say what the bag holds and how to replay it; RuntimeError if it is not complete."""
+    import shlex
+
+    from lightstage_bringup.bag_format import BagError, BagReader, format_size
+
+    try:
+        info = BagReader(bag).info(verify=True)
+    except BagError as exc:
+        raise RuntimeError(f'the recorder left no readable bag: {exc}; see {out / "logs"}') from None
+    if not info.complete:
+        raise RuntimeError(f'the bag {bag} is incomplete: {"; ".join(info.problems)}; see '
+                           f'{out / "logs" / (RECORDER + ".log")}')
+    _say(f'stage session recorded: {bag} ({info.message_count} messages, '
+         f'{format_size(info.size_bytes)}; `lightstage bag info {bag}`)')
+    _say('replay its greedy calls into a classifier that only observes, which gives their '
+         'labels again (two terminals):')
+    for command in replay_commands(bag, artifact, out, domain_id):
+        _say('  ' + shlex.join(command))
 
 
 def _report(results: dict, summary: dict) -> dict:

@@ -10,7 +10,9 @@ ApplyPatterns calls themselves are in the bag -- with a QoS matched to what the 
 publishers offer (`recording.subscription_qos`). Each message is written with its receive
 time as log time and its send time as publish time (`bag_format.BagWriter`, through
 `recording.Recording`); the chunk in progress is handed to the OS every ``flush_period_s``
-(no fsync), so a recorder that is killed loses at most that much. SIGINT / SIGTERM (or
+(no fsync), so a recorder that is killed loses at most that much. With ``max_bag_size_bytes``
+/ ``max_bag_duration_s`` the bag is split into files ``NAME_0.mcap``, ``NAME_1.mcap``, ... as
+rosbag2 splits it, and ``max_bag_files`` keeps only the newest files. SIGINT / SIGTERM (or
 ``max_duration_s``) close the bag: summary, footer, ``metadata.yaml``, fsynced; the recorder
 then prints what it recorded. A write error (disk full) stops the recording: the bag is
 closed with what it holds, the error is printed, exit code 1.
@@ -30,7 +32,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 
-from .bag_format import COMPRESSIONS, BagError, BagWriter, default_bag_name
+from .bag_format import COMPRESSIONS, MIN_SPLIT_SIZE_BYTES, BagError, BagWriter, default_bag_name
 from .bag_ros import (float_param, from_rclpy_qos, int_param, message_class, text_param,
                       to_rclpy_qos)
 from .msg_definitions import is_service_event
@@ -71,6 +73,17 @@ PARAMETERS = {
                                         0.05, 600.0)),
     'max_duration_s': (0.0, float_param('stop and close the bag after this long [s]; 0: until '
                                         'SIGINT / SIGTERM', 0.0, 1e7)),
+    # splitting, as ros2 bag record's --max-bag-size / --max-bag-duration: a recorder left on
+    # for days then writes NAME_0.mcap, NAME_1.mcap, ... and with max_bag_files keeps the newest
+    'max_bag_size_bytes': (0, int_param('start the next file of the bag before this one reaches '
+                                        'this size [bytes] (rosbag2\'s max_bag_size); 0: no limit, '
+                                        f'else at least {MIN_SPLIT_SIZE_BYTES}', 0, 1 << 62)),
+    'max_bag_duration_s': (0.0, float_param('start the next file of the bag once this one spans '
+                                            'this long [s] (rosbag2\'s max_bag_duration); 0: no '
+                                            'limit', 0.0, 1e9)),
+    'max_bag_files': (0, int_param('keep only the newest this many files of the bag, deleting the '
+                                   'oldest as a new one starts (metadata.yaml and the log say so); '
+                                   '0: keep every file', 0, 1_000_000)),
 }
 
 
@@ -93,7 +106,11 @@ class RecorderNode(Node):
         try:
             self.writer = BagWriter(Path(output), compression=self.p('compression'),
                                     chunk_size_bytes=self.p('chunk_size_bytes'),
-                                    library='lightstage_bringup recorder')
+                                    library='lightstage_bringup recorder',
+                                    max_bag_size_bytes=self.p('max_bag_size_bytes'),
+                                    max_bag_duration_s=self.p('max_bag_duration_s'),
+                                    max_bag_files=self.p('max_bag_files'),
+                                    on_event=lambda text: self.get_logger().info(text))
         except BagError as exc:
             raise RecorderError(str(exc)) from None
         self.recording = Recording(self.writer)

@@ -199,7 +199,6 @@ class Recording:
                skipped: dict | None = None) -> str:
         """What was recorded, per topic; first, if the recording stopped on an error, that."""
         w = self.writer
-        size = w.file_path.stat().st_size if w.file_path.exists() else 0
         topics = w.topics
         services = [t for t in topics.values() if t.is_service_event]
         lines = []
@@ -207,7 +206,10 @@ class Recording:
             lines.append(f'RECORDING STOPPED: {self.error}')
         lines.append(f'recorded {w.message_count} messages on {len(topics) - len(services)} '
                      f'topics and {len(services)} service event topics in {seconds:.1f} s into '
-                     f'{w.path} ({format_size(size)})')
+                     f'{w.path} ({format_size(w.size_bytes)}'
+                     + (f' in {len(w.files)} files' if len(w.files) > 1 else '') + ')')
+        if w.deleted_files:
+            lines.append(f'  not kept: {w.custom_data["deleted_files"]}')
         for t in sorted(topics.values(), key=lambda t: t.name):
             lines.append(f'  {t.name}: {t.count} ({t.type})')
         if self.error:
