@@ -203,3 +203,18 @@ def test_bag_dir_wins_over_the_params_file_output_dir(tmp_path):
                   record=True)
     (bag,) = (tmp_path / 'mine').glob('rosbag2_*')
     assert _bag_is_complete(bag) and not (tmp_path / 'fixed').exists()
+
+
+def test_default_recording_is_bounded_unless_the_params_file_says_otherwise(tmp_path):
+    """The recorder `lightstage up` starts by default splits its bag into 1 GiB files and keeps
+    the newest 10; a params file's recorder section (the shipped one included) decides itself."""
+    bag = tmp_path / 'bag'
+    args = launcher.recorder_ros_args(bag, None)
+    assert args == ['-p', f'recorder:output_dir:={bag}', '-p', f'recorder:max_bag_size_bytes:={1 << 30}',
+                    '-p', 'recorder:max_bag_files:=10']
+    params = tmp_path / 'params.yaml'
+    params.write_text('recorder:\n  ros__parameters:\n    max_bag_files: 0\n')
+    assert launcher.recorder_ros_args(bag, params) == [
+        '-p', f'recorder:output_dir:={bag}', '-p', f'recorder:max_bag_size_bytes:={1 << 30}']
+    shipped = Path(__file__).resolve().parents[2] / 'src' / 'lightstage_bringup' / 'config' / 'lightstage.yaml'
+    assert launcher.recorder_ros_args(bag, shipped) == ['-p', f'recorder:output_dir:={bag}']

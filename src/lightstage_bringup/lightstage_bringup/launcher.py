@@ -57,6 +57,10 @@ NODE_REGISTRY: dict[str, NodeEntry] = {
 DEFAULT_NODES = ('driver', 'camera', 'classifier')
 RECORDER = 'recorder'  # started as well unless --no-record
 DEFAULT_BAG_DIR = Path('out') / 'bags'
+# A recorder that runs by default must not fill the disk over days of use: its bag is split
+# into 1 GiB files and only the newest 10 are kept (at most ~10 GiB per `lightstage up`),
+# unless the params file's recorder section sets these itself
+DEFAULT_RECORDING_LIMITS = {'max_bag_size_bytes': 1 << 30, 'max_bag_files': 10}
 
 
 def node_command(module: str, name: str, params_file: str | None = None,
@@ -229,6 +233,32 @@ class GraphWatcher:
             self._executor.spin_once(timeout_sec=0.05)
 
 
+def _params_section(params: Path | None, node: str) -> dict:
+    """The ros__parameters a params file gives `node` (by its name or /name); {} if none."""
+    if params is None:
+        return {}
+    import yaml
+    try:
+        doc = yaml.safe_load(params.read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return {}  # the node itself reports a params file it cannot read
+    section = doc.get(node, doc.get('/' + node)) if isinstance(doc, dict) else None
+    values = section.get('ros__parameters') if isinstance(section, dict) else None
+    return values if isinstance(values, dict) else {}
+
+
+def recorder_ros_args(bag: Path, params: Path | None) -> list[str]:
+    """The recorder's `-p` overrides under `lightstage up`: its bag, node-qualified so that it
+    wins over the params file's recorder section (a new bag per run), and the default
+    recording limits where the params file does not set them."""
+    args = ['-p', f'{RECORDER}:output_dir:={bag}']
+    given = _params_section(params, RECORDER)
+    for key, value in DEFAULT_RECORDING_LIMITS.items():
+        if key not in given:
+            args += ['-p', f'{RECORDER}:{key}:={value}']
+    return args
+
+
 def _new_bag_path(bag_dir: Path) -> Path:
     """A new, absolute bag path under bag_dir (created), named as `ros2 bag record` names bags."""
     from lightstage_bringup.bag_format import default_bag_name
@@ -293,8 +323,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f'lightstage up: cannot create the bag folder {args.bag_dir}: {e}; choose another '
                   f'with --bag-dir, or --no-record', file=err)
             return EXIT_USAGE
-        # node-qualified, so it wins over the params file's recorder section: a new bag per run
-        extra_ros_args[RECORDER] = ['-p', f'{RECORDER}:output_dir:={bag}']
+        extra_ros_args[RECORDER] = recorder_ros_args(bag, params)
         print(f'recording to {bag} (--no-record: off)', flush=True)
 
     stop = threading.Event()
