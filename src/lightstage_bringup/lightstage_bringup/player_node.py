@@ -226,10 +226,8 @@ def _spin(executor, node: PlayerNode) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .ros_env import apply_node_environment
-    env_message = apply_node_environment()  # however it was started (`ros2 run` too)
-    if env_message:
-        print(f'{NODE_NAME}: {env_message}', file=sys.stderr, flush=True)
+    from .ros_env import apply_node_environment_and_say
+    apply_node_environment_and_say(NODE_NAME)  # however it was started (`ros2 run` too)
     return run(sys.argv if argv is None else argv)
 
 

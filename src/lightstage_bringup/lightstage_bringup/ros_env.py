@@ -91,6 +91,14 @@ def apply_node_environment() -> str | None:
             f'which a shell gets from `source <venv>/setup.bash`')
 
 
+def apply_node_environment_and_say(node_name: str) -> None:
+    """`apply_node_environment`, saying on stderr what it changed: for the mains that set
+    up their process before rclpy's logging (the recorder and the player)."""
+    message = apply_node_environment()
+    if message:
+        print(f'{node_name}: {message}', file=sys.stderr, flush=True)
+
+
 def shell_commands(base: dict[str, str] | None = None) -> str:
     """POSIX shell commands that turn the environment `base` (default: os.environ) into the
     project's ROS environment: what `<venv>/setup.bash` evaluates."""
