@@ -24,12 +24,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
+from lightstage_graph.ros_env import apply_ros_environment, ros_environment
 
 HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE.parent / 'tests' / d) for d in ('', 'recording')]
 from recording_helpers import bag_results  # noqa: E402  (the tests' bag and ROS helpers)
-from suite_helpers import RosClient, start_nodes, write_params  # noqa: E402
+from suite_helpers import GraphClient, start_nodes, write_params  # noqa: E402
 
 SAMPLES = ['banana-fake/s1/p02', 'banana-real/s0/p01', 'orange-fake/s1/p00', 'orange-real/s0/p02']
 RECORDED = ['/illumination', '/image_raw', '/lightstage/result',
@@ -55,7 +55,7 @@ def _record(capture: Path, artifact: Path, bag: Path, domain_id: int, work: Path
         'classifier': {'artifact_path': str(artifact)},
         'recorder': {'output_dir': str(bag)},
     })
-    client = RosClient(domain_id, 'record_sim_session')
+    client = GraphClient(domain_id, 'record_sim_session')
     out = io.StringIO()
     answers = []
     try:

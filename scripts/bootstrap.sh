@@ -22,7 +22,7 @@ mkdir -p "$LOG_DIR"
 # iproute2, with which scripts/run_tests.sh brings up loopback in the tests' network namespace.
 APT_PACKAGES=(cmake ninja-build gcc g++ make pkg-config gcc-avr binutils-avr avr-libc
               libsimavr-dev libelf-dev strace iproute2)
-PROJECT_PACKAGES=(lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_bringup)
+PROJECT_PACKAGES=(lightstage_graph lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_bringup)
 
 step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }
 fail() {
@@ -121,13 +121,13 @@ sed -i "s|^: \${AMENT_CURRENT_PREFIX:=\"[^\"]*\"}|: \${AMENT_CURRENT_PREFIX:=\"$
 cat > "$VENV/setup.bash" <<'SETUP'
 # The ROS environment of this venv (written by scripts/bootstrap.sh): `source .venv/setup.bash`,
 # as /opt/ros/jazzy/setup.bash on a full ROS 2 install. It puts the venv's bin/ first on PATH
-# (python, lightstage) and applies the project's ROS environment (lightstage_bringup.ros_env):
+# (python, lightstage) and applies the project's ROS environment (lightstage_graph.ros_env):
 # the venv on AMENT_PREFIX_PATH (so `ros2 pkg` / `ros2 run` / ament_index_python find every
 # package), LOCALHOST discovery, the Fast DDS profile. Paths come from this file's location.
 _lightstage_venv="$(cd "$(dirname "${BASH_SOURCE[0]:-$0}")" && pwd)"
 export VIRTUAL_ENV="$_lightstage_venv"
 case ":$PATH:" in *":$_lightstage_venv/bin:"*) ;; *) export PATH="$_lightstage_venv/bin:$PATH" ;; esac
-eval "$("$_lightstage_venv/bin/python" -m lightstage_bringup.ros_env)"
+eval "$("$_lightstage_venv/bin/python" -m lightstage_graph.ros_env)"
 unset _lightstage_venv
 SETUP
 step "ready: $VENV (ROS environment: source .venv/setup.bash)"

@@ -2,7 +2,7 @@
 
 This runs before any test module imports rclpy, so in-process nodes get LOCALHOST
 discovery, the project's Fast DDS profile and a domain id of this run's own (tests that
-start processes choose their own ids through `lightstage_bringup.ros_env`).
+start processes choose their own ids through `lightstage_graph.ros_env`).
 
 Loading this file also puts tests/ on sys.path (pytest's "prepend" import mode), so the
 test directories import `suite_helpers`, the helpers they share.
@@ -14,7 +14,7 @@ import os
 
 import pytest
 
-from lightstage_bringup.ros_env import apply_ros_environment
+from lightstage_graph.ros_env import apply_ros_environment
 
 TEST_RUN_DOMAIN_ID = 100 + os.getpid() % 100
 apply_ros_environment(domain_id=int(os.environ.get('LIGHTSTAGE_TEST_DOMAIN_ID', TEST_RUN_DOMAIN_ID)))

@@ -1,6 +1,6 @@
 """Shared by the test directories that run ROS graphs (tests/nodes, tests/recording,
-tests/acquisition, tests/ros): domain ids, parameter files, node processes, and an in-process
-rclpy client; and the site patterns of the suite's small trained artifact (tests/conftest.py).
+tests/acquisition, tests/ros): domain ids, parameter files, node processes (the in-process
+rclpy client is `lightstage_graph.graph_client.GraphClient`); and the site patterns of the suite's small trained artifact (tests/conftest.py).
 
 Imported as `suite_helpers`: pytest puts tests/ on sys.path when it loads tests/conftest.py
 (the default "prepend" import mode), as it puts each test directory there for its own helpers.
@@ -16,8 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from lightstage_bringup.launcher import NODE_REGISTRY, node_command
-from lightstage_bringup.ros_env import ros_environment
 from lightstage_bringup.supervisor import ProcessSpec, Supervisor
+from lightstage_graph.graph_client import GraphClient, parameter_msgs  # noqa: F401 (for the tests)
+from lightstage_graph.ros_env import ros_environment
+
+RosClient = GraphClient  # SHIM(issue 13): remove at merge (tests/recording, bags/, benchmarks/ import it)
 
 # two site patterns -> a per-colour artifact with classifiers for 4 and 8 images
 TRAIN_SITE_PATTERNS = np.zeros((8, 2), np.float32)
@@ -56,7 +59,7 @@ def write_params(path: Path, sections: dict) -> Path:
     return path
 
 
-def start_nodes(supervisor: Supervisor, client: RosClient, names, domain_id: int,
+def start_nodes(supervisor: Supervisor, client: GraphClient, names, domain_id: int,
                 params: Path | None, timeout_s: float = 30.0) -> None:
     """Start project nodes (`lightstage up` registry names) as processes and wait until they spin.
 
@@ -79,86 +82,3 @@ def start_nodes(supervisor: Supervisor, client: RosClient, names, domain_id: int
         client.executor.spin_once(timeout_sec=0.05)
     for c in clients.values():
         client.node.destroy_client(c)
-
-
-class RosClient:
-    """An rclpy node of the test process on its own context and domain, with a private
-    executor: service calls, parameter sets, subscriptions."""
-
-    def __init__(self, domain_id: int, name: str | None = None):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.signals import SignalHandlerOptions
-        self.domain_id = domain_id
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id,
-                   signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(name or f'test_client_{os.getpid()}', context=self.context,
-                                      start_parameter_services=False)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._clients = {}
-
-    def call(self, srv_type, name: str, request, timeout_s: float = 30.0, wait_s: float = 10.0):
-        key = (srv_type, name)
-        if key not in self._clients:
-            self._clients[key] = self.node.create_client(srv_type, name)
-        client = self._clients[key]
-        self.spin_until(client.service_is_ready, wait_s, f'service {name}')
-        future = client.call_async(request)
-        self.executor.spin_until_future_complete(future, timeout_sec=timeout_s)
-        assert future.done(), f'{name} did not answer within {timeout_s} s'
-        return future.result()
-
-    def set_parameters(self, node_name: str, **values):
-        """SetParameters on a node; returns its list of SetParametersResult."""
-        from rcl_interfaces.srv import SetParameters
-        request = SetParameters.Request(parameters=parameter_msgs(values))
-        return self.call(SetParameters, f'/{node_name}/set_parameters', request).results
-
-    def spin_until(self, predicate, timeout_s: float = 10.0, what='condition') -> None:
-        """Spin until predicate() holds; ``what`` (a string, or a callable giving one when the
-        time is up, e.g. to show a log as it is then) names what was awaited."""
-        deadline = time.monotonic() + timeout_s
-        while not predicate():
-            if time.monotonic() >= deadline:
-                raise AssertionError(f'timed out after {timeout_s} s waiting for '
-                                     f'{what() if callable(what) else what}')
-            self.executor.spin_once(timeout_sec=0.05)
-
-    def spin_for(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.05)
-
-    def result(self, future, timeout_s: float = 10.0, what: str = 'a response'):
-        self.spin_until(future.done, timeout_s, what)
-        return future.result()
-
-    def call_until_answered(self, client, request, attempts: int = 4, per_try_s: float = 3.0):
-        """Call an idempotent service until it answers: the first response can be lost while
-        the reply path (server -> this client) is still being matched, which
-        `service_is_ready()` does not cover. Use it to warm a connection up."""
-        for _ in range(attempts):
-            future = client.call_async(request)
-            deadline = time.monotonic() + per_try_s
-            while not future.done() and time.monotonic() < deadline:
-                self.executor.spin_once(timeout_sec=0.05)
-            if future.done():
-                return future.result()
-            client.remove_pending_request(future)
-        raise AssertionError(f'no response after {attempts} calls of {per_try_s} s each')
-
-    def subscribed_by(self, topic: str, node_name: str) -> bool:
-        return any(i.node_name == node_name for i in self.node.get_subscriptions_info_by_topic(topic))
-
-    def close(self) -> None:
-        import rclpy
-        rclpy.shutdown(context=self.context)
-
-
-def parameter_msgs(values: dict) -> list:
-    """{name: value} -> rcl_interfaces Parameter messages."""
-    from rclpy.parameter import Parameter
-    return [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]

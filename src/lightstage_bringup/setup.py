@@ -8,12 +8,10 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
     include_package_data=True,
-    package_data={'lightstage_bringup': ['config/*.xml', 'config/*.yaml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', ['lightstage_bringup/config/fastdds_profile.xml',
-                                               'config/lightstage.yaml']),
+        ('share/' + package_name + '/config', ['config/lightstage.yaml']),
         ('share/' + package_name + '/launch', ['launch/lightstage.launch.py']),
         # `ros2 run lightstage_bringup recorder|player` look in <prefix>/lib/<pkg>/; pip puts
         # console_scripts in bin/, so small wrappers are installed there as data.

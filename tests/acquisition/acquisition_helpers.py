@@ -6,7 +6,7 @@ import numpy as np
 
 from lightstage_camera.models import ModelSet
 from lightstage_camera.rig import Rig
-from suite_helpers import RosClient, lightstage_command, parameter_msgs, start_nodes
+from suite_helpers import GraphClient, lightstage_command, start_nodes
 
 
 def smooth_modelset(shape=(24, 32), n_samples=2, seed=0, top=600.0, dark=True) -> ModelSet:
@@ -82,17 +82,18 @@ def check_z(z, tail_mask=None, family_alpha: float = 1e-3) -> None:
 # --------------------------------------------------------------------------- the graph
 
 
-class GraphClient(RosClient):
+class StageGraph(GraphClient):
     """The test's own ROS participant: starts nodes, sends action goals, sets parameters
     atomically, counts /illumination messages."""
 
     def __init__(self, domain_id: int):
         super().__init__(domain_id)
         self.illumination = []
+        from lightstage_graph.names import ILLUMINATION_TOPIC
+        from lightstage_graph.qos import ILLUMINATION_QOS
         from lightstage_interfaces.msg import IlluminationState
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-        self.node.create_subscription(IlluminationState, '/illumination', self.illumination.append,
-                                      QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        self.node.create_subscription(IlluminationState, ILLUMINATION_TOPIC, self.illumination.append,
+                                      ILLUMINATION_QOS)
 
     def start(self, supervisor, names, params=None, timeout_s: float = 30.0) -> None:
         """Start registry nodes as processes and wait until they spin (`start_nodes`)."""
@@ -101,35 +102,24 @@ class GraphClient(RosClient):
     def action(self, action_type, name: str, goal, timeout_s: float = 120.0, cancel_when=None):
         """Send a goal; returns (status, result, feedback messages). `cancel_when(feedback)`
         True sends a cancel request (once)."""
-        from rclpy.action import ActionClient
-        client = ActionClient(self.node, action_type, name)
-        assert client.wait_for_server(timeout_sec=15.0), f'{name} not available'
-        feedback, cancel = [], []
+        feedback, cancel, handle_box = [], [], []
 
         def on_feedback(msg):
-            feedback.append(msg.feedback)
-            if cancel_when is not None and not cancel and cancel_when(msg.feedback):
+            feedback.append(msg)
+            if cancel_when is not None and not cancel and cancel_when(msg):
                 cancel.append(handle_box[0].cancel_goal_async())
 
-        handle_box = []
-        send = client.send_goal_async(goal, feedback_callback=on_feedback)
-        self.executor.spin_until_future_complete(send, timeout_sec=15.0)
-        assert send.done(), f'{name}: no answer to the goal'
-        handle = send.result()
+        handle = self.send_goal(action_type, name, goal, wait_s=15.0, on_feedback=on_feedback,
+                                timeout_s=15.0)
         handle_box.append(handle)
         if not handle.accepted:
             return None, None, feedback
-        result = handle.get_result_async()
-        self.spin_until(result.done, timeout_s, f'the result of {name}')
-        client.destroy()
-        return result.result().status, result.result().result, feedback
+        result = self.result(handle.get_result_async(), timeout_s, f'the result of {name}')
+        return result.status, result.result, feedback
 
     def set_parameters(self, node_name: str, **values):
         """SetParametersAtomically on a node; returns the one SetParametersResult."""
-        from rcl_interfaces.srv import SetParametersAtomically
-        request = SetParametersAtomically.Request(parameters=parameter_msgs(values))
-        return self.call(SetParametersAtomically, f'/{node_name}/set_parameters_atomically',
-                         request).result
+        return self.set_parameters_atomically(node_name, values)
 
 
 def cli(*args, domain_id: int, timeout: float = 300):

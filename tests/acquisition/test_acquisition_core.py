@@ -9,7 +9,7 @@ from acquisition_helpers import (averaged_capture_z, check_z, gaussian_regime, s
                                  smooth_modelset)
 from lightstage_camera import acquisition as acq
 from lightstage_camera.capture_format import load_capture
-from lightstage_camera.frames import AcquisitionError
+from lightstage_camera.errors import AcquisitionError
 from lightstage_camera.noise import PAPER_CALIBRATION
 from lightstage_camera.sim_camera import SimCamera
 
@@ -224,14 +224,16 @@ def test_a_write_that_fails_midway_leaves_nothing_behind(tmp_path, monkeypatch):
     assert [p.name for p in (tmp_path / 'kept' / 'banana-fake' / 's0').iterdir()] == ['p00']
 
 
-def test_classifier_reexports_the_camera_frame_matching():
-    from lightstage_camera import frames
+def test_classifier_and_acquisition_share_the_graph_frame_matching_and_stage_errors():
+    from lightstage_graph import frames
+    from lightstage_graph.errors import MissingImagesError, StageError
     from mux_classifier import inference
     assert inference.ImageMatcher is frames.ImageMatcher
     assert inference.image_from_buffer is frames.image_from_buffer
     assert inference.mono16_to_gray is frames.mono16_to_gray
-    assert inference.InferenceError is AcquisitionError
-    assert issubclass(inference.MissingImagesError, inference.InferenceError)
+    assert inference.MissingImagesError is MissingImagesError
+    # one `except StageError` in each node catches the stage's failures and its own
+    assert issubclass(AcquisitionError, StageError) and issubclass(inference.InferenceError, StageError)
 
 
 def test_output_files_are_not_replaced_unless_asked(tmp_path):

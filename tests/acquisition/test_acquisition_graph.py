@@ -13,7 +13,7 @@ import pytest
 import yaml
 from lightstage_bringup.supervisor import Supervisor
 
-from acquisition_helpers import GraphClient, averaged_capture_z, check_z, cli, gaussian_regime
+from acquisition_helpers import StageGraph, averaged_capture_z, check_z, cli, gaussian_regime
 from lightstage_camera.acquisition import STAGING_DIR
 from lightstage_camera.calibration import write_calibration_target
 from lightstage_camera.capture_format import load_capture
@@ -47,7 +47,7 @@ def graph(stage, tmp_path_factory):
         'camera': {'capture_dir': str(fruit), 'sample': SAMPLE, 'dimmer': 1.0, 'seed': 7},
         'acquisition': {'exposure_us': EXPOSURE_US, 'gain_db': GAIN_DB, 'frames_averaged': 2},
     })
-    client = GraphClient(domain_id)
+    client = StageGraph(domain_id)
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
             client.start(supervisor, ['driver', 'camera', 'acquisition'], params)
@@ -216,7 +216,7 @@ def test_missing_driver_camera_and_images_are_reported(stage, tmp_path):
     params = write_params(tmp_path / 'params.yaml', {
         'acquisition': {'timeout_s': 1.0, 'exposure_us': 1000, 'frames_averaged': 1},
         'camera': {'capture_dir': ''}})
-    client = GraphClient(domain_id)
+    client = StageGraph(domain_id)
     out = tmp_path / 'out'
 
     def abort_message(until: str, before: str = '') -> str:

@@ -7,7 +7,7 @@ from acquisition_helpers import sim_grab
 from lightstage_camera import calibration as cal
 from lightstage_camera.acquisition import CaptureCancelled, DestinationError
 from lightstage_camera.capture_format import load_capture
-from lightstage_camera.frames import AcquisitionError
+from lightstage_camera.errors import AcquisitionError
 from lightstage_camera.noise import (PAPER_CALIBRATION, SETTINGS, NoiseFileError, NoiseModel,
                                      load_noise_file, noise_setting, save_noise_file)
 from lightstage_camera.sim_camera import SimCamera

@@ -4,7 +4,7 @@ import os
 import sys
 from pathlib import Path
 
-from lightstage_bringup.ros_env import ros_environment
+from lightstage_graph.ros_env import ros_environment
 
 HERE = Path(__file__).resolve().parent
 _counter = itertools.count()

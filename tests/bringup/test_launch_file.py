@@ -45,7 +45,7 @@ def test_launch_file_keeps_discovery_on_this_machine():
     unset = [ast.literal_eval(n.args[0]) for n in ast.walk(tree) if isinstance(n, ast.Call)
              and getattr(n.func, 'id', None) == 'UnsetEnvironmentVariable']
     assert unset == ['ROS_STATIC_PEERS']
-    # the profile setup.py installs to share/lightstage_bringup/config
+    # the profile lightstage_graph's setup.py installs to share/lightstage_graph/config
     assert "'fastdds_profile.xml'" in env['FASTRTPS_DEFAULT_PROFILES_FILE']
 
 

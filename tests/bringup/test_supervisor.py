@@ -7,7 +7,8 @@ import time
 
 import pytest
 
-from lightstage_bringup.supervisor import ExitReport, ProcessSpec, Supervisor, describe_exit
+from lightstage_bringup.supervisor import ExitReport, ProcessSpec, Supervisor
+from lightstage_graph.exits import describe_exit
 
 PY = sys.executable
 

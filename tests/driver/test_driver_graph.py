@@ -12,7 +12,7 @@ import pytest
 from lightstage_bringup.supervisor import Supervisor
 
 from driver_helpers import child_pids
-from suite_helpers import RosClient, fresh_domain_id, start_nodes, write_params
+from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
 
@@ -28,7 +28,7 @@ def test_classify_after_the_drivers_simulator_is_killed_fails_with_the_reason_th
         'camera': {'capture_dir': str(stage_capture), 'sample': 'banana-real/s0/p00', 'seed': 3},
         'classifier': {'artifact_path': str(stage_artifact_path), 'timeout_s': 10.0},
     })
-    client = RosClient(domain_id)
+    client = GraphClient(domain_id)
 
     def classify():
         return client.call(Classify, '/lightstage/classify', Classify.Request(max_images=4, timeout_s=10.0),

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lightstage_bringup.ros_env import ros_environment
+from lightstage_graph.ros_env import ros_environment
 from lightstage_driver.sim_backend import PythonSimBackend
 
 from driver_helpers import child_pids, distinct_words, wait_until

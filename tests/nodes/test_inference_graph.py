@@ -26,7 +26,7 @@ from lightstage_bringup.supervisor import Supervisor
 from mux_classifier.classify_request import MAX_IMAGES_MAX, TIMEOUT_MAX_S, TIMEOUT_MIN_S
 
 from artifact_mutations import mutated_artifacts
-from suite_helpers import RosClient, fresh_domain_id, start_nodes, write_params
+from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
 
@@ -56,7 +56,7 @@ def classify(client, max_images=0, timeout_s=10.0):
 
 
 class Graph(NamedTuple):
-    client: RosClient
+    client: GraphClient
     domain_id: int
     supervisor: Supervisor
 
@@ -68,7 +68,7 @@ def graph(stage_capture, stage_artifact_path, tmp_path_factory):
         'camera': {'capture_dir': str(stage_capture), 'sample': SAMPLES[0], 'seed': 3},
         'classifier': {'artifact_path': str(stage_artifact_path), 'timeout_s': 10.0},
     })
-    client = RosClient(domain_id)
+    client = GraphClient(domain_id)
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
             start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
@@ -196,7 +196,7 @@ def test_issue_12_malformed_artifacts_leave_the_node_up_at_start_and_at_run_time
     domain_id = fresh_domain_id()
     params = write_params(tmp_path / 'params.yaml',
                           {'classifier': {'artifact_path': str(tmp_path / 'x.npz')}})
-    client = RosClient(domain_id)
+    client = GraphClient(domain_id)
     names = (tmp_path / f'fuzzed-{i}.npz' for i in itertools.count())
     with Supervisor(sigint_timeout_s=5.0) as supervisor:
         try:
@@ -235,7 +235,7 @@ def test_error_paths_missing_artifact_no_driver_no_camera(stage_artifact_path, t
     missing = tmp_path / 'nowhere' / 'classifier.npz'
     params = write_params(tmp_path / 'params.yaml',
                           {'classifier': {'artifact_path': str(missing)}})
-    client = RosClient(domain_id)
+    client = GraphClient(domain_id)
     with Supervisor(sigint_timeout_s=5.0) as supervisor:
         start_nodes(supervisor, client, ['classifier'], domain_id, params)
         try:

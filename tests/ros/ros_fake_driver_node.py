@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 import rclpy
-from lightstage_camera.spinning import spin_until_stopped
+from lightstage_graph.spin import spin_until_stopped
 from rclpy.node import Node
 
 from lightstage_interfaces.msg import IlluminationState

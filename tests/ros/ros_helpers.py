@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 from lightstage_bringup.launcher import GraphWatcher, node_command
-from lightstage_bringup.ros_env import ros_environment
+from lightstage_graph.ros_env import ros_environment
 from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 
 HERE = Path(__file__).resolve().parent

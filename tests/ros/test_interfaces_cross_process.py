@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from ros_helpers import running_nodes
-from suite_helpers import RosClient, fresh_domain_id
+from suite_helpers import GraphClient, fresh_domain_id
 
 pytestmark = pytest.mark.ros
 
@@ -39,7 +39,7 @@ def graph(request, tmp_path_factory):
     domain_id = fresh_domain_id()
     with running_nodes({'driver': driver_module, 'trainer': trainer_module}, domain_id,
                        params_file=str(params)) as sup:
-        client = RosClient(domain_id)
+        client = GraphClient(domain_id)
         try:
             yield sup, client
         finally:

@@ -9,11 +9,11 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from lightstage_bringup import ros_env
+from lightstage_graph import ros_env
 from proc_sockets import (InetSocket, ephemeral_port_low, listening_beyond_loopback,
                           parse_address, parse_proc_net, sockets_of)
 from ros_helpers import running_nodes
-from suite_helpers import RosClient, fresh_domain_id
+from suite_helpers import GraphClient, fresh_domain_id
 
 DRIVER = {'driver': 'ros_fake_driver_node'}
 NS = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
@@ -152,7 +152,7 @@ def test_ros_node_process_sends_only_to_loopback(tmp_path):
     wrap = ['strace', '-f', '-qq', '-e', 'trace=sendto,sendmsg,sendmmsg,connect', '-o', str(trace)]
     domain_id = fresh_domain_id()
     with running_nodes(DRIVER, domain_id, wrap=wrap):
-        c = RosClient(domain_id)
+        c = GraphClient(domain_id)
         try:
             cli = c.node.create_client(ApplyPatterns, '/lightstage/apply_patterns')
             c.spin_until(cli.service_is_ready, 20, 'the driver service')
@@ -173,7 +173,7 @@ def test_ros_node_process_sends_only_to_loopback(tmp_path):
 # -- the environment a node applies itself, and the setup file's commands -------------
 def test_the_install_prefix_goes_first_on_ament_prefix_path_once():
     prefix = ros_env.ament_prefix()
-    assert prefix is not None, 'lightstage_bringup runs from an install with an ament index marker'
+    assert prefix is not None, 'lightstage_graph runs from an install with an ament index marker'
     env = ros_env.ros_environment(None, base={'AMENT_PREFIX_PATH': '/opt/ros/jazzy'})
     assert env['AMENT_PREFIX_PATH'] == f'{prefix}{os.pathsep}/opt/ros/jazzy'
     again = ros_env.ros_environment(None, base=env)

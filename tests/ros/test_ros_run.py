@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from ros_helpers import running_nodes
-from suite_helpers import RosClient, fresh_domain_id
+from suite_helpers import GraphClient, fresh_domain_id
 
 pytestmark = pytest.mark.ros
 
@@ -42,7 +42,7 @@ def clean_environment(domain_id: int) -> dict[str, str]:
             'ROS_DOMAIN_ID': str(domain_id), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST'}
 
 
-def get_parameters(client: RosClient, node: str, names: list[str]) -> dict:
+def get_parameters(client: GraphClient, node: str, names: list[str]) -> dict:
     from rcl_interfaces.srv import GetParameters
     from rclpy.parameter import parameter_value_to_python
     values = client.call(GetParameters, f'/{node}/get_parameters', GetParameters.Request(names=names)).values
@@ -84,7 +84,7 @@ def test_ros_run_with_the_shipped_yaml_applies_it_and_classifies(stage_capture, 
     commands = {name: [str(VENV / 'lib' / pkg / exe), '--ros-args', '--params-file', str(params)]
                 for name, (pkg, exe) in ROS_RUN.items()}
     with running_nodes(commands, domain_id, timeout_s=90, env=clean_environment(domain_id)) as sup:
-        client = RosClient(domain_id)
+        client = GraphClient(domain_id)
         try:
             for name, values in filled.items():
                 assert get_parameters(client, name, list(values)) == values, name

@@ -9,7 +9,7 @@ directory); `use_recorder:=false` leaves it out.
 
 The same nodes, names and parameters as `lightstage up` (lightstage_bringup.launcher), which
 is what runs where `launch` is not available (the pip-only setup). Node names are the keys
-of config/lightstage.yaml. Like `lightstage_bringup.ros_env`, it keeps discovery on this
+of config/lightstage.yaml. Like `lightstage_graph.ros_env`, it keeps discovery on this
 machine and uses the project's Fast DDS profile (large shared-memory segment for images).
 """
 import os
@@ -41,11 +41,12 @@ def generate_launch_description():
         ('recorder', 'lightstage_bringup', 'recorder', 'use_recorder'),
     ]
     actions = [
-        # the same settings as lightstage_bringup.ros_env.ros_environment()
+        # the same settings as lightstage_graph.ros_env.ros_environment()
         SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'),
         UnsetEnvironmentVariable('ROS_STATIC_PEERS'),  # contacted even with LOCALHOST
         SetEnvironmentVariable('FASTRTPS_DEFAULT_PROFILES_FILE',
-                               os.path.join(share, 'config', 'fastdds_profile.xml')),
+                               os.path.join(get_package_share_directory('lightstage_graph'),
+                                            'config', 'fastdds_profile.xml')),
         DeclareLaunchArgument('params_file', default_value=default_params,
                               description='ROS parameters YAML for all nodes'),
         DeclareLaunchArgument('use_trainer', default_value='false',

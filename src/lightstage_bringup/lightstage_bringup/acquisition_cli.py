@@ -23,10 +23,9 @@ import sys
 import time
 from pathlib import Path
 
-from lightstage_bringup.ros_env import apply_ros_environment
+from lightstage_graph.names import CALIBRATE_ACTION, CAPTURE_ACTION
+from lightstage_graph.ros_env import apply_ros_environment
 
-CAPTURE_ACTION = '/lightstage/capture_model'
-CALIBRATE_ACTION = '/lightstage/calibrate_noise'
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNAVAILABLE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 TARGET = re.compile(r'^([^/=]+)/([^/=]+)/([^/=]+)(?:=(.+))?$')
 
@@ -146,96 +145,56 @@ def _absolute(path: str) -> str:
 # --------------------------------------------------------------------------- ROS
 
 
-class _Client:
-    """One context, node and executor for the CLI's action and parameter calls."""
+START_HINT = 'start the graph with `lightstage up driver camera acquisition` in this domain'
 
-    def __init__(self, domain_id):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.signals import SignalHandlerOptions
-        self.context = Context()
-        # Ctrl-C raises KeyboardInterrupt here (rclpy's handler would shut the context down
-        # first), so the running goal can still be cancelled through this context
-        rclpy.init(context=self.context, args=[], signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(f'lightstage_acquisition_cli_{os.getpid()}',
-                                      context=self.context, start_parameter_services=False)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._clients = {}  # by name: one per service / action for all targets, discovered once
 
-    def close(self) -> None:
-        import rclpy
-        rclpy.shutdown(context=self.context)
+def _set_camera_params(graph, camera_node: str, params: list, wait_s: float) -> None:
+    """Set camera parameters together (SetParametersAtomically: the camera sees e.g. a new
+    capture_dir and the sample in it as one change)."""
+    from lightstage_graph.graph_client import GraphTimeout
+    if not params:
+        return
+    try:
+        result = graph.set_parameters_atomically(
+            camera_node, dict(params), wait_s=wait_s,
+            hint='start the camera (`lightstage up driver camera acquisition`) or check --camera-node')
+    except GraphTimeout as exc:
+        raise _Unavailable(str(exc)) from None
+    if not result.successful:
+        shown = ', '.join(f'{n}={v!r}' for n, v in params)
+        raise _Failed(f'the camera refused {shown}: {result.reason}')
 
-    def _client(self, name: str, make):
-        if name not in self._clients:
-            self._clients[name] = make()
-        return self._clients[name]
 
-    def set_camera_params(self, camera_node: str, params: list, wait_s: float) -> None:
-        """Set camera parameters together (SetParametersAtomically: the camera sees e.g. a new
-        capture_dir and the sample in it as one change)."""
-        from rcl_interfaces.srv import SetParametersAtomically
-        from rclpy.parameter import Parameter
-        if not params:
-            return
-        name = f'/{camera_node}/set_parameters_atomically'
-        client = self._client(name, lambda: self.node.create_client(SetParametersAtomically, name))
-        if not client.wait_for_service(timeout_sec=wait_s):
-            raise _Unavailable(f'the camera node\'s {name} is not available after {wait_s:g} s; '
-                               'start the camera (`lightstage up driver camera acquisition`) or '
-                               'check --camera-node')
-        request = SetParametersAtomically.Request(
-            parameters=[Parameter(n, value=v).to_parameter_msg() for n, v in params])
-        future = client.call_async(request)
-        self.executor.spin_until_future_complete(future, timeout_sec=30.0)
-        if not future.done():
-            raise _Unavailable(f'{name} did not answer within 30 s')
-        result = future.result().result
-        if not result.successful:
-            shown = ', '.join(f'{n}={v!r}' for n, v in params)
-            raise _Failed(f'the camera refused {shown}: {result.reason}')
-
-    def run_goal(self, action_type, name: str, goal, wait_s: float, on_feedback):
-        """Send `goal`, spin until its result; Ctrl-C cancels it and re-raises."""
-        from action_msgs.msg import GoalStatus
-        from rclpy.action import ActionClient
-        client = self._client(name, lambda: ActionClient(self.node, action_type, name))
-        if not client.wait_for_server(timeout_sec=wait_s):
-            raise _Unavailable(f'the action {name} is not available after {wait_s:g} s '
-                               f'(ROS_DOMAIN_ID={self.context.get_domain_id()}); start the graph '
-                               'with `lightstage up driver camera acquisition` in this domain')
-        send = client.send_goal_async(goal, feedback_callback=lambda m: on_feedback(m.feedback))
-        self.executor.spin_until_future_complete(send, timeout_sec=30.0)
-        if not send.done():
-            raise _Unavailable(f'{name} did not answer the goal within 30 s; is the acquisition '
-                               'node stuck? Check its log')
-        handle = send.result()
-        if not handle.accepted:
-            raise _Failed(f'{name} refused the goal: another capture or calibration is running on '
-                          'the stage (one goal at a time); try again when it is done')
-        result_future = handle.get_result_async()
+def _run_goal(graph, action_type, name: str, goal, wait_s: float, on_feedback):
+    """Send `goal`, spin until its result; Ctrl-C cancels it and re-raises."""
+    from action_msgs.msg import GoalStatus
+    from lightstage_graph.graph_client import GraphTimeout
+    try:
+        handle = graph.send_goal(action_type, name, goal, wait_s, on_feedback, hint=START_HINT)
+    except GraphTimeout as exc:
+        raise _Unavailable(str(exc)) from None
+    if not handle.accepted:
+        raise _Failed(f'{name} refused the goal: another capture or calibration is running on '
+                      'the stage (one goal at a time); try again when it is done')
+    result_future = handle.get_result_async()
+    try:
+        while not result_future.done():
+            graph.executor.spin_once(timeout_sec=0.1)
+    except KeyboardInterrupt:
+        print('\ninterrupted: cancelling the goal ...', file=sys.stderr)
+        handle.cancel_goal_async()
         try:
-            while not result_future.done():
-                self.executor.spin_once(timeout_sec=0.1)
-        except KeyboardInterrupt:
-            print('\ninterrupted: cancelling the goal ...', file=sys.stderr)
-            handle.cancel_goal_async()
-            deadline = time.monotonic() + 30.0
-            while not result_future.done() and time.monotonic() < deadline:
-                self.executor.spin_once(timeout_sec=0.1)
-            if not result_future.done():
-                print(f'{name} did not confirm the cancel within 30 s: check the acquisition '
-                      'node\'s log for what it wrote', file=sys.stderr)
-            else:
-                answer = result_future.result()
-                # the goal may have ended before the cancel reached it (e.g. already written)
-                print(f'the goal ended {_status_name(answer.status)}: {answer.result.message}',
-                      file=sys.stderr)
-            raise
-        answer = result_future.result()
-        return answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result, answer.status
+            answer = graph.result(result_future, 30.0, 'the cancel')
+        except GraphTimeout:
+            print(f'{name} did not confirm the cancel within 30 s: check the acquisition '
+                  'node\'s log for what it wrote', file=sys.stderr)
+        else:
+            # the goal may have ended before the cancel reached it (e.g. already written)
+            print(f'the goal ended {_status_name(answer.status)}: {answer.result.message}',
+                  file=sys.stderr)
+        raise
+    answer = result_future.result()
+    return answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result, answer.status
 
 
 def _status_name(status: int) -> str:
@@ -254,20 +213,21 @@ def _setup(args):
 
 
 def _run(args, verb: str, params: list, work) -> int:
-    """On a client of its own: set the camera parameters, then `work(client)` -> exit code.
+    """On a client of its own: set the camera parameters, then `work(graph)` -> exit code.
     The node refusing, failing or missing, and Ctrl-C (or the end of input at a prompt),
     end it with their exit code, the message printed."""
-    client = _Client(args.domain_id)
+    from lightstage_graph.graph_client import GraphClient
+    graph = GraphClient(args.domain_id, f'lightstage_acquisition_cli_{os.getpid()}')
     try:
-        client.set_camera_params(args.camera_node, params, args.wait_s)
-        return work(client)
+        _set_camera_params(graph, args.camera_node, params, args.wait_s)
+        return work(graph)
     except _Failed as exc:
         print(f'lightstage {verb}: {exc}', file=sys.stderr)
         return exc.exit_code
     except (KeyboardInterrupt, EOFError):
         return EXIT_INTERRUPTED
     finally:
-        client.close()
+        graph.close()
 
 
 def _progress(args, text: str, end: bool = False) -> None:
@@ -299,11 +259,11 @@ def capture_main(argv: list[str] | None = None) -> int:
     from lightstage_interfaces.action import CaptureModel
     results = []
 
-    def capture_targets(client) -> int:
+    def capture_targets(graph) -> int:
         for label, sample, pose, sim_sample in targets:
             name = f'{label}/{sample}/{pose}'
             if sim_sample:
-                client.set_camera_params(args.camera_node, [('sample', sim_sample)], args.wait_s)
+                _set_camera_params(graph, args.camera_node, [('sample', sim_sample)], args.wait_s)
             elif prompt:
                 input(f'place {label} {sample} in pose {pose} on the stage, then press Enter '
                       '(Ctrl-C stops) ')
@@ -318,7 +278,7 @@ def capture_main(argv: list[str] | None = None) -> int:
                     else f.stage
                 _progress(args, f'{name}: {what}')
 
-            ok, r, status = client.run_goal(CaptureModel, CAPTURE_ACTION, goal, args.wait_s, feedback)
+            ok, r, status = _run_goal(graph, CaptureModel, CAPTURE_ACTION, goal, args.wait_s, feedback)
             entry = {'target': name, 'success': ok, 'status': _status_name(status),
                      'message': r.message, 'model_dir': r.model_dir,
                      'images_captured': int(r.images_captured),
@@ -392,14 +352,14 @@ def calibrate_main(argv: list[str] | None = None) -> int:
                                overwrite=args.overwrite)
     answers = []
 
-    def calibrate(client) -> int:
+    def calibrate(graph) -> int:
         def feedback(f):
             _progress(args, f'level {f.level}/{f.levels} ({f.leds_lit} LEDs): '
                       f'{f.frames_done}/{f.frames_total} frames' if f.stage == 'capturing'
                       else f.stage)
 
-        ok, r, status = client.run_goal(CalibrateNoise, CALIBRATE_ACTION, goal, args.wait_s,
-                                        feedback)
+        ok, r, status = _run_goal(graph, CalibrateNoise, CALIBRATE_ACTION, goal, args.wait_s,
+                                  feedback)
         answers.append({'success': ok, 'status': _status_name(status), 'message': r.message,
                         'output_path': r.output_path, 'plot_path': r.plot_path,
                         'sigma_p2': r.sigma_p2, 'sigma_r2': r.sigma_r2,

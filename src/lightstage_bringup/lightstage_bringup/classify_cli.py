@@ -8,12 +8,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
-import time
 
-from lightstage_bringup.ros_env import apply_ros_environment
+from lightstage_graph.names import CLASSIFY_SERVICE
+from lightstage_graph.ros_env import apply_ros_environment
 
-SERVICE = '/lightstage/classify'
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNAVAILABLE = 0, 1, 2, 3
 
 
@@ -65,38 +65,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f'lightstage classify: {exc}', file=sys.stderr)
         return EXIT_USAGE
 
-    import rclpy
+    from lightstage_graph.graph_client import GraphClient, GraphTimeout
     from lightstage_interfaces.srv import Classify
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
 
-    context = Context()
-    rclpy.init(context=context, args=[])
-    try:
-        node = rclpy.create_node(f'lightstage_classify_cli_{int(time.time() * 1000) % 100000}',
-                                 context=context, start_parameter_services=False)
-        client = node.create_client(Classify, SERVICE)
-        if not client.wait_for_service(timeout_sec=args.wait_s):
-            print(f'lightstage classify: the service {SERVICE} is not available after '
-                  f'{args.wait_s:g} s (ROS_DOMAIN_ID={context.get_domain_id()}); start the graph '
-                  f'with `lightstage up` (driver camera classifier) in the same domain',
-                  file=sys.stderr)
+    # the node enforces the timeout; sent 0, its own default is at most TIMEOUT_MAX_S
+    limit_s = (args.timeout_s if args.timeout_s > 0 else TIMEOUT_MAX_S) + 5.0
+    request = Classify.Request(max_images=args.max_images, timeout_s=args.timeout_s)
+    with GraphClient(args.domain_id, f'lightstage_classify_cli_{os.getpid()}') as graph:
+        try:
+            r = graph.call(Classify, CLASSIFY_SERVICE, request, timeout_s=limit_s,
+                           wait_s=args.wait_s, hint='start the graph with `lightstage up` '
+                                                    '(driver camera classifier) in the same domain')
+        except GraphTimeout as exc:
+            print(f'lightstage classify: {exc}', file=sys.stderr)
             return EXIT_UNAVAILABLE
-        request = Classify.Request(max_images=args.max_images, timeout_s=args.timeout_s)
-        future = client.call_async(request)
-        executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        # the node enforces the timeout; sent 0, its own default is at most TIMEOUT_MAX_S
-        limit_s = (args.timeout_s if args.timeout_s > 0 else TIMEOUT_MAX_S) + 5.0
-        executor.spin_until_future_complete(future, timeout_sec=limit_s)
-        if not future.done():
-            client.remove_pending_request(future)
-            print(f'lightstage classify: no answer from {SERVICE} within {limit_s:g} s',
-                  file=sys.stderr)
-            return EXIT_UNAVAILABLE
-        r = future.result()
-    finally:
-        rclpy.shutdown(context=context)
     answer = {'success': bool(r.success), 'message': r.message, 'label': r.label,
               'class_names': list(r.class_names), 'scores': [float(s) for s in r.scores],
               'images_used': int(r.images_used), 'acquisition_ms': float(r.acquisition_ms),

@@ -24,16 +24,20 @@ import sys
 import time
 from pathlib import Path
 
-from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
 from lightstage_camera.workers import jobs_type
+from lightstage_graph.names import (APPLY_PATTERNS_SERVICE, CAMERA_NODE, CLASSIFIER_NODE,
+                                    CLASSIFY_SERVICE, DRIVER_NODE, IMAGE_TOPIC,
+                                    ILLUMINATION_TOPIC, RECORDER_NODE, RESULT_TOPIC,
+                                    service_event_topic)
+from lightstage_graph.ros_env import apply_ros_environment, ros_environment
 
 NOISE = 'sigma3'
-NODES = ('driver', 'camera', 'classifier')
-RECORDER = 'recorder'  # registry key of the recorder started alongside NODES
+NODES = (DRIVER_NODE, CAMERA_NODE, CLASSIFIER_NODE)
+RECORDER = RECORDER_NODE  # started alongside NODES
 BAG = 'stage_session'  # the bag of the stage session, in OUT
 # what the recorder must have subscribed to before the first call, so that no call is cut
-RECORDED = ('/illumination', '/image_raw', '/lightstage/result',
-            '/lightstage/classify/_service_event', '/lightstage/apply_patterns/_service_event')
+RECORDED = (ILLUMINATION_TOPIC, IMAGE_TOPIC, RESULT_TOPIC, service_event_topic(CLASSIFY_SERVICE),
+            service_event_topic(APPLY_PATTERNS_SERVICE))
 
 
 def _say(text: str) -> None:
@@ -139,74 +143,24 @@ def _choose_on_stage(held_out: list[str], per_class: int) -> list[str]:
 
 
 # ----------------------------------------------------------------------------- on the stage
-class _GraphClient:
-    """The demo's own rclpy node: sets node parameters and calls the classify service."""
+# A request sent while a service's reply path is still matching can be lost: both calls
+# below are resent after their timeout (both are idempotent).
+def _set_parameter(graph, node: str, name: str, value: str) -> None:
+    from lightstage_graph.graph_client import parameter_msgs
+    from rcl_interfaces.srv import SetParameters
 
-    def __init__(self, domain_id: int):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
+    request = SetParameters.Request(parameters=parameter_msgs({name: value}))
+    result = graph.call(SetParameters, f'/{node}/set_parameters', request, timeout_s=10.0,
+                        attempts=3).results[0]
+    if not result.successful:
+        raise RuntimeError(f'{node} refused {name}={value!r}: {result.reason}')
 
-        self._rclpy = rclpy
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id, args=[])
-        self.node = rclpy.create_node('lightstage_demo', context=self.context,
-                                      start_parameter_services=False)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._clients = {}
 
-    def close(self) -> None:
-        self._rclpy.shutdown(context=self.context)
+def _classify(graph, max_images: int):
+    from lightstage_interfaces.srv import Classify
 
-    def wait_for_subscriptions(self, node: str, topics, timeout_s: float) -> None:
-        """Until `node` subscribes to every topic, then 1 s more: the publishers match a new
-        subscription a little after the graph shows it."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            missing = [t for t in topics if not any(
-                i.node_name == node for i in self.node.get_subscriptions_info_by_topic(t))]
-            if not missing:
-                break
-            if time.monotonic() >= deadline:
-                raise RuntimeError(f'{node} did not subscribe to {", ".join(missing)} within '
-                                   f'{timeout_s:g} s')
-            self.executor.spin_once(timeout_sec=0.1)
-        end = time.monotonic() + 1.0
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.1)
-
-    def _call(self, srv_type, name: str, request, timeout_s: float, attempts: int = 3):
-        client = self._clients.get(name)
-        if client is None:
-            client = self._clients[name] = self.node.create_client(srv_type, name)
-        if not client.wait_for_service(timeout_sec=10.0):
-            raise RuntimeError(f'service {name} is not available')
-        for _ in range(attempts):
-            # a request sent while the service's reply path is still matching can be lost:
-            # resend after the timeout (both calls used here are idempotent)
-            future = client.call_async(request)
-            self.executor.spin_until_future_complete(future, timeout_sec=timeout_s)
-            if future.done():
-                return future.result()
-            client.remove_pending_request(future)
-        raise RuntimeError(f'no answer from {name} after {attempts} attempts of {timeout_s:g} s')
-
-    def set_parameter(self, node: str, name: str, value: str) -> None:
-        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-        from rcl_interfaces.srv import SetParameters
-
-        request = SetParameters.Request(parameters=[Parameter(
-            name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))])
-        result = self._call(SetParameters, f'/{node}/set_parameters', request, 10.0).results[0]
-        if not result.successful:
-            raise RuntimeError(f'{node} refused {name}={value!r}: {result.reason}')
-
-    def classify(self, max_images: int):
-        from lightstage_interfaces.srv import Classify
-
-        return self._call(Classify, '/lightstage/classify',
-                          Classify.Request(max_images=max_images, timeout_s=10.0), 15.0)
+    request = Classify.Request(max_images=max_images, timeout_s=10.0)
+    return graph.call(Classify, CLASSIFY_SERVICE, request, timeout_s=15.0, attempts=3)
 
 
 def _params_file(path: Path, sections: dict) -> Path:
@@ -249,6 +203,7 @@ def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domai
 
     from lightstage_bringup.launcher import NODE_REGISTRY, GraphWatcher, node_command
     from lightstage_bringup.supervisor import ProcessSpec, Supervisor
+    from lightstage_graph.graph_client import GraphClient
 
     bag = out / BAG
     if bag.is_dir():
@@ -271,16 +226,15 @@ def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domai
                                f'see the node logs in {log_dir}')
         _say(f'graph up in {time.monotonic() - t0:.1f} s (ROS_DOMAIN_ID={domain_id}): driver on the '
              f'simulated firmware, simulated camera, classifier, recorder; node logs in {log_dir}')
-        client = _GraphClient(domain_id)
-        try:
-            client.wait_for_subscriptions(RECORDER, RECORDED, 30.0)
+        with GraphClient(domain_id, 'lightstage_demo') as graph:
+            graph.wait_for_subscriptions(RECORDER, RECORDED, 30.0)
             for method in ('greedy', 'naive'):
-                client.set_parameter('classifier', 'artifact_path', summary[method]['artifact'])
+                _set_parameter(graph, CLASSIFIER_NODE, 'artifact_path', summary[method]['artifact'])
                 n_images = summary[method]['best_n_images']
                 rows = []
                 for sample in samples:
-                    client.set_parameter('camera', 'sample', sample)
-                    r = client.classify(n_images)
+                    _set_parameter(graph, CAMERA_NODE, 'sample', sample)
+                    r = _classify(graph, n_images)
                     if not r.success:
                         raise RuntimeError(f'classify failed for {sample}: {r.message}')
                     rows.append({'sample': sample, 'true': sample.split('/')[0], 'label': r.label,
@@ -290,8 +244,6 @@ def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domai
                 results[method] = rows
                 correct = sum(row['true'] == row['label'] for row in rows)
                 _say(f'{method}: {correct}/{len(rows)} unseen samples right on the stage')
-        finally:
-            client.close()
     # leaving the Supervisor stopped the recorder with SIGINT: the bag is closed
     _report_bag(bag, summary['greedy']['artifact'], out, domain_id)
     return results
@@ -360,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
         summary, held_out = _train(out, capture, args)
         samples = _choose_on_stage(held_out, args.per_class)
         results = _on_stage(out, capture, summary, samples, domain_id)
-    except (RuntimeError, ValueError, OSError) as exc:
+    except (RuntimeError, ValueError, OSError) as exc:  # a GraphTimeout is an OSError
         print(f'lightstage demo: {exc}', file=sys.stderr)
         return 1
     report = _report(results, summary)

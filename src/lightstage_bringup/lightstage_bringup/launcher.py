@@ -28,8 +28,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
-from lightstage_bringup.supervisor import ProcessSpec, Supervisor, describe_exit
+from lightstage_bringup.supervisor import ProcessSpec, Supervisor
+from lightstage_graph.exits import describe_exit
+from lightstage_graph.ros_env import apply_ros_environment, ros_environment
 
 EXIT_OK, EXIT_NODE_FAILED, EXIT_USAGE, EXIT_NOT_DISCOVERED = 0, 1, 2, 3
 

@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Mapping, Sequence
 
+from lightstage_graph.exits import describe_exit
+
 _PR_SET_PDEATHSIG = 1
 _libc = ctypes.CDLL(None, use_errno=True) if sys.platform.startswith('linux') else None
 
@@ -36,18 +38,6 @@ _CLEAN_STOP_CODES = {0, -signal.SIGINT, -signal.SIGTERM,
 def _die_with_parent() -> None:  # runs in the child between fork and exec
     if _libc is not None:
         _libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-
-
-def describe_exit(returncode: int | None) -> str:
-    """Human-readable exit status: 'exit code 3', 'killed by SIGKILL', 'still running'."""
-    if returncode is None:
-        return 'still running'
-    if returncode < 0:
-        try:
-            return f'killed by {signal.Signals(-returncode).name}'
-        except ValueError:
-            return f'killed by signal {-returncode}'
-    return f'exit code {returncode}'
 
 
 @dataclass(frozen=True)

@@ -7,8 +7,8 @@ calibration target (`calibration.calibrate_noise`) and writes a noise file and a
 
 Both light patterns through the driver's ``/lightstage/apply_patterns`` (``trigger: true``,
 one camera trigger per pattern) and collect the ``/image_raw`` frames whose header stamps
-equal the returned trigger stamps (`frames.ImageMatcher`, as the classifier does), in
-requests of at most ``frames_per_request`` frames. One goal at a time (they share the
+equal the returned trigger stamps (`lightstage_graph.stage_client`, as the classifier
+does), in requests of at most ``frames_per_request`` frames. One goal at a time (they share the
 stage): a goal that arrives while another runs is rejected. The handlers block while they
 wait for the driver and the images, so the node spins a MultiThreadedExecutor with one
 ReentrantCallbackGroup.
@@ -20,86 +20,60 @@ import sys
 import threading
 import time
 from datetime import datetime, timezone
-from pathlib import Path
 
-import numpy as np
-import rclpy
+from lightstage_graph.errors import StageError
+from lightstage_graph.names import ACQUISITION_NODE, CALIBRATE_ACTION, CAPTURE_ACTION
+from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
+from lightstage_graph.spin import init_node, spin_until_stopped
+from lightstage_graph.stage_client import StageClient
 from lightstage_interfaces.action import CalibrateNoise, CaptureModel
-from lightstage_interfaces.msg import Pattern
-from lightstage_interfaces.srv import ApplyPatterns
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image
 
 from .acquisition import CaptureCancelled, CaptureSettings, DestinationError, acquire_pose
 from .calibration import (CalibrationSettings, calibrate_noise, check_calibration_outputs,
                           write_calibration_outputs)
-from .frames import AcquisitionError, ImageMatcher, stamp_to_ns
 from .rig import Rig
-from .spinning import spin_until_stopped
 
-NODE_NAME = 'acquisition'
-CAPTURE_ACTION = '/lightstage/capture_model'
-CALIBRATE_ACTION = '/lightstage/calibrate_noise'
-APPLY_SERVICE = '/lightstage/apply_patterns'
-IMAGE_TOPIC = '/image_raw'
 N_SITES = 8  # Pattern.intensities holds 32 LEDs: 8 sites x 4 colours
-# as the camera publishes: every frame of a sequence matters (see camera_node.IMAGE_QOS)
-IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32,
-                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-
-
-def _int(description: str, lo: int, hi: int, read_only: bool = False) -> ParameterDescriptor:
-    return ParameterDescriptor(type=ParameterType.PARAMETER_INTEGER, description=description,
-                               read_only=read_only,
-                               integer_range=[IntegerRange(from_value=lo, to_value=hi, step=1)])
-
-
-def _float(description: str, lo: float, hi: float) -> ParameterDescriptor:
-    return ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE, description=description,
-                               floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])
-
+START_HINT = 'lightstage up driver camera acquisition'
 
 PARAMETERS = {
-    'exposure_us': (30000, _int('model capture: exposure per frame [us] for goals with '
-                                'exposure_us 0 (long: models should be low-noise)', 1, 10_000_000)),
-    'gain_db': (15.0, _float('model capture: camera gain [dB] for goals with gain_db NaN',
-                             0.0, 48.0)),
-    'frames_averaged': (16, _int('model capture: frames averaged per single-LED image for '
-                                 'goals with frames_averaged 0', 1, 100_000)),
-    'max_saturated_fraction': (0.0, _float(
+    'exposure_us': (30000, integer('model capture: exposure per frame [us] for goals with '
+                                   'exposure_us 0 (long: models should be low-noise)', 1, 10_000_000)),
+    'gain_db': (15.0, floating('model capture: camera gain [dB] for goals with gain_db NaN',
+                               0.0, 48.0)),
+    'frames_averaged': (16, integer('model capture: frames averaged per single-LED image for '
+                                    'goals with frames_averaged 0', 1, 100_000)),
+    'max_saturated_fraction': (0.0, floating(
         'model capture: the exposure preview (one frame per LED) refuses the capture when an LED '
         'image has more than this fraction of its pixels at the camera\'s maximum', 0.0, 1.0)),
-    'preview': (True, ParameterDescriptor(
-        type=ParameterType.PARAMETER_BOOL,
-        description='model capture: take one frame per LED first to check the exposure (and '
-                    'the image size against the folder) before the long capture')),
-    'rig_file': ('', ParameterDescriptor(
-        type=ParameterType.PARAMETER_STRING,
-        description='rig.yaml describing the stage\'s sites for new capture folders (its camera '
-                    'section is replaced by the capture\'s setting); empty = an existing '
-                    'folder\'s own rig.yaml, or the paper\'s stage for a new folder')),
-    'calibration_exposure_us': (30000, _int('noise calibration: exposure per frame [us] for '
-                                            'goals with exposure_us 0 (the paper: 30 ms)',
-                                            1, 10_000_000)),
-    'calibration_gain_db': (15.0, _float('noise calibration: gain [dB] for goals with gain_db '
-                                         'NaN (the paper: 15 dB)', 0.0, 48.0)),
-    'calibration_frames': (120, _int('noise calibration: frames per illumination level for '
-                                     'goals with frames_per_level 0 (the paper: 120; >= 3: '
-                                     'the fit splits them in two halves)', 3, 100_000)),
-    'calibration_levels': (8, _int('noise calibration: illumination levels for goals with '
-                                   'levels 0', 2, 4 * N_SITES)),
-    'frames_per_request': (16, _int('frames per driver request (one trigger sequence); at most '
-                                    'the camera\'s image queue (32)', 1, 32)),
-    'camera_bit_depth': (10, _int('significant bits of the camera\'s mono16 images', 8, 16)),
-    'timeout_s': (10.0, _float('time limit of one driver request and its images, on top of '
-                               'their exposures [s]', 0.1, 600.0)),
-    'image_buffer': (64, _int('images kept while waiting for their trigger stamps', 32, 1024,
-                              read_only=True)),
+    'preview': (True, boolean(
+        'model capture: take one frame per LED first to check the exposure (and the image size '
+        'against the folder) before the long capture')),
+    'rig_file': ('', string(
+        'rig.yaml describing the stage\'s sites for new capture folders (its camera section is '
+        'replaced by the capture\'s setting); empty = an existing folder\'s own rig.yaml, or the '
+        'paper\'s stage for a new folder')),
+    'calibration_exposure_us': (30000, integer('noise calibration: exposure per frame [us] for '
+                                               'goals with exposure_us 0 (the paper: 30 ms)',
+                                               1, 10_000_000)),
+    'calibration_gain_db': (15.0, floating('noise calibration: gain [dB] for goals with gain_db '
+                                           'NaN (the paper: 15 dB)', 0.0, 48.0)),
+    'calibration_frames': (120, integer('noise calibration: frames per illumination level for '
+                                        'goals with frames_per_level 0 (the paper: 120; >= 3: '
+                                        'the fit splits them in two halves)', 3, 100_000)),
+    'calibration_levels': (8, integer('noise calibration: illumination levels for goals with '
+                                      'levels 0', 2, 4 * N_SITES)),
+    'frames_per_request': (16, integer('frames per driver request (one trigger sequence); at most '
+                                       'the camera\'s image queue (32)', 1, 32)),
+    'camera_bit_depth': (10, integer('significant bits of the camera\'s mono16 images', 8, 16)),
+    'timeout_s': (10.0, floating('time limit of one driver request and its images, on top of '
+                                 'their exposures [s]', 0.1, 600.0)),
+    'image_buffer': (64, integer('images kept while waiting for their trigger stamps', 32, 1024,
+                                 read_only=True)),
 }
 
 
@@ -112,17 +86,13 @@ def _or_default(value, default):
 
 
 class AcquisitionNode(Node):
-    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+    def __init__(self, node_name: str = ACQUISITION_NODE, **kwargs):
         super().__init__(node_name, **kwargs)
-        for name, (default, descriptor) in PARAMETERS.items():
-            self.declare_parameter(name, default, descriptor)
-        self.matcher = ImageMatcher(self.p('image_buffer'),
-                                    clock=lambda: self.get_clock().now().nanoseconds)
+        self.p = declare_parameters(self, PARAMETERS)
         self._busy = threading.Lock()  # one goal at a time: the stage is shared
         group = ReentrantCallbackGroup()
-        self._apply_client = self.create_client(ApplyPatterns, APPLY_SERVICE, callback_group=group)
-        self._image_sub = self.create_subscription(Image, IMAGE_TOPIC, self.matcher.add_message,
-                                                   IMAGE_QOS, callback_group=group)
+        self.stage = StageClient(self, image_buffer=self.p('image_buffer'), callback_group=group,
+                                 start_hint=START_HINT)
         self._capture_server = ActionServer(
             self, CaptureModel, CAPTURE_ACTION, execute_callback=self._execute_capture,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel, callback_group=group)
@@ -130,53 +100,16 @@ class AcquisitionNode(Node):
             self, CalibrateNoise, CALIBRATE_ACTION, execute_callback=self._execute_calibration,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel, callback_group=group)
 
-    def p(self, name: str):
-        return self.get_parameter(name).value
-
     # ------------------------------------------------------------------ the stage
-    def _wait_for_stage(self, timeout_s: float) -> None:
-        """Driver service and camera publisher present, or AcquisitionError saying which."""
-        deadline = time.monotonic() + timeout_s
-        if not self._apply_client.wait_for_service(timeout_sec=timeout_s):
-            raise AcquisitionError(
-                f'the light stage driver\'s service {APPLY_SERVICE} is not available (waited '
-                f'{timeout_s:g} s); start the driver, e.g. `lightstage up driver camera '
-                'acquisition`, and check its /diagnostics')
-        # images published before the camera's publisher has matched us are lost
-        while self._image_sub.get_publisher_count() == 0:
-            if time.monotonic() >= deadline:
-                raise AcquisitionError(
-                    f'no camera is publishing {IMAGE_TOPIC} to this node; start the camera '
-                    '(`lightstage up driver camera acquisition`) and check its /diagnostics')
-            time.sleep(0.01)
+    def _wait_for_stage(self) -> None:
+        self.stage.wait_ready(float(self.p('timeout_s')))
 
     def _grabber(self, exposure_us: int, gain_db: float):
-        """grab(led_patterns (32, k)) -> k mono16 frames, matched by trigger stamp."""
-        def grab(patterns: np.ndarray) -> list[np.ndarray]:
-            k = patterns.shape[1]
-            limit_s = float(self.p('timeout_s')) + k * exposure_us / 1e6
-            request = ApplyPatterns.Request(trigger=True)
-            for column in np.asarray(patterns, np.float32).T:
-                request.patterns.append(Pattern(intensities=column, exposure_us=int(exposure_us),
-                                                gain_db=float(gain_db)))
-            done = threading.Event()
-            future = self._apply_client.call_async(request)
-            future.add_done_callback(lambda _f: done.set())
-            if not done.wait(limit_s):
-                self._apply_client.remove_pending_request(future)
-                raise AcquisitionError(f'the driver did not answer {APPLY_SERVICE} within '
-                                       f'{limit_s:g} s ({k} patterns); is it running? check its '
-                                       'log and /diagnostics')
-            response = future.result()
-            if response is None or not response.success:
-                reason = response.message if response is not None else future.exception()
-                raise AcquisitionError(f'the driver did not apply the patterns: {reason}')
-            stamps = [stamp_to_ns(t) for t in response.trigger_stamps]
-            if len(stamps) != k:
-                raise AcquisitionError(f'asked for {k} triggers but the driver reported '
-                                       f'{len(stamps)}; check the driver\'s log')
-            frames, _ = self.matcher.collect(stamps, limit_s, list(response.sequences))
-            return frames
+        """grab(led_patterns (32, k)) -> k mono16 frames, matched by trigger stamp; each
+        request may take `timeout_s` on top of its exposures."""
+        def grab(patterns) -> list:
+            limit_s = float(self.p('timeout_s')) + patterns.shape[1] * exposure_us / 1e6
+            return self.stage.grab(patterns, exposure_us, gain_db, limit_s)
         return grab
 
     # ------------------------------------------------------------------ goals
@@ -203,7 +136,7 @@ class AcquisitionNode(Node):
             message = work(start)
         except CaptureCancelled as exc:
             return self._finish(goal_handle, result, 'cancel', f'{cancelled}: {exc}', start)
-        except (AcquisitionError, ValueError, OSError) as exc:
+        except (StageError, ValueError, OSError) as exc:  # AcquisitionError is a StageError
             return self._finish(goal_handle, result, 'abort', f'{failed}: {exc}', start)
         finally:
             self._busy.release()
@@ -264,7 +197,7 @@ class AcquisitionNode(Node):
                 goal.output_dir, goal.label, goal.sample, goal.pose, base_rig=self._base_rig(),
                 overwrite=goal.overwrite, preview=bool(self.p('preview')),
                 cancelled=lambda: goal_handle.is_cancel_requested,
-                before_capture=lambda: self._wait_for_stage(float(self.p('timeout_s'))),
+                before_capture=self._wait_for_stage,
                 on_progress=progress)
             result.model_dir = str(pose_dir)
             result.images_captured = settings.n_leds
@@ -297,7 +230,7 @@ class AcquisitionNode(Node):
         def calibrate(_start: float) -> str:
             settings = self._calibration_settings(goal)
             check_calibration_outputs(goal.output_path, goal.plot_path, goal.overwrite)
-            self._wait_for_stage(float(self.p('timeout_s')))
+            self._wait_for_stage()
             grab = self._grabber(settings.exposure_us, settings.gain_db)
 
             def feedback(level, levels, done, total, lit) -> None:
@@ -338,10 +271,9 @@ class AcquisitionNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from rclpy.executors import MultiThreadedExecutor
-    from .spinning import init_node
     init_node(sys.argv if argv is None else argv)
     return spin_until_stopped(AcquisitionNode(), MultiThreadedExecutor(num_threads=4))
+
 
 if __name__ == '__main__':
     sys.exit(main())

@@ -18,46 +18,30 @@ node is armed again.
 from __future__ import annotations
 
 import math
-import signal
 import sys
 import threading
 import time
 import traceback
 
 import numpy as np
-import rclpy
 from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from lightstage_graph.diagnostics import ERROR, OK, WARN, DiagnosticsPublisher, Report
+from lightstage_graph.exits import describe_exit
+from lightstage_graph.names import APPLY_PATTERNS_SERVICE, DRIVER_NODE, ILLUMINATION_TOPIC
+from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
+from lightstage_graph.qos import ILLUMINATION_QOS
+from lightstage_graph.spin import init_node, spin_until_stopped
+from lightstage_graph.stamps import ns_to_stamp
 from lightstage_interfaces.msg import IlluminationState
 from lightstage_interfaces.srv import ApplyPatterns
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_services_default
+from rclpy.qos import qos_profile_services_default
 from rclpy.service_introspection import ServiceIntrospectionState
 
 from .errors import DisconnectedError, FirmwareMismatchError, LightStageError, PatternError
 from .sim_backend import backend_from_url, is_sim_url
 from .stage import LightStage, Trigger
-
-SERVICE_NAME = '/lightstage/apply_patterns'
-ILLUMINATION_TOPIC = '/illumination'
-NODE_NAME = 'driver'
-
-
-def _int(description: str, lo: int, hi: int) -> ParameterDescriptor:
-    return ParameterDescriptor(type=ParameterType.PARAMETER_INTEGER, description=description,
-                               integer_range=[IntegerRange(from_value=lo, to_value=hi, step=1)])
-
-
-def _float(description: str, lo: float, hi: float) -> ParameterDescriptor:
-    return ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE, description=description,
-                               floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])
-
-
-def _text(description: str, ptype=ParameterType.PARAMETER_STRING) -> ParameterDescriptor:
-    return ParameterDescriptor(type=ptype, description=description)
 
 
 def _sentence(text: str) -> str:
@@ -66,37 +50,35 @@ def _sentence(text: str) -> str:
 
 
 PARAMETERS = {
-    'port': ('sim', _text('serial port path, usb:SERIAL, or sim / sim://?pwm_bits=8&latency_ms=1 '
-                          'to start the Python firmware simulator')),
-    'baud': (115200, _int('serial baud rate', 1200, 2_000_000)),
-    'timeout_ms': (100, _int('reply timeout per attempt [ms] (FIRE adds its exposure)', 5, 10_000)),
-    'retries': (3, _int('retries after a lost or corrupted reply', 0, 10)),
-    'connect_timeout_s': (3.0, _float('time to wait for the firmware at configure [s]', 0.1, 30.0)),
-    'default_exposure_us': (30_000, _int('exposure for patterns whose exposure_us is 0 [us]',
-                                         1, 10_000_000)),
-    'gap_us': (0, _int('dark time between the triggers of a sequence [us]', 0, 1_000_000)),
-    'heartbeat_period_s': (0.25, _float('heartbeat period while active [s]', 0.02, 10.0)),
-    'watchdog_ms': (1000, _int('firmware watchdog: LEDs off after this much host silence [ms]',
-                               50, 60_000)),
-    'diagnostics_period_s': (1.0, _float('/diagnostics period [s]', 0.1, 60.0)),
-    'reconnect_period_s': (1.0, _float('while the link is down: time between attempts to reopen the port '
-                                       '(restarting the simulator first for port sim) [s]', 0.1, 60.0)),
-    'sites': (8, _int('rig layout: illumination sites the firmware must report', 1, 32)),
-    'channels': (4, _int('rig layout: LEDs (colour channels) per site the firmware must report', 1, 32)),
-    'frame_id': ('lightstage', _text('frame id of the rig in IlluminationState headers')),
-    'autostart': (True, _text('configure and activate on start-up', ParameterType.PARAMETER_BOOL)),
-    'service_introspection': (True, ParameterDescriptor(
-        type=ParameterType.PARAMETER_BOOL, read_only=True,
-        description='publish the ApplyPatterns calls (request and response contents) on '
-                    '/lightstage/apply_patterns/_service_event, so that recordings hold them')),
+    'port': ('sim', string('serial port path, usb:SERIAL, or sim / sim://?pwm_bits=8&latency_ms=1 '
+                           'to start the Python firmware simulator')),
+    'baud': (115200, integer('serial baud rate', 1200, 2_000_000)),
+    'timeout_ms': (100, integer('reply timeout per attempt [ms] (FIRE adds its exposure)', 5, 10_000)),
+    'retries': (3, integer('retries after a lost or corrupted reply', 0, 10)),
+    'connect_timeout_s': (3.0, floating('time to wait for the firmware at configure [s]', 0.1, 30.0)),
+    'default_exposure_us': (30_000, integer('exposure for patterns whose exposure_us is 0 [us]',
+                                            1, 10_000_000)),
+    'gap_us': (0, integer('dark time between the triggers of a sequence [us]', 0, 1_000_000)),
+    'heartbeat_period_s': (0.25, floating('heartbeat period while active [s]', 0.02, 10.0)),
+    'watchdog_ms': (1000, integer('firmware watchdog: LEDs off after this much host silence [ms]',
+                                  50, 60_000)),
+    'diagnostics_period_s': (1.0, floating('/diagnostics period [s]', 0.1, 60.0)),
+    'reconnect_period_s': (1.0, floating('while the link is down: time between attempts to reopen the port '
+                                          '(restarting the simulator first for port sim) [s]', 0.1, 60.0)),
+    'sites': (8, integer('rig layout: illumination sites the firmware must report', 1, 32)),
+    'channels': (4, integer('rig layout: LEDs (colour channels) per site the firmware must report', 1, 32)),
+    'frame_id': ('lightstage', string('frame id of the rig in IlluminationState headers')),
+    'autostart': (True, boolean('configure and activate on start-up')),
+    'service_introspection': (True, boolean(
+        'publish the ApplyPatterns calls (request and response contents) on '
+        '/lightstage/apply_patterns/_service_event, so that recordings hold them', read_only=True)),
 }
 
 
 class LightStageDriverNode(LifecycleNode):
-    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+    def __init__(self, node_name: str = DRIVER_NODE, **kwargs):
         super().__init__(node_name, **kwargs)
-        for name, (default, descriptor) in PARAMETERS.items():
-            self.declare_parameter(name, default, descriptor)
+        self.p = declare_parameters(self, PARAMETERS)
         self.stage: LightStage | None = None
         self.backend = None
         self.request_id = 0
@@ -113,17 +95,31 @@ class LightStageDriverNode(LifecycleNode):
         self._link_guard = threading.Lock()       # link_down and the reconnect thread
         self._reconnect_thread: threading.Thread | None = None
         self._stop_reconnect = threading.Event()
-        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._diag_timer = self.create_timer(self.p('diagnostics_period_s'), self._publish_diagnostics)
-        self._service = self.create_service(ApplyPatterns, SERVICE_NAME, self._on_apply)
+        self.diagnostics = DiagnosticsPublisher(self, 'light stage link', self._link_status,
+                                                self.p('diagnostics_period_s'))
+        self._service = self.create_service(ApplyPatterns, APPLY_PATTERNS_SERVICE, self._on_apply)
         if self.p('service_introspection'):
             self._service.configure_introspection(self.get_clock(), qos_profile_services_default,
                                                   ServiceIntrospectionState.CONTENTS)
 
-    def p(self, name: str):
-        return self.get_parameter(name).value
-
     # ------------------------------------------------------------------ lifecycle
+    def autostart(self) -> None:
+        """Configure and activate; if configuring fails the node stays up, unconfigured, and
+        /diagnostics shows why (configure again once fixed)."""
+        if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
+            self.trigger_activate()
+        else:
+            self.get_logger().error(f'autostart: not configured ({self.last_error}); fix it and '
+                                    f'trigger configure + activate, or restart the node')
+            self.link_state = 'unconfigured'
+
+    def destroy_node(self) -> None:
+        """The stage is released first: LEDs off, port closed, simulator stopped."""
+        self._active = False
+        self._stop_heartbeat()
+        self._release()
+        super().destroy_node()
+
     def on_configure(self, state: State) -> TransitionCallbackReturn:
         port = self.p('port')
         if self.p('heartbeat_period_s') * 1000.0 > self.p('watchdog_ms') / 2:
@@ -162,9 +158,8 @@ class LightStageDriverNode(LifecycleNode):
             f'connected to {ident.name} {ident.version_string} on {device}: {ident.led_count} LEDs '
             f'({ident.sites} sites x {ident.channels} channels), pwm_bits {ident.pwm_bits}, exposure '
             f'{ident.min_exposure_us}..{ident.max_exposure_us} us, watchdog {self.p("watchdog_ms")} ms')
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
-        self._illumination_pub = self.create_lifecycle_publisher(IlluminationState, ILLUMINATION_TOPIC, qos)
+        self._illumination_pub = self.create_lifecycle_publisher(IlluminationState, ILLUMINATION_TOPIC,
+                                                                 ILLUMINATION_QOS)
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: State) -> TransitionCallbackReturn:
@@ -244,13 +239,7 @@ class LightStageDriverNode(LifecycleNode):
 
     def _on_simulator_exit(self, code: int | None) -> None:
         # the simulator's reader thread: its process is gone, the pty with it
-        if code is None:
-            how = 'closed its output'
-        elif code < 0:
-            names = {int(sig): sig.name for sig in signal.Signals}
-            how = f'was killed by signal {-code} ({names.get(-code, "unnamed")})'
-        else:
-            how = f'exited with status {code}'
+        how = 'closed its output' if code is None else f'ended ({describe_exit(code)})'
         self._link_lost(f'the firmware simulator process {how}')
 
     def _link_lost(self, reason: str) -> None:
@@ -328,25 +317,24 @@ class LightStageDriverNode(LifecycleNode):
             self.faults += 1
             self._link_lost(f'heartbeat failed: {exc}')
 
-    def _publish_diagnostics(self) -> None:
-        status = DiagnosticStatus(name=f'{self.get_name()}: light stage link')
+    def _link_status(self) -> Report:
+        """The link's /diagnostics status."""
         ident = self.stage.link.identity if self.stage is not None else None
         stats = self.stage.link.stats.as_dict() if self.stage is not None else {}
         state = 'link down' if self.link_down else self.link_state
         healthy = state in ('armed', 'connected')
         if healthy:
-            status.level = DiagnosticStatus.OK
+            level = OK
         elif state == 'unconfigured' and not self.last_error:
-            status.level = DiagnosticStatus.WARN
+            level = WARN
         else:
-            status.level = DiagnosticStatus.ERROR
+            level = ERROR
         if self.link_down:
-            status.message = f'link down: {self.link_down}; {self._recovery_plan()}'
+            message = f'link down: {self.link_down}; {self._recovery_plan()}'
         elif not self.last_error or healthy:
-            status.message = state
+            message = state
         else:
-            status.message = f'{state}: {self.last_error}'
-        status.hardware_id = f'{ident.name} {ident.version_string}' if ident else ''
+            message = f'{state}: {self.last_error}'
         values = {'state': state, 'port': str(self.p('port')),
                   'device': self.stage.link.device if self.stage else '',
                   'firmware': ident.name if ident else '', 'firmware_version': ident.version_string if ident else '',
@@ -359,10 +347,8 @@ class LightStageDriverNode(LifecycleNode):
                   'clock_uncertainty_us': (round(self.stage.clock.uncertainty_s * 1e6, 1)
                                            if self.stage and self.stage.clock.synced else ''),
                   **stats}
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        msg = DiagnosticArray(status=[status])
-        msg.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(msg)
+        return Report(level, message, values,
+                      hardware_id=f'{ident.name} {ident.version_string}' if ident else '')
 
     # ------------------------------------------------------------------ service
     def _on_apply(self, request: ApplyPatterns.Request, response: ApplyPatterns.Response):
@@ -430,8 +416,7 @@ class LightStageDriverNode(LifecycleNode):
         # host monotonic -> ROS time: shift "now" back by how long ago the trigger was
         now_ns = self.get_clock().now().nanoseconds
         ago_ns = int(round((time.monotonic() - trigger.host_time_s) * 1e9))
-        ns = now_ns - ago_ns
-        return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+        return ns_to_stamp(now_ns - ago_ns)
 
     def _publish_illumination(self, trigger: Trigger, pattern, stamp: Time, count: int) -> None:
         if self._illumination_pub is None:
@@ -454,42 +439,11 @@ class LightStageDriverNode(LifecycleNode):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from rclpy.executors import ExternalShutdownException
-    try:  # the project's ROS environment however started; optional: lightstage_bringup depends on this package
-        from lightstage_bringup.ros_env import apply_node_environment
-        env_message = apply_node_environment()
-    except ImportError:
-        env_message = ('lightstage_bringup is not installed: running in the ROS environment given '
-                       '(the project expects ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)')
-    rclpy.init(args=sys.argv if argv is None else argv)
+    init_node(sys.argv if argv is None else argv)
     node = LightStageDriverNode()
-    if env_message:
-        node.get_logger().info(env_message)
-    try:
-        if node.p('autostart'):
-            if node.trigger_configure() == TransitionCallbackReturn.SUCCESS:
-                node.trigger_activate()
-            else:
-                # stay up, unconfigured: /diagnostics shows why; configure again once fixed
-                node.get_logger().error(f'autostart: not configured ({node.last_error}); fix it and '
-                                        f'trigger configure + activate, or restart the node')
-                node.link_state = 'unconfigured'
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:  # noqa: BLE001
-        # a SIGINT that shuts the context down while spin builds its wait set surfaces as
-        # an RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
-        if rclpy.ok():
-            raise
-    finally:
-        node._active = False
-        node._stop_heartbeat()
-        node._release()      # LEDs off, port closed, simulator stopped
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return 0
+    if node.p('autostart'):
+        node.autostart()
+    return spin_until_stopped(node)
 
 
 if __name__ == '__main__':

@@ -25,98 +25,64 @@ import time
 import traceback
 
 import numpy as np
-import rclpy
-from builtin_interfaces.msg import Time
-from lightstage_camera.frames import stamp_to_ns
-from lightstage_camera.spinning import spin_until_stopped
-from lightstage_interfaces.msg import ClassificationResult, IlluminationState, Pattern
-from lightstage_interfaces.srv import ApplyPatterns, Classify
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
+from lightstage_graph.errors import StageError
+from lightstage_graph.names import (CLASSIFIER_NODE, CLASSIFY_SERVICE, ILLUMINATION_TOPIC,
+                                    RESULT_TOPIC)
+from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
+from lightstage_graph.qos import ILLUMINATION_QOS
+from lightstage_graph.spin import init_node, spin_until_stopped
+from lightstage_graph.stage_client import StageClient
+from lightstage_graph.stamps import ns_to_stamp, stamp_to_ns
+from lightstage_interfaces.msg import ClassificationResult, IlluminationState
+from lightstage_interfaces.srv import Classify
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
-                       qos_profile_services_default)
+from rclpy.qos import qos_profile_services_default
 from rclpy.service_introspection import ServiceIntrospectionState
-from sensor_msgs.msg import Image
 
 from .classify_request import TIMEOUT_MAX_S, TIMEOUT_MIN_S, request_timeout_s
-from .inference import AcquisitionPlan, ImageMatcher, InferenceError, classify_on_stage
+from .inference import AcquisitionPlan, classify_on_stage
 from .model import ArtifactError, TrainedArtifact
 from .observe import SequenceObserver, TriggerState
 
-NODE_NAME = 'classifier'
-CLASSIFY_SERVICE = '/lightstage/classify'
-APPLY_SERVICE = '/lightstage/apply_patterns'
-IMAGE_TOPIC = '/image_raw'
-RESULT_TOPIC = '/lightstage/result'
-ILLUMINATION_TOPIC = '/illumination'
-# as the driver publishes: one message per trigger, every one matters
-ILLUMINATION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                              reliability=ReliabilityPolicy.RELIABLE,
-                              durability=DurabilityPolicy.VOLATILE)
-# as the camera publishes: every frame of a sequence matters (see camera_node.IMAGE_QOS)
-IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32,
-                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-
-
-def _float(description: str, lo: float, hi: float, read_only: bool = False) -> ParameterDescriptor:
-    return ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE, description=description,
-                               read_only=read_only,
-                               floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])
-
-
-def _int(description: str, lo: int, hi: int, read_only: bool = False) -> ParameterDescriptor:
-    return ParameterDescriptor(type=ParameterType.PARAMETER_INTEGER, description=description,
-                               read_only=read_only,
-                               integer_range=[IntegerRange(from_value=lo, to_value=hi, step=1)])
-
+START_HINT = 'lightstage up driver camera classifier'
 
 PARAMETERS = {
-    'artifact_path': ('', ParameterDescriptor(
-        type=ParameterType.PARAMETER_STRING,
-        description='trained classifier (.npz written by `lightstage train`); settable at run '
-                    'time (a file that does not load is rejected and the old one kept)')),
-    'timeout_s': (10.0, _float('default time limit of one classification (driver + images) [s]; '
-                               'a request\'s timeout_s other than 0 overrides it', TIMEOUT_MIN_S,
-                               TIMEOUT_MAX_S)),
-    'camera_bit_depth': (10, _int('significant bits of the camera\'s mono16 images '
-                                  '(10: gray level = value >> 6)', 8, 16)),
-    'image_buffer': (64, _int('images kept while waiting for their trigger stamps', 8, 1024,
-                              read_only=True)),
-    'service_introspection': (True, ParameterDescriptor(
-        type=ParameterType.PARAMETER_BOOL, read_only=True,
-        description='publish the Classify calls (request and response contents) on '
-                    '/lightstage/classify/_service_event, so that recordings hold them')),
-    'classify_observed': (False, ParameterDescriptor(
-        type=ParameterType.PARAMETER_BOOL, read_only=True,
-        description='also classify trigger sequences seen on /illumination that light the '
-                    'artifact\'s first k patterns (another client\'s, or a replayed bag\'s) and '
-                    'publish them on /lightstage/result')),
+    'artifact_path': ('', string(
+        'trained classifier (.npz written by `lightstage train`); settable at run time (a file '
+        'that does not load is rejected and the old one kept)')),
+    'timeout_s': (10.0, floating('default time limit of one classification (driver + images) [s]; '
+                                 'a request\'s timeout_s other than 0 overrides it', TIMEOUT_MIN_S,
+                                 TIMEOUT_MAX_S)),
+    'camera_bit_depth': (10, integer('significant bits of the camera\'s mono16 images '
+                                     '(10: gray level = value >> 6)', 8, 16)),
+    'image_buffer': (64, integer('images kept while waiting for their trigger stamps', 8, 1024,
+                                 read_only=True)),
+    'service_introspection': (True, boolean(
+        'publish the Classify calls (request and response contents) on '
+        '/lightstage/classify/_service_event, so that recordings hold them', read_only=True)),
+    'classify_observed': (False, boolean(
+        'also classify trigger sequences seen on /illumination that light the artifact\'s first '
+        'k patterns (another client\'s, or a replayed bag\'s) and publish them on '
+        '/lightstage/result', read_only=True)),
 }
 
 
-def ns_to_stamp(ns: int) -> Time:
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-
-
 class ClassifierNode(Node):
-    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+    def __init__(self, node_name: str = CLASSIFIER_NODE, **kwargs):
         super().__init__(node_name, **kwargs)
-        for name, (default, descriptor) in PARAMETERS.items():
-            self.declare_parameter(name, default, descriptor)
+        self.p = declare_parameters(self, PARAMETERS)
         self.artifact: TrainedArtifact | None = None
         self.artifact_error = ''
         self._load_artifact(self.p('artifact_path'))
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.matcher = ImageMatcher(self.p('image_buffer'),
-                                    clock=lambda: self.get_clock().now().nanoseconds)
         self._busy = threading.Lock()  # one classification at a time: they share the stage
         group = ReentrantCallbackGroup()
-        self._apply_client = self.create_client(ApplyPatterns, APPLY_SERVICE, callback_group=group)
+        self.stage = StageClient(self, image_buffer=self.p('image_buffer'), callback_group=group,
+                                 start_hint=START_HINT)
         self._result_pub = self.create_publisher(ClassificationResult, RESULT_TOPIC, 10)
-        self._image_sub = self.create_subscription(Image, IMAGE_TOPIC, self.matcher.add_message,
-                                                   IMAGE_QOS, callback_group=group)
         service = self.create_service(Classify, CLASSIFY_SERVICE, self._on_classify,
                                       callback_group=group)
         if self.p('service_introspection'):
@@ -125,7 +91,7 @@ class ClassifierNode(Node):
         self.observer = None
         if self.p('classify_observed'):
             self.observer = SequenceObserver(
-                lambda: self.artifact, self.matcher, self._on_observed, stage_busy=self._busy,
+                lambda: self.artifact, self.stage.matcher, self._on_observed, stage_busy=self._busy,
                 timeout_s=lambda: float(self.p('timeout_s')),
                 bit_depth=lambda: int(self.p('camera_bit_depth')),
                 on_error=lambda m: self.get_logger().warning(m))
@@ -136,9 +102,6 @@ class ClassifierNode(Node):
         if getattr(self, 'observer', None) is not None:
             self.observer.close()  # its worker thread ends before the node goes
         super().destroy_node()
-
-    def p(self, name: str):
-        return self.get_parameter(name).value
 
     # ------------------------------------------------------------------ artifact
     @staticmethod
@@ -192,38 +155,12 @@ class ClassifierNode(Node):
     # ------------------------------------------------------------------ driver
     def _apply(self, plan: AcquisitionPlan, timeout_s: float):
         deadline = time.monotonic() + timeout_s
-        if not self._apply_client.wait_for_service(timeout_sec=timeout_s):
-            raise InferenceError(
-                f'the light stage driver\'s service {APPLY_SERVICE} is not available (waited '
-                f'{timeout_s:g} s); start the driver, e.g. `lightstage up driver camera classifier`')
-        # Images published before the camera's publisher has matched this subscription are
-        # lost (reliable, volatile): right after start-up, wait for the match, not the graph.
-        while self._image_sub.get_publisher_count() == 0:
-            if time.monotonic() >= deadline:
-                raise InferenceError(
-                    f'no camera is publishing {IMAGE_TOPIC} to this node; start the camera '
-                    '(`lightstage up driver camera classifier`) and check its /diagnostics')
-            time.sleep(0.01)
-        request = ApplyPatterns.Request(trigger=True)
-        for column in plan.led_patterns.T:
-            request.patterns.append(Pattern(intensities=np.asarray(column, dtype=np.float32),
-                                            exposure_us=plan.exposure_us, gain_db=plan.gain_db))
-        done = threading.Event()
-        future = self._apply_client.call_async(request)
-        future.add_done_callback(lambda _f: done.set())
-        if not done.wait(max(0.0, deadline - time.monotonic())):
-            self._apply_client.remove_pending_request(future)
-            raise InferenceError(f'the driver did not answer {APPLY_SERVICE} within {timeout_s:g} s '
-                                 f'({plan.n_images} patterns); check the driver\'s log and '
-                                 '/diagnostics')
-        response = future.result()
-        if response is None or not response.success:
-            reason = response.message if response is not None else future.exception()
-            raise InferenceError(f'the driver did not apply the patterns: {reason}')
-        stamps = [stamp_to_ns(t) for t in response.trigger_stamps]
+        self.stage.wait_ready(timeout_s)
+        stamps, sequences = self.stage.apply(plan.led_patterns, plan.exposure_us, plan.gain_db,
+                                             deadline - time.monotonic())
         if self.observer is not None and stamps:
             self.observer.mark_own(stamps[0])  # lit by this call: not to be classified twice
-        return stamps, list(response.sequences)
+        return stamps, sequences
 
     # ------------------------------------------------------------------ service
     def _on_classify(self, request: Classify.Request, response: Classify.Response):
@@ -257,10 +194,10 @@ class ClassifierNode(Node):
             if remaining_s <= 0:
                 response.message = busy
                 return response
-            result = classify_on_stage(artifact, self._apply, self.matcher,
+            result = classify_on_stage(artifact, self._apply, self.stage.matcher,
                                        max_images=request.max_images, timeout_s=remaining_s,
                                        bit_depth=self.p('camera_bit_depth'))
-        except InferenceError as exc:
+        except StageError as exc:  # InferenceError and MissingImagesError among them
             response.message = str(exc)
             self.get_logger().warning(f'classify failed: {exc}')
             return response
@@ -307,10 +244,9 @@ class ClassifierNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from rclpy.executors import MultiThreadedExecutor
-    from lightstage_camera.spinning import init_node
     init_node(sys.argv if argv is None else argv)
     return spin_until_stopped(ClassifierNode(), MultiThreadedExecutor(num_threads=4))
+
 
 if __name__ == '__main__':
     sys.exit(main())

@@ -21,17 +21,22 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
-# Stamped-frame matching and mono16 decoding live with the camera (lightstage_camera.frames),
-# shared with model acquisition; re-exported here under their old names. InferenceError is
-# the camera's AcquisitionError, so `except InferenceError` also catches MissingImagesError.
-from lightstage_camera.frames import AcquisitionError as InferenceError
-from lightstage_camera.frames import (MONO16_ENCODINGS, ImageMatcher, MissingImagesError,
-                                      format_stamp, image_from_buffer, mono16_to_gray)
 # The downscale training uses (ModelSet.downscaled / load_capture(downscale_to=...)): the
 # classifier must see images prepared exactly as the training renders were.
 from lightstage_camera.models import downscale_images
+# Stamped-frame matching and mono16 decoding are the graph contract's (lightstage_graph),
+# shared with model acquisition; re-exported here as part of this module's API.
+from lightstage_graph.errors import MissingImagesError, StageError
+from lightstage_graph.frames import MONO16_ENCODINGS, ImageMatcher, image_from_buffer, mono16_to_gray
+from lightstage_graph.stamps import format_stamp
 
 from .model import ArtifactError, Prediction, TrainedArtifact
+
+
+class InferenceError(StageError):
+    """A classification on the stage could not be made; the message says why. Missing images
+    are a `MissingImagesError`: catch `StageError` for both."""
+
 
 __all__ = ["AcquisitionPlan", "Classification", "ImageMatcher", "InferenceError",
            "MissingImagesError", "plan_acquisition", "image_from_buffer", "mono16_to_gray",

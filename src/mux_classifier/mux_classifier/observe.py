@@ -22,7 +22,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from .inference import Classification, ImageMatcher, InferenceError, classify_collected
+from lightstage_graph.errors import StageError
+
+from .inference import Classification, ImageMatcher, classify_collected
 from .model import TrainedArtifact
 
 # IlluminationState.intensities are float32 copies of the requested drive on PWM rigs; on/off
@@ -253,7 +255,7 @@ class SequenceObserver:
         try:
             result = classify_observed(artifact, seq, self.matcher, float(self._timeout_s()),
                                        int(self._bit_depth()))
-        except InferenceError as exc:
+        except StageError as exc:  # InferenceError or MissingImagesError
             self.stats.failed += 1
             self._error(f'observed request {seq.request_id} ({seq.n_images} images) not '
                         f'classified: {exc}')

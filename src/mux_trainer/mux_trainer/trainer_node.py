@@ -11,11 +11,11 @@ import sys
 import threading
 import time
 
-import rclpy
-from lightstage_camera.spinning import spin_until_stopped
 from lightstage_camera.workers import usable_cores
+from lightstage_graph.names import TRAINER_NODE, TRAIN_ACTION
+from lightstage_graph.params import declare_parameters, integer
+from lightstage_graph.spin import init_node, spin_until_stopped
 from lightstage_interfaces.action import Train
-from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -24,8 +24,6 @@ from rclpy.node import Node
 from .greedy import REFINE_TOP
 from .training import train_from_capture
 
-ACTION_NAME = '/lightstage/train'
-NODE_NAME = 'trainer'
 SITE_CANDIDATES = 254  # per-colour mode: patterns with 1..7 of 8 sites lit
 MAX_JOBS = 256
 
@@ -43,22 +41,20 @@ def goal_options(goal, n_jobs: int, refine_top: int = REFINE_TOP) -> dict:
 
 
 class TrainerNode(Node):
-    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+    def __init__(self, node_name: str = TRAINER_NODE, **kwargs):
         super().__init__(node_name, **kwargs)
-        # 1..256: a range cannot hold -1 ("all cores") without 0, which means nothing to
-        # joblib; the default is all the cores this process may use
-        self.declare_parameter('n_jobs', min(usable_cores(), MAX_JOBS), ParameterDescriptor(
-            type=ParameterType.PARAMETER_INTEGER,
-            description='joblib worker processes for candidate evaluation (default: the cores '
-                        'this process may use)',
-            integer_range=[IntegerRange(from_value=1, to_value=MAX_JOBS, step=1)]))
-        self.declare_parameter('refine_top', REFINE_TOP, ParameterDescriptor(
-            type=ParameterType.PARAMETER_INTEGER,
-            description='greedy: candidates per column re-scored with the exact linear SVM '
-                        'after the ridge screen (0 = the screen picks)',
-            integer_range=[IntegerRange(from_value=0, to_value=SITE_CANDIDATES, step=1)]))
+        self.p = declare_parameters(self, {
+            # 1..256: a range cannot hold -1 ("all cores") without 0, which means nothing to
+            # joblib; the default is all the cores this process may use
+            'n_jobs': (min(usable_cores(), MAX_JOBS), integer(
+                'joblib worker processes for candidate evaluation (default: the cores this '
+                'process may use)', 1, MAX_JOBS)),
+            'refine_top': (REFINE_TOP, integer(
+                'greedy: candidates per column re-scored with the exact linear SVM after the '
+                'ridge screen (0 = the screen picks)', 0, SITE_CANDIDATES)),
+        })
         self._busy = threading.Lock()
-        self._server = ActionServer(self, Train, ACTION_NAME, execute_callback=self._execute,
+        self._server = ActionServer(self, Train, TRAIN_ACTION, execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=ReentrantCallbackGroup())
 
@@ -79,8 +75,7 @@ class TrainerNode(Node):
         result = Train.Result()
         t0 = time.perf_counter()
         with self._busy:
-            options = goal_options(goal, int(self.get_parameter('n_jobs').value),
-                                   int(self.get_parameter('refine_top').value))
+            options = goal_options(goal, int(self.p('n_jobs')), int(self.p('refine_top')))
             total = SITE_CANDIDATES if options['mode'] == 'per_colour' else 0
             best = [0.0]
 
@@ -124,10 +119,10 @@ class TrainerNode(Node):
         return result
 
 
-def main(args=None) -> int:
-    from lightstage_camera.spinning import init_node
-    init_node(args)
+def main(argv: list[str] | None = None) -> int:
+    init_node(sys.argv if argv is None else argv)
     return spin_until_stopped(TrainerNode(), MultiThreadedExecutor(num_threads=2))
+
 
 if __name__ == '__main__':
     sys.exit(main())

@@ -1,0 +1,154 @@
+"""Stamped camera frames: decoding ``mono16`` images and matching them to trigger stamps.
+
+Everything that lights patterns on the stage and collects the images they caused (the
+classifier, model acquisition, noise calibration: `stage_client.StageClient`) pairs images
+with patterns the same way: the driver reports a trigger stamp per pattern, the camera stamps
+each image with the stamp of the trigger that caused it, and `ImageMatcher.collect` hands
+back the images whose header stamps *equal* those trigger stamps, in pattern order; never by
+arrival order. Images that arrive before the trigger stamps are known (the camera can be
+faster than the driver's reply) wait in a small buffer.
+
+No rclpy here: `add_message` takes a ``sensor_msgs/Image`` duck-typed.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .errors import MissingImagesError
+from .stamps import format_stamp, stamp_to_ns
+
+__all__ = ["ImageMatcher", "image_from_buffer", "mono16_to_gray", "MONO16_ENCODINGS"]
+
+MONO16_ENCODINGS = ("mono16", "16UC1")
+
+
+# --------------------------------------------------------------------------- images
+
+
+def image_from_buffer(data, height: int, width: int, step: int, encoding: str,
+                      is_bigendian: bool = False) -> np.ndarray:
+    """A ``mono16`` image message's fields -> uint16 (H, W); ValueError if it is not one."""
+    if encoding not in MONO16_ENCODINGS:
+        raise ValueError(f"image encoding is {encoding!r}; 16-bit mono "
+                         f"({' or '.join(MONO16_ENCODINGS)}) is needed, as the light-stage camera "
+                         "publishes")
+    if height < 1 or width < 1 or step < 2 * width:
+        raise ValueError(f"image is {width}x{height} with step {step}: not a valid mono16 image")
+    buf = np.frombuffer(data, dtype=np.uint8)
+    if buf.size < height * step:
+        raise ValueError(f"image data holds {buf.size} bytes, a {width}x{height} mono16 image "
+                         f"with step {step} needs {height * step}")
+    rows = buf[:height * step].reshape(height, step)[:, :2 * width]
+    dtype = np.dtype(">u2" if is_bigendian else "<u2")
+    return np.ascontiguousarray(rows).view(dtype).reshape(height, width).astype(np.uint16)
+
+
+def mono16_to_gray(image: np.ndarray, bit_depth: int = 10) -> np.ndarray:
+    """MSB-aligned 16-bit values -> float32 gray levels in camera units (10-bit: value / 64)."""
+    if not 8 <= int(bit_depth) <= 16:
+        raise ValueError(f"bit_depth must be 8..16, got {bit_depth}")
+    gray = np.asarray(image, dtype=np.float32)
+    gray *= np.float32(1.0 / (1 << (16 - int(bit_depth))))
+    return gray
+
+
+# --------------------------------------------------------------------------- matching
+
+
+@dataclass
+class _Entry:
+    image: np.ndarray | None
+    error: str
+    arrival_ns: int
+
+
+class ImageMatcher:
+    """Images keyed by their header stamp (ns), waited for by trigger stamp. Thread-safe.
+
+    `add` is called from the image subscription; `collect` from the service handler. The
+    `capacity` most recent images are kept, so images may arrive before they are asked for.
+    `clock` gives the arrival time in ns, on the same time base as the trigger stamps.
+    """
+
+    def __init__(self, capacity: int = 64, clock: Callable[[], int] = time.time_ns):
+        if capacity < 1:
+            raise ValueError(f"capacity must be >= 1, got {capacity}")
+        self.capacity = int(capacity)
+        self.clock = clock
+        self._entries: OrderedDict[int, _Entry] = OrderedDict()
+        self._cond = threading.Condition()
+        self.received = 0
+        self.evicted = 0
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._entries)
+
+    def add(self, stamp_ns: int, image: np.ndarray | None, error: str = "") -> None:
+        """An image (or, with `error`, the reason it was unusable) stamped `stamp_ns`."""
+        entry = _Entry(image, error, int(self.clock()))
+        with self._cond:
+            self._entries[int(stamp_ns)] = entry
+            self._entries.move_to_end(int(stamp_ns))
+            while len(self._entries) > self.capacity:
+                self._entries.popitem(last=False)
+                self.evicted += 1
+            self.received += 1
+            self._cond.notify_all()
+
+    def add_message(self, msg) -> None:
+        """A ``sensor_msgs/Image`` (duck-typed: no ROS import here), by its header stamp; one
+        that is not 16-bit mono is kept as unusable, with the reason."""
+        stamp = stamp_to_ns(msg.header.stamp)
+        try:
+            image = image_from_buffer(msg.data, msg.height, msg.width, msg.step, msg.encoding,
+                                      bool(msg.is_bigendian))
+        except ValueError as exc:
+            self.add(stamp, None, error=str(exc))
+            return
+        self.add(stamp, image)
+
+    def collect(self, stamps_ns: Sequence[int], timeout_s: float,
+                sequences: Sequence[int] | None = None) -> tuple[list[np.ndarray], int]:
+        """The images stamped ``stamps_ns`` in that order, and the last one's arrival time.
+
+        Waits up to `timeout_s`; raises MissingImagesError naming each image (position,
+        trigger sequence, stamp) that did not arrive or arrived unusable. Collected images
+        leave the buffer.
+        """
+        stamps = [int(s) for s in stamps_ns]
+        deadline = time.monotonic() + max(0.0, float(timeout_s))
+        with self._cond:
+            while True:
+                missing = [i for i, s in enumerate(stamps) if s not in self._entries]
+                remaining = deadline - time.monotonic()
+                if not missing or remaining <= 0:
+                    break
+                self._cond.wait(remaining)
+            bad = [i for i, s in enumerate(stamps)
+                   if s in self._entries and self._entries[s].image is None]
+            if missing or bad:
+                raise self._missing_error(stamps, sequences, missing, bad, timeout_s)
+            entries = [self._entries.pop(s) for s in stamps]
+        return [e.image for e in entries], max(e.arrival_ns for e in entries)
+
+    def _missing_error(self, stamps, sequences, missing, bad, timeout_s) -> MissingImagesError:
+        def name(i: int) -> str:
+            seq = f"trigger sequence {sequences[i]}, " if sequences is not None else ""
+            return f"image {i + 1} ({seq}stamp {format_stamp(stamps[i])})"
+
+        parts = []
+        if missing:
+            parts.append(f"{len(missing)} of {len(stamps)} images did not arrive within "
+                         f"{float(timeout_s):g} s: {', '.join(name(i) for i in missing)}; is the "
+                         "camera node running, subscribed to /illumination and publishing "
+                         "/image_raw stamped with the trigger stamps?")
+        for i in bad:
+            parts.append(f"{name(i)} is unusable: {self._entries[stamps[i]].error}")
+        return MissingImagesError("; ".join(parts), sorted(missing + bad))
