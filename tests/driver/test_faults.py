@@ -26,6 +26,14 @@ def one_hot(led):
     return pattern
 
 
+def observed_up_to_now(sim, stage) -> None:
+    """A barrier on what the simulator reports: the firmware handles commands in order and
+    reports a FIRE's pulse before it answers it, so once a word latched by a command sent now
+    is observed, every pulse and latch before it is too."""
+    word = stage.set_pattern(one_hot(31))
+    assert wait_until(lambda: sim.current_word() == word, 5.0)
+
+
 @pytest.fixture
 def stage(sim):
     stage = LightStage(sim.port, timeout_s=TIMEOUT_S, retries=RETRIES, connect_timeout_s=2.0)
@@ -37,9 +45,8 @@ def stage(sim):
 
 def test_dropped_bytes_are_retried(sim, stage):
     sim.set_faults(drop_rx_next=4)          # the next command loses its first 4 bytes
-    start = time.monotonic()
     word = stage.set_pattern(one_hot(3))
-    assert time.monotonic() - start < TIMEOUT_S * 2 + 0.1
+    # one attempt timed out, the retry was answered
     assert stage.link.stats.retries == 1 and stage.link.stats.timeouts == 1
     assert wait_until(lambda: sim.current_word() == word, 1.0)
 
@@ -52,7 +59,7 @@ def test_a_corrupted_reply_is_retried_and_fire_is_not_repeated(sim, stage):
     # hold is one bad CRC and a single trigger
     assert stage.link.stats.crc_errors == 1 and stage.link.stats.retries >= 1
     assert trigger.exposure_us == 2000
-    time.sleep(0.05)
+    observed_up_to_now(sim, stage)
     assert len(sim.trigger_pulses()) == 1   # the retry was answered from the firmware's cache
 
 
@@ -92,10 +99,10 @@ def test_a_noisy_line_never_double_triggers(sim, stage):
     assert stats.retries > 0 and stats.crc_errors > 0      # the faults really happened
     sim.set_faults(drop_rx_prob=0.0, corrupt_tx_prob=0.0)
     stage.heartbeat()
-    assert wait_until(lambda: len(sim.trigger_pulses()) >= fires, 1.0)
-    time.sleep(0.05)
-    assert len(sim.trigger_pulses()) == fires                 # exactly one trigger per FIRE
+    assert wait_until(lambda: len(sim.trigger_pulses()) >= fires, 5.0)
     assert sim.current_word() == 0
+    observed_up_to_now(sim, stage)
+    assert len(sim.trigger_pulses()) == fires                 # exactly one trigger per FIRE
 
 
 def test_a_hung_firmware_gives_no_reply_error_in_time_and_its_watchdog_darkens(sim, stage):
@@ -106,18 +113,18 @@ def test_a_hung_firmware_gives_no_reply_error_in_time_and_its_watchdog_darkens(s
     start = time.monotonic()
     with pytest.raises(NoReplyError, match='no valid reply to HEARTBEAT after 4 attempt') as info:
         stage.heartbeat()
-    elapsed = time.monotonic() - start
-    assert (RETRIES + 1) * TIMEOUT_S <= elapsed < (RETRIES + 1) * TIMEOUT_S + 0.3
+    assert time.monotonic() - start >= (RETRIES + 1) * TIMEOUT_S   # it waited out every attempt
+    assert stage.link.stats.timeouts == RETRIES + 1
     assert 'firmware alive' in str(info.value)
     assert wait_until(lambda: sim.current_word() == 0, 1.0)   # host went silent: watchdog
 
 
 def test_always_corrupted_replies_give_a_clear_error(sim, stage):
     sim.set_faults(corrupt_tx_prob=1.0)
-    start = time.monotonic()
     with pytest.raises(ReplyChecksumError, match=r'4 attempt\(s\) at HEARTBEAT met a CRC mismatch.*baud rate'):
         stage.heartbeat()
-    assert time.monotonic() - start < TIMEOUT_S    # corrupted replies are retried at once
+    # corrupted replies are retried at once, not after the reply timeout
+    assert stage.link.stats.crc_errors == RETRIES + 1 and stage.link.stats.timeouts == 0
 
 
 def test_latency_within_the_timeout_is_fine_beyond_it_is_an_error(sim, stage):
@@ -192,10 +199,8 @@ def test_port_gone_for_good_is_port_not_found(sim):
     sim.kill()
     with pytest.raises(DisconnectedError):
         stage.heartbeat()
-    start = time.monotonic()
-    with pytest.raises(PortNotFoundError, match='does not exist'):
+    with pytest.raises(PortNotFoundError, match='does not exist'):   # given up, not hung
         stage.heartbeat()
-    assert time.monotonic() - start < 0.3 + 1.0     # connect timeout + slack for a loaded machine
 
 
 def test_a_killed_simulator_leaves_no_link_to_its_pty(sim):
@@ -259,4 +264,4 @@ def test_a_silent_device_is_not_taken_for_a_stage(sim):
     start = time.monotonic()
     with pytest.raises(NoReplyError, match='no IDENTIFY reply within 0.5 s'):
         LightStage(sim.port, timeout_s=TIMEOUT_S, connect_timeout_s=0.5).connect()
-    assert time.monotonic() - start < 1.5
+    assert time.monotonic() - start >= 0.5     # it gave the device its whole connect timeout

@@ -31,12 +31,18 @@ def test_identify_reports_the_rig(stage):
 
 
 def test_heartbeat_reports_status_and_syncs_the_clock(stage):
+    host_start = time.monotonic()
     first = stage.heartbeat()
-    time.sleep(0.05)
-    second = stage.heartbeat()
     assert not first.leds_lit and not first.sequence_running
-    elapsed_us = (second.t_us - first.t_us) % 2**32
-    assert 40_000 <= elapsed_us <= 500_000       # simavr may run faster than real time
+    later = []
+
+    def firmware_clock_advanced() -> bool:
+        later.append(stage.heartbeat())
+        return (later[-1].t_us - first.t_us) % 2**32 >= 40_000
+    assert wait_until(firmware_clock_advanced, 10.0)
+    host_us = (time.monotonic() - host_start) * 1e6
+    elapsed_us = (later[-1].t_us - first.t_us) % 2**32
+    assert elapsed_us <= 10 * host_us        # microseconds (simavr may run faster than real time)
     assert stage.clock.synced and stage.clock.uncertainty_s < 0.05
 
 
@@ -50,10 +56,19 @@ def test_set_pattern_shows_the_word_and_all_off_clears_it(stage, backend):
     assert distinct_words(backend) == [word, 0]
 
 
+def observed_up_to_now(stage, backend) -> int:
+    """A barrier on what the backend reports: the firmware handles commands in order, so once
+    the word latched by a command sent now is observed, everything before it is too."""
+    word = stage.set_pattern(one_hot(30), show_now=True)
+    assert wait_until(lambda: backend.current_word() == word, 5.0)
+    return word
+
+
 def test_set_pattern_without_show_now_only_arms(stage, backend):
     stage.set_pattern(one_hot(4), show_now=False)
-    time.sleep(0.05)
-    assert backend.current_word() == 0 and not stage.heartbeat().leds_lit
+    assert not stage.heartbeat().leds_lit
+    word = observed_up_to_now(stage, backend)
+    assert distinct_words(backend) in ([word], [0, word])     # one_hot(4) was never latched
 
 
 def test_fire_lights_the_pattern_for_the_exposure(stage, backend):
@@ -119,8 +134,8 @@ def test_bad_input_is_refused_before_anything_is_sent(stage, backend, patterns, 
     with pytest.raises(PatternError, match=match):
         stage.apply(patterns, exposure)
     assert stage.link.stats.commands == sent
-    time.sleep(0.02)
-    assert backend.led_words() == [] or distinct_words(backend) == [0]
+    word = observed_up_to_now(stage, backend)
+    assert distinct_words(backend) in ([word], [0, word])
     assert backend.trigger_pulses() == []
 
 
@@ -144,10 +159,7 @@ def test_watchdog_darkens_the_leds_after_host_silence(stage, backend):
     stage.set_watchdog(150)
     word = stage.set_pattern(one_hot(7, 8), show_now=True)
     assert wait_until(lambda: backend.current_word() == word, 2.0)
-    lit_at = time.monotonic()
-    assert wait_until(lambda: backend.current_word() == 0, 3.0)
-    dark_after = time.monotonic() - lit_at
-    assert 0.1 <= dark_after <= 2.0     # simulated firmware may run up to 2x real time
+    assert wait_until(lambda: backend.current_word() == 0, 10.0)
     words = backend.led_words()
     assert words[-1].time_s - next(w for w in words if w.word == word).time_s == \
         pytest.approx(0.150, abs=0.01)    # on the firmware clock
@@ -178,11 +190,11 @@ def test_clock_wraps_without_breaking_stamps():
     with PythonSimBackend(clock_offset_us=2**32 - 20_000) as backend:
         with LightStage(backend.port) as stage:
             triggers = []
-            for _ in range(4):
+            # at least 4 triggers, until the firmware clock has crossed the wrap
+            while len(triggers) < 4 or triggers[-1].firmware_us <= 2**32:
+                assert len(triggers) < 100, 'the firmware clock did not wrap'
                 triggers += stage.apply(one_hot(0), 5000)
-                time.sleep(0.005)
             us = [t.firmware_us for t in triggers]
-            assert us[-1] > 2**32                   # crossed the wrap
             assert all(b - a >= 5000 for a, b in zip(us, us[1:]))
             hosts = [t.host_time_s for t in triggers]
             assert all(b > a for a, b in zip(hosts, hosts[1:]))

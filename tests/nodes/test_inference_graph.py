@@ -15,7 +15,6 @@ import os
 import subprocess
 import sys
 import threading
-import time
 import zipfile
 from typing import NamedTuple
 
@@ -246,12 +245,10 @@ def test_error_paths_missing_artifact_no_driver_no_camera(stage_artifact_path, t
             assert not bad.successful and 'other.npz' in bad.reason
             (ok,) = client.set_parameters('classifier', artifact_path=str(stage_artifact_path))
             assert ok.successful, ok.reason
-            # 2. no driver: a clear answer within the request's timeout
-            start = time.monotonic()
+            # 2. no driver: a clear answer after waiting the request's timeout for it
             r = classify(client, timeout_s=1.5)
-            elapsed = time.monotonic() - start
             assert not r.success and '/lightstage/apply_patterns' in r.message
-            assert elapsed < 1.5 + 2.0, elapsed
+            assert 'is not available (waited 1.5 s)' in r.message, r.message
             # 3. driver but no camera: refused before any LED is lit (images that do not
             #    arrive from a running camera are named: test_inference.py)
             start_nodes(supervisor, client, ['driver'], domain_id, params)
