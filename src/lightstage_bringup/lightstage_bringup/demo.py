@@ -24,16 +24,14 @@ import sys
 import time
 from pathlib import Path
 
+from lightstage_bringup.launcher import DEFAULT_NODES, RECORDER
 from lightstage_camera.workers import jobs_type
 from lightstage_graph.names import (APPLY_PATTERNS_SERVICE, CAMERA_NODE, CLASSIFIER_NODE,
-                                    CLASSIFY_SERVICE, DRIVER_NODE, IMAGE_TOPIC,
-                                    ILLUMINATION_TOPIC, RECORDER_NODE, RESULT_TOPIC,
-                                    service_event_topic)
+                                    CLASSIFY_SERVICE, IMAGE_TOPIC, ILLUMINATION_TOPIC,
+                                    RESULT_TOPIC, service_event_topic)
 from lightstage_graph.ros_env import apply_ros_environment, ros_environment
 
 NOISE = 'sigma3'
-NODES = (DRIVER_NODE, CAMERA_NODE, CLASSIFIER_NODE)
-RECORDER = RECORDER_NODE  # started alongside NODES
 BAG = 'stage_session'  # the bag of the stage session, in OUT
 # what the recorder must have subscribed to before the first call, so that no call is cut
 RECORDED = (ILLUMINATION_TOPIC, IMAGE_TOPIC, RESULT_TOPIC, service_event_topic(CLASSIFY_SERVICE),
@@ -191,8 +189,8 @@ def replay_commands(bag: Path, artifact: str, out: Path, domain_id: int) -> list
         'classifier': {'artifact_path': str(Path(artifact).resolve()), 'classify_observed': True}})
     domain = ['--domain-id', str(domain_id)]
     return [['lightstage', 'up', 'classifier', '--params', str(params), *domain],
-            ['lightstage', 'play', str(bag), '--topics', '/illumination', '/image_raw',
-             '--wait-for', '/illumination', '/image_raw', '--delay-s', '1', *domain]]
+            ['lightstage', 'play', str(bag), '--topics', ILLUMINATION_TOPIC, IMAGE_TOPIC,
+             '--wait-for', ILLUMINATION_TOPIC, IMAGE_TOPIC, '--delay-s', '1', *domain]]
 
 
 def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domain_id: int,
@@ -213,7 +211,7 @@ def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domai
     env = ros_environment(domain_id)
     log_dir = out / 'logs'
     results = {}
-    names = [*NODES, RECORDER]
+    names = [*DEFAULT_NODES, RECORDER]  # driver, camera, classifier and the recorder
     with open(os.devnull, 'w') as quiet, \
             Supervisor(stdout=quiet, stderr=quiet, log_dir=log_dir) as supervisor:
         t0 = time.monotonic()

@@ -30,6 +30,8 @@ from pathlib import Path
 
 from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 from lightstage_graph.exits import describe_exit
+from lightstage_graph.names import (ACQUISITION_NODE, CAMERA_NODE, CLASSIFIER_NODE, DRIVER_NODE,
+                                    PLAYER_NODE, RECORDER_NODE, TRAINER_NODE)
 from lightstage_graph.ros_env import apply_ros_environment, ros_environment
 
 EXIT_OK, EXIT_NODE_FAILED, EXIT_USAGE, EXIT_NOT_DISCOVERED = 0, 1, 2, 3
@@ -45,18 +47,18 @@ class NodeEntry:
 # name -> node; the name is also the ROS node name (remapped with __node:=NAME) and the
 # key of the node's section in the params YAML.
 NODE_REGISTRY: dict[str, NodeEntry] = {
-    'driver': NodeEntry('lightstage_driver.driver_node', 'LED stage driver (serial or simulated firmware)'),
-    'camera': NodeEntry('lightstage_camera.camera_node', 'camera (simulated: renders the sample under each pattern)'),
-    'classifier': NodeEntry('mux_classifier.classifier_node', 'classifier (Classify service, /result topic)'),
-    'trainer': NodeEntry('mux_trainer.trainer_node', 'trainer (Train action)'),
-    'acquisition': NodeEntry('lightstage_camera.acquisition_node',
-                             'model capture and noise calibration (CaptureModel, CalibrateNoise actions)'),
-    'recorder': NodeEntry('lightstage_bringup.recorder_node',
-                          'records every topic and service call to an MCAP bag (recorder section of the params)'),
-    'player': NodeEntry('lightstage_bringup.player_node', 'plays a bag into the graph (set its bag parameter)'),
+    DRIVER_NODE: NodeEntry('lightstage_driver.driver_node', 'LED stage driver (serial or simulated firmware)'),
+    CAMERA_NODE: NodeEntry('lightstage_camera.camera_node', 'camera (simulated: renders the sample under each pattern)'),
+    CLASSIFIER_NODE: NodeEntry('mux_classifier.classifier_node', 'classifier (Classify service, /result topic)'),
+    TRAINER_NODE: NodeEntry('mux_trainer.trainer_node', 'trainer (Train action)'),
+    ACQUISITION_NODE: NodeEntry('lightstage_camera.acquisition_node',
+                                'model capture and noise calibration (CaptureModel, CalibrateNoise actions)'),
+    RECORDER_NODE: NodeEntry('lightstage_bringup.recorder_node',
+                             'records every topic and service call to an MCAP bag (recorder section of the params)'),
+    PLAYER_NODE: NodeEntry('lightstage_bringup.player_node', 'plays a bag into the graph (set its bag parameter)'),
 }
-DEFAULT_NODES = ('driver', 'camera', 'classifier')
-RECORDER = 'recorder'  # started as well unless --no-record
+DEFAULT_NODES = (DRIVER_NODE, CAMERA_NODE, CLASSIFIER_NODE)
+RECORDER = RECORDER_NODE  # started as well unless --no-record
 DEFAULT_BAG_DIR = Path('out') / 'bags'
 # A recorder that runs by default must not fill the disk over days of use: its bag is split
 # into 1 GiB files and only the newest 10 are kept (at most ~10 GiB per `lightstage up`),
@@ -146,31 +148,23 @@ class GraphWatcher:
     def __init__(self, domain_id: int, renew_s: float = 1.0):
         self.domain_id = domain_id
         self.renew_s = renew_s
-        self._context = None
+        self._graph = None
         self.node = None
 
     def _open(self) -> None:
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.signals import SignalHandlerOptions
+        from lightstage_graph.graph_client import GraphClient
 
-        self._context = Context()
-        # the caller's own SIGINT/SIGTERM handlers stay in charge of shutdown
-        rclpy.init(context=self._context, domain_id=self.domain_id,
-                   signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(f'_lightstage_up_{os.getpid()}', context=self._context,
-                                      enable_rosout=False, start_parameter_services=False,
-                                      use_global_arguments=False)
-        self._executor = SingleThreadedExecutor(context=self._context)
-        self._executor.add_node(self.node)
+        # (no rclpy signal handlers: the caller's own SIGINT/SIGTERM handlers stay in charge)
+        self._graph = GraphClient(self.domain_id, f'_lightstage_up_{os.getpid()}',
+                                  enable_rosout=False, use_global_arguments=False)
+        self.node = self._graph.node
+        self._executor = self._graph.executor
         self._opened_at = time.monotonic()
 
     def _close(self) -> None:
-        import rclpy
-        if self._context is not None:
-            rclpy.shutdown(context=self._context)  # also ends the executor and the node
-            self._context = None
+        if self._graph is not None:
+            self._graph.close()  # also ends the executor and the node
+            self._graph = None
 
     def __enter__(self) -> 'GraphWatcher':
         apply_ros_environment()  # LOCALHOST discovery and the profile for this participant

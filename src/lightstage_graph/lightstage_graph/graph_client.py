@@ -1,5 +1,5 @@
 """A participant of its own for the programs that talk to a running graph: the CLI verbs,
-the demo and the tests. One rclpy context (so it never disturbs another in the process),
+the demo, `lightstage up`'s graph watcher and the tests. One rclpy context (so it never disturbs another in the process),
 one node without parameter services, one single-threaded executor it spins itself.
 
     with GraphClient(domain_id, 'lightstage_classify_cli') as graph:
@@ -20,7 +20,8 @@ class GraphTimeout(TimeoutError):
 
 
 class GraphClient:
-    def __init__(self, domain_id: int | None = None, name: str | None = None):
+    def __init__(self, domain_id: int | None = None, name: str | None = None, **node_options):
+        """`node_options`: more keyword arguments of `rclpy.create_node`."""
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -30,7 +31,8 @@ class GraphClient:
                    signal_handler_options=SignalHandlerOptions.NO)
         self.domain_id = self.context.get_domain_id()
         self.node = rclpy.create_node(name or f'lightstage_client_{os.getpid()}',
-                                      context=self.context, start_parameter_services=False)
+                                      context=self.context, start_parameter_services=False,
+                                      **node_options)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._clients = {}  # one client per service / action, discovered once

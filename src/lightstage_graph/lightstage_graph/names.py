@@ -11,6 +11,7 @@ CLASSIFIER_NODE = 'classifier'
 ACQUISITION_NODE = 'acquisition'
 TRAINER_NODE = 'trainer'
 RECORDER_NODE = 'recorder'
+PLAYER_NODE = 'player'
 
 # topics
 ILLUMINATION_TOPIC = '/illumination'   # IlluminationState, one per trigger (driver)
