@@ -63,7 +63,7 @@ def main(argv=None) -> int:
     if args.core:
         return core_calibration(args)
 
-    from lightstage_bringup.ros_env import apply_ros_environment
+    from lightstage_graph.ros_env import apply_ros_environment
     domain_id = args.domain_id if args.domain_id is not None else fresh_domain_id()
     apply_ros_environment(domain_id)
 
@@ -168,7 +168,7 @@ def core_calibration(args) -> int:
     from acquisition_helpers import sim_grab
     from lightstage_camera import calibration as cal
     from lightstage_camera.capture_format import load_capture
-    from lightstage_camera.frames import mono16_to_gray
+    from lightstage_graph.frames import mono16_to_gray
     from lightstage_camera.noise import PAPER_CALIBRATION
     from lightstage_camera.sim_camera import SimCamera
 
