@@ -5,10 +5,10 @@ import subprocess
 
 import pytest
 
-from lightstage_bringup.bag_format import BagError, BagReader, recover
+from lightstage_recording import BagError, BagReader
 from lightstage_bringup.launcher import node_command
 from lightstage_bringup.ros_env import ros_environment
-from recording_helpers import illumination
+from recording_helpers import illumination, recover
 from suite_helpers import RosClient, fresh_domain_id, lightstage_command, write_params
 
 pytestmark = pytest.mark.ros
@@ -41,7 +41,7 @@ def test_killed_recorder_bag_is_readable_and_replay_keeps_the_recorded_qos(tmp_p
         status = client.node.create_publisher(String, '/stage_status', latched)
         states = client.node.create_publisher(IlluminationState, '/illumination', 100)
         status.publish(String(data='stage ready'))  # before the recorder exists
-        recorder = subprocess.Popen(node_command('lightstage_bringup.recorder_node', 'recorder', params),
+        recorder = subprocess.Popen(node_command('lightstage_recording.recorder_node', 'recorder', params),
                                     env=ros_environment(domain_id), stdout=subprocess.PIPE,
                                     stderr=subprocess.STDOUT, text=True)
         try:
@@ -80,7 +80,7 @@ def test_killed_recorder_bag_is_readable_and_replay_keeps_the_recorded_qos(tmp_p
 
         # replay: the player's publishers offer what was recorded; a late subscriber of the
         # latched topic still gets its message
-        player = subprocess.Popen(node_command('lightstage_bringup.player_node', 'player', params),
+        player = subprocess.Popen(node_command('lightstage_recording.player_node', 'player', params),
                                   env=ros_environment(domain_id), stdout=subprocess.PIPE,
                                   stderr=subprocess.STDOUT, text=True)
         try:
@@ -109,7 +109,7 @@ def test_command_line_errors_say_what_to_do(tmp_path):
     domain_id = fresh_domain_id()
     env = ros_environment(domain_id)
     # a bag to play: two illumination states
-    from lightstage_bringup.bag_format import BagWriter
+    from lightstage_recording import BagWriter
     from rclpy.serialization import serialize_message
     with BagWriter(tmp_path / 'small') as w:
         w.add_topic('/illumination', 'lightstage_interfaces/msg/IlluminationState')
