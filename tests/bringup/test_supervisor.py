@@ -159,7 +159,8 @@ def test_child_gets_sigterm_when_the_supervisor_process_dies(tmp_path):
         'import io, signal, sys\n'
         'from lightstage_bringup.supervisor import ProcessSpec, Supervisor\n'
         'sup = Supervisor()\n'
-        'p = sup.start(ProcessSpec("orphan", [sys.executable, "-c", "import signal\\nwhile True: signal.pause()"]))\n'
+        'p = sup.start(ProcessSpec("orphan", [sys.executable, "-c",\n'
+        '                                     "import signal\\nwhile True: signal.pause()"]))\n'
         'print(p.pid, flush=True)\n'
         'while True: signal.pause()\n')
     boss = subprocess.Popen([PY, '-c', code], stdout=subprocess.PIPE, text=True)
