@@ -16,6 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .acquisition import MAX_FRAMES_PER_REQUEST
 from .errors import CaptureCancelled
 from .frames import AcquisitionError, mono16_to_gray
 from .noise import SETTINGS, NoiseModel
@@ -79,8 +80,9 @@ class CalibrationSettings:
                              f"{self.levels}")
         if not 8 <= int(self.bit_depth) <= 16:
             raise ValueError(f"bit_depth must be 8..16, got {self.bit_depth}")
-        if not 1 <= int(self.frames_per_request) <= 32:
-            raise ValueError(f"frames_per_request must be 1..32, got {self.frames_per_request}")
+        if not 1 <= int(self.frames_per_request) <= MAX_FRAMES_PER_REQUEST:
+            raise ValueError(f"frames_per_request must be 1..{MAX_FRAMES_PER_REQUEST}, got "
+                             f"{self.frames_per_request}")
 
     @property
     def max_level(self) -> int:
