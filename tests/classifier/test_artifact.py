@@ -304,7 +304,7 @@ def test_header_array_of_another_type_is_refused(tmp_path):
     ("noise", {"name": "x", "sigma_p2": "a", "sigma_r2": 1, "gain_db": 0, "exposure_ms": 1},
      "sigma_p2 must be a number or null"),
     ("dimmer", None, "'dimmer' must be a positive number"),
-    ("dimmer", True, "'dimmer' must be a positive number"),
+    ("dimmer", True, "dimmer must be a positive number, got True"),
     ("dimmer", -0.45, "dimmer must be a positive number, got -0.45"),
     ("dimmer", 0, "dimmer must be a positive number, got 0"),
 ])

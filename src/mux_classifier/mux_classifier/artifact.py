@@ -373,16 +373,13 @@ class TrainedArtifact:
             raise ArtifactError(f"header field 'n_images' must list integers, got "
                                 f"{reprlib.repr(n_images)}")
         class_names = field_of("class_names", list, "a list of class names")
-        if header["format_version"] == 1:  # before the dimmer was recorded
-            dimmer, recorded = UNRECORDED_DIMMER, False
-        else:
-            dimmer, recorded = field_of("dimmer", (int, float), "a positive number"), True
-            if isinstance(dimmer, bool):
-                raise ArtifactError("header field 'dimmer' must be a positive number, got "
-                                    f"{dimmer}")
         if not all(isinstance(c, str) for c in class_names):
             raise ArtifactError(f"header field 'class_names' must list strings, got "
                                 f"{reprlib.repr(class_names)}")
+        if header["format_version"] == 1:  # before the dimmer was recorded
+            dimmer, recorded = UNRECORDED_DIMMER, False
+        else:  # a number here; __post_init__ refuses booleans and values <= 0
+            dimmer, recorded = field_of("dimmer", (int, float), "a positive number"), True
         return cls(
             led_patterns=array("led_patterns"),
             class_names=class_names,

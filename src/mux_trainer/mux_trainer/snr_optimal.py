@@ -273,7 +273,7 @@ def s_matrix_for_sites(n_sites: int) -> np.ndarray:
     return W
 
 
-def compare_with_hadamard(n_sites: int = 8, noise="sigma3", mean_level: float = 100.0,
+def compare_with_hadamard(n_sites: int = N_SITES, noise="sigma3", mean_level: float = 100.0,
                           n_iter: int = 20000, seed: int = 0, noise_scale: float = 1.0) -> dict:
     """MSEs of the identity, the Hadamard S-code and the searched SNR-optimal matrix.
 
