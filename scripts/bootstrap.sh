@@ -22,7 +22,7 @@ mkdir -p "$LOG_DIR"
 # iproute2, with which scripts/run_tests.sh brings up loopback in the tests' network namespace.
 APT_PACKAGES=(cmake ninja-build gcc g++ make pkg-config gcc-avr binutils-avr avr-libc
               libsimavr-dev libelf-dev strace iproute2)
-PROJECT_PACKAGES=(lightstage_graph lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_bringup)
+PROJECT_PACKAGES=(lightstage_graph lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_recording lightstage_bringup)
 
 step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }
 fail() {

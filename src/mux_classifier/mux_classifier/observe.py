@@ -24,8 +24,8 @@ import numpy as np
 
 from lightstage_graph.errors import StageError
 
+from .artifact import TrainedArtifact
 from .inference import Classification, ImageMatcher, classify_collected
-from .model import TrainedArtifact
 
 # IlluminationState.intensities are float32 copies of the requested drive on PWM rigs; on/off
 # rigs report 0/1 for what was lit (drive > 0.5)
