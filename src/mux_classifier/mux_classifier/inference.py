@@ -27,7 +27,7 @@ from lightstage_camera.scene_models import downscale_images
 # Stamped-frame matching and mono16 decoding are the graph contract's (lightstage_graph),
 # shared with model acquisition; re-exported here as part of this module's API.
 from lightstage_graph.errors import MissingImagesError, StageError
-from lightstage_graph.frames import MONO16_ENCODINGS, ImageMatcher, image_from_buffer, mono16_to_gray
+from lightstage_graph.frames import ImageMatcher, image_from_buffer, mono16_to_gray
 from lightstage_graph.stamps import format_stamp
 
 from .artifact import ArtifactError, Prediction, TrainedArtifact
