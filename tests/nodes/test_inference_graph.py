@@ -119,6 +119,23 @@ def test_unknown_sample_is_rejected_and_the_stage_keeps_its_sample(graph):
     r = classify(client)
     assert r.success and r.label.startswith('orange'), (r.label, r.message)
 
+def test_a_sim_camera_at_another_dimmer_is_refused(graph):
+    """The artifact records its training dimmer (0.45); a sim camera rendering at 0.3 would
+    give images 0.67 x as bright and classify wrong silently: the classifier refuses."""
+    client = graph.client
+    (ok,) = client.set_parameters('camera', dimmer=0.3)
+    assert ok.successful, ok.reason
+    try:
+        r = classify(client)
+        assert not r.success
+        assert "trained with dimmer 0.45 but the camera's dimmer is 0.3" in r.message, r.message
+    finally:
+        (ok,) = client.set_parameters('camera', dimmer=0.45)
+        assert ok.successful, ok.reason
+    r = classify(client)
+    assert r.success, r.message
+
+
 
 def test_classify_cli_prints_the_answer(graph):
     domain_id = graph.domain_id

@@ -298,7 +298,8 @@ def capture_main(argv: list[str] | None = None) -> int:
 
 
 def _write_rescued(args) -> int:
-    from lightstage_camera.acquisition import DestinationError, write_rescued
+    from lightstage_camera.errors import DestinationError
+    from lightstage_camera.rescue import write_rescued
     if args.targets:
         print('lightstage capture: --from-rescued writes the pose named in the file; give no '
               'TARGET', file=sys.stderr)

@@ -34,8 +34,9 @@ import numpy as np
 
 from .capture_destination import (Destination, capture_rig, check_destination, folder_rig,
                                   write_model)
-from .errors import CaptureCancelled, DestinationError, ExposureError
-from .frames import AcquisitionError, mono16_to_gray
+from lightstage_graph.frames import mono16_to_gray
+
+from .errors import AcquisitionError, CaptureCancelled, DestinationError, ExposureError
 from .rescue import RescuedModel, rescue_message
 from .rig import CHANNELS, N_CHANNELS, N_SITES, Rig
 

@@ -33,11 +33,9 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 
 from .acquisition import CaptureCancelled, CaptureSettings, DestinationError, acquire_pose
-from .calibration import (CalibrationSettings, calibrate_noise, check_calibration_outputs,
-                          write_calibration_outputs)
-from .rig import Rig
-
-N_SITES = 8  # Pattern.intensities holds 32 LEDs: 8 sites x 4 colours
+from .calibration import CalibrationSettings, calibrate_noise
+from .calibration_outputs import check_calibration_outputs, write_calibration_outputs
+from .rig import N_SITES, Rig
 START_HINT = 'lightstage up driver camera acquisition'
 
 PARAMETERS = {

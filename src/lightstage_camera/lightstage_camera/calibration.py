@@ -17,8 +17,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .acquisition import MAX_FRAMES_PER_REQUEST
-from .errors import CaptureCancelled
-from .frames import AcquisitionError, mono16_to_gray
+from lightstage_graph.frames import mono16_to_gray
+
+from .errors import AcquisitionError, CaptureCancelled
 from .noise import SETTINGS, NoiseModel
 from .noise_fit import (MIN_FRAMES_PER_LEVEL, MIN_FRAMES_REASON, NoiseCharacteristic,
                         SplitMoments, characteristic_from_moments, excess_scatter,
@@ -178,7 +179,3 @@ def calibrate_noise(grab: Callable[[np.ndarray], Sequence[np.ndarray]],
     return CalibrationResult(fit, fit_uncertainty(char, fit), char, settings, leds_lit,
                              tuple(shape), time.perf_counter() - start)
 
-
-# SHIM(issue 13): remove at merge: acquisition_node.py imports the outputs' functions from here
-from .calibration_outputs import (check_calibration_outputs,  # noqa: E402,F401
-                                  write_calibration_outputs)

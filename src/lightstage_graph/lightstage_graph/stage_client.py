@@ -8,6 +8,7 @@ The classifier and the acquisition node both drive the stage this way:
     self.stage.wait_ready(timeout_s)                       # driver service + camera publisher
     stamps, sequences = self.stage.apply(patterns, exposure_us, gain_db, timeout_s)
     frames = self.stage.grab(patterns, exposure_us, gain_db, timeout_s)  # apply + collect
+    settings = self.stage.camera_parameters(('backend', 'dimmer'), timeout_s)  # or None
 
 Calls block (they wait for the driver's reply and the images), so the node spins a
 multi-threaded executor and passes a reentrant `callback_group`. Every failure is a
@@ -21,23 +22,29 @@ import time
 import numpy as np
 from lightstage_interfaces.msg import Pattern
 from lightstage_interfaces.srv import ApplyPatterns
+from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.srv import GetParameters
+from rclpy.parameter import parameter_value_to_python
 from sensor_msgs.msg import Image
 
 from .errors import StageError
 from .frames import ImageMatcher
-from .names import APPLY_PATTERNS_SERVICE, IMAGE_TOPIC
+from .names import APPLY_PATTERNS_SERVICE, CAMERA_NODE, IMAGE_TOPIC
 from .qos import IMAGE_QOS
 from .stamps import stamp_to_ns
 
 
 class StageClient:
-    def __init__(self, node, *, image_buffer: int, callback_group=None, start_hint: str = ''):
+    def __init__(self, node, *, image_buffer: int, callback_group=None, start_hint: str = '',
+                 camera_node: str = CAMERA_NODE):
         self.matcher = ImageMatcher(image_buffer, clock=lambda: node.get_clock().now().nanoseconds)
         self._start = f'`{start_hint}`' if start_hint else 'the driver and the camera'
         self._apply_client = node.create_client(ApplyPatterns, APPLY_PATTERNS_SERVICE,
                                                 callback_group=callback_group)
         self._image_sub = node.create_subscription(Image, IMAGE_TOPIC, self.matcher.add_message,
                                                    IMAGE_QOS, callback_group=callback_group)
+        self._camera_params = node.create_client(GetParameters, f'{camera_node}/get_parameters',
+                                                 callback_group=callback_group)
 
     def wait_ready(self, timeout_s: float) -> None:
         """Driver service and camera publisher present within `timeout_s`, or StageError."""
@@ -90,3 +97,19 @@ class StageClient:
         stamps, sequences = self.apply(led_patterns, exposure_us, gain_db, timeout_s)
         frames, _ = self.matcher.collect(stamps, timeout_s, sequences)
         return frames
+
+    def camera_parameters(self, names, timeout_s: float) -> dict | None:
+        """The camera node's current values of `names` ({name: value}; a name the camera does
+        not declare is left out), or None if its parameter service did not answer within
+        `timeout_s`: a check that needs them then cannot be made."""
+        if not self._camera_params.wait_for_service(timeout_sec=max(0.0, timeout_s)):
+            return None
+        done = threading.Event()
+        future = self._camera_params.call_async(GetParameters.Request(names=list(names)))
+        future.add_done_callback(lambda _f: done.set())
+        if not done.wait(max(0.0, timeout_s)) or future.result() is None:
+            self._camera_params.remove_pending_request(future)
+            return None
+        return {name: parameter_value_to_python(value)
+                for name, value in zip(names, future.result().values)
+                if value.type != ParameterType.PARAMETER_NOT_SET}

@@ -26,8 +26,8 @@ import traceback
 
 import numpy as np
 from lightstage_graph.errors import StageError
-from lightstage_graph.names import (CLASSIFIER_NODE, CLASSIFY_SERVICE, ILLUMINATION_TOPIC,
-                                    RESULT_TOPIC)
+from lightstage_graph.names import (CAMERA_NODE, CLASSIFIER_NODE, CLASSIFY_SERVICE,
+                                    ILLUMINATION_TOPIC, RESULT_TOPIC)
 from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
 from lightstage_graph.qos import ILLUMINATION_QOS
 from lightstage_graph.spin import init_node, spin_until_stopped
@@ -44,10 +44,11 @@ from rclpy.service_introspection import ServiceIntrospectionState
 
 from .classify_request import TIMEOUT_MAX_S, TIMEOUT_MIN_S, request_timeout_s
 from .inference import AcquisitionPlan, classify_on_stage
-from .model import ArtifactError, TrainedArtifact
+from .artifact import ArtifactError, TrainedArtifact, check_dimmer
 from .observe import SequenceObserver, TriggerState
 
 START_HINT = 'lightstage up driver camera classifier'
+CAMERA_QUERY_S = 2.0  # the camera's parameter service answers in ms when the camera is up
 
 PARAMETERS = {
     'artifact_path': ('', string(
@@ -63,6 +64,10 @@ PARAMETERS = {
     'service_introspection': (True, boolean(
         'publish the Classify calls (request and response contents) on '
         '/lightstage/classify/_service_event, so that recordings hold them', read_only=True)),
+    'camera_node': (CAMERA_NODE, string(
+        'the camera node whose dimmer is checked against the classifier\'s before each '
+        'classification (a sim camera at another dimmer would classify wrong silently)',
+        read_only=True)),
     'classify_observed': (False, boolean(
         'also classify trigger sequences seen on /illumination that light the artifact\'s first '
         'k patterns (another client\'s, or a replayed bag\'s) and publish them on '
@@ -79,9 +84,10 @@ class ClassifierNode(Node):
         self._load_artifact(self.p('artifact_path'))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._busy = threading.Lock()  # one classification at a time: they share the stage
+        self._camera_answers = True  # until a parameter query of the camera goes unanswered
         group = ReentrantCallbackGroup()
         self.stage = StageClient(self, image_buffer=self.p('image_buffer'), callback_group=group,
-                                 start_hint=START_HINT)
+                                 start_hint=START_HINT, camera_node=self.p('camera_node'))
         self._result_pub = self.create_publisher(ClassificationResult, RESULT_TOPIC, 10)
         service = self.create_service(Classify, CLASSIFY_SERVICE, self._on_classify,
                                       callback_group=group)
@@ -125,9 +131,7 @@ class ClassifierNode(Node):
 
     def _use(self, path: str, artifact: TrainedArtifact) -> None:
         self.artifact, self.artifact_error = artifact, ''
-        self.get_logger().info(f'loaded {path}: {len(artifact.class_names)} classes, '
-                               f'{artifact.mode} patterns, classifiers for {artifact.n_images} '
-                               f'images, noise {artifact.noise.get("name")}')
+        self.get_logger().info(f'loaded {path}: {artifact.describe()}')
 
     def _load_artifact(self, path: str) -> None:
         try:
@@ -162,6 +166,26 @@ class ClassifierNode(Node):
             self.observer.mark_own(stamps[0])  # lit by this call: not to be classified twice
         return stamps, sequences
 
+    def _check_camera(self, artifact: TrainedArtifact, timeout_s: float) -> None:
+        """DimmerMismatch if a sim camera renders at another dimmer than the classifier was
+        trained with (a real camera has no dimmer). A camera node that does not answer is not
+        refused here: without it the images are missed, with their own error. After one miss
+        the query waits briefly, so a camera without parameter services costs no latency."""
+        if not self._camera_answers:
+            timeout_s = min(timeout_s, 0.1)
+        settings = self.stage.camera_parameters(('backend', 'dimmer'), timeout_s)
+        if settings is None:
+            if self._camera_answers:
+                self.get_logger().warning(
+                    f'the camera node {self.p("camera_node")!r} did not answer a parameter '
+                    f'query within {timeout_s:g} s: its dimmer is not checked against the '
+                    'classifier\'s')
+            self._camera_answers = False
+            return
+        self._camera_answers = True
+        if settings.get('backend') == 'sim' and 'dimmer' in settings:
+            check_dimmer(artifact.dimmer, settings['dimmer'])
+
     # ------------------------------------------------------------------ service
     def _on_classify(self, request: Classify.Request, response: Classify.Response):
         try:
@@ -194,10 +218,11 @@ class ClassifierNode(Node):
             if remaining_s <= 0:
                 response.message = busy
                 return response
+            self._check_camera(artifact, min(CAMERA_QUERY_S, remaining_s))
             result = classify_on_stage(artifact, self._apply, self.stage.matcher,
                                        max_images=request.max_images, timeout_s=remaining_s,
                                        bit_depth=self.p('camera_bit_depth'))
-        except StageError as exc:  # InferenceError and MissingImagesError among them
+        except (StageError, ArtifactError) as exc:  # InferenceError, MissingImagesError, DimmerMismatch
             response.message = str(exc)
             self.get_logger().warning(f'classify failed: {exc}')
             return response
