@@ -57,7 +57,7 @@ class TriggerPairing:
         self._out_of_step = ''    # why pairing stopped ('' while in step)
         self._out_of_step_since = -float('inf')
         self._last_frame = -float('inf')
-        self._frame_limit_s = 1.0
+        self._frame_limit_s = 0.0   # the longest time limit of a trigger seen so far
         self.paired = 0
         self.lost = 0
         self.timeouts = 0
