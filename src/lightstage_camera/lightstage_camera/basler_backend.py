@@ -10,9 +10,10 @@ where the camera has it): the firmware holds the pin high for exactly the exposu
 `transport_layer` restricts the device search to one pylon transport layer: the tests and
 the benchmark use ``BaslerCamEmu`` (pylon's camera emulation, ``PYLON_CAMEMU=N`` cameras),
 so that no GigE discovery broadcast is sent; empty searches every layer (a real rig).
-`features` are extra ``Name=Value`` GenICam settings applied in order after the rest (e.g.
-the emulator's ``ImageFilename=/path/to/image.tiff``, ``ImageFileMode=On``,
-``TestImageSelector=Off``; a real camera's ``LineDebouncerTime=10``). No rclpy here.
+`features` are extra GenICam settings applied in order after the rest: ``Name=Value``, or a
+command ``Name`` to execute (e.g. the emulator's ``ImageFilename=/path/to/images``,
+``ImageFileMode=On``, ``TestImageSelector=Off``; a real camera's ``UserSetSelector=UserSet1``,
+``UserSetLoad``, ``LineDebouncerTime=10``). No rclpy here.
 """
 from __future__ import annotations
 
@@ -27,14 +28,16 @@ PIXEL_FORMATS = {'Mono8': 8, 'Mono10': 10, 'Mono12': 12, 'Mono16': 16}
 EMULATION_TL = 'BaslerCamEmu'
 
 
-def parse_features(features: Sequence[str]) -> list[tuple[str, str]]:
-    """``["Name=Value", ...]`` -> [(name, value)]; ValueError naming a malformed entry."""
+def parse_features(features: Sequence[str]) -> list[tuple[str, str | None]]:
+    """``["Name=Value", "Command", ...]`` -> [(name, value or None for a command to execute)];
+    ValueError naming a malformed entry."""
     out = []
     for item in features:
-        name, sep, value = str(item).partition('=')
-        if not sep or not name.strip():
-            raise ValueError(f'camera feature {item!r} is not Name=Value (e.g. ImageFileMode=On)')
-        out.append((name.strip(), value.strip()))
+        name, sep, value = (part.strip() for part in str(item).partition('='))
+        if not name.isidentifier():
+            raise ValueError(f'camera feature {item!r} is not Name=Value or a command Name (e.g. '
+                             'ImageFileMode=On, UserSetLoad)')
+        out.append((name, value if sep else None))
     return out
 
 
@@ -129,6 +132,12 @@ class BaslerBackend(TriggeredBackend):
                               f'{", ".join(symbolics)}')
         node.FromString(str(value))
 
+    def _execute(self, name: str) -> None:
+        node = self._node(name)
+        if node is None or not hasattr(node, 'Execute'):
+            raise CameraError(f'the camera has no command {name}')
+        node.Execute()
+
     def _configure(self, genicam) -> None:
         self._set('AcquisitionMode', 'Continuous', required=False)
         self._set('PixelFormat', self.pixel_format)
@@ -149,7 +158,10 @@ class BaslerBackend(TriggeredBackend):
                               'not supported)')
         for name, value in self.features:
             try:
-                self._set(name, value)
+                if value is None:
+                    self._execute(name)
+                else:
+                    self._set(name, value)
             except genicam.GenericException as exc:
                 raise CameraError(f'feature {name}={value} was refused: {exc}') from exc
 

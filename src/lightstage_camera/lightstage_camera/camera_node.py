@@ -121,8 +121,9 @@ PARAMETERS = {
                                   'empty = uncalibrated camera_info')),
     'transport_layer': ('', _text('basler: search only this pylon transport layer (BaslerCamEmu = '
                                   'the emulated cameras, no network discovery); empty = all')),
-    'camera_features': ('', _text('extra GenICam settings applied after the node\'s own, '
-                                  '"Name=Value; Name=Value" (e.g. LineDebouncerTime=10)')),
+    'camera_features': ('', _text('extra GenICam settings applied in order after the node\'s '
+                                  'own, when the camera opens: "Name=Value; Command; ..." (e.g. '
+                                  '"UserSetSelector=UserSet1; UserSetLoad; LineDebouncerTime=10")')),
     'frame_timeout_s': (1.0, ParameterDescriptor(
         type=ParameterType.PARAMETER_DOUBLE,
         description='time a trigger may wait for its frame on top of its exposure [s]; then it '

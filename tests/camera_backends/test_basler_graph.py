@@ -1,0 +1,160 @@
+"""Acceptance (issue 14) on pylon's emulated camera: the driver (Python firmware simulator)
+and the camera node with backend basler run as processes; pattern sequences fired through
+ApplyPatterns give one mono16 image per trigger, equal to the served file, stamped with its
+trigger, each with its camera_info; a failed buffer and a trigger without a frame give their
+documented errors and no mis-paired image, and the camera goes on without a restart.
+"""
+import numpy as np
+import pytest
+import yaml
+from lightstage_bringup.supervisor import Supervisor
+
+from conftest import EMULATED_SERIALS, emulator_features, write_served_images
+from lightstage_camera.frames import image_from_buffer, stamp_to_ns
+from suite_helpers import RosClient, fresh_domain_id, start_nodes, write_params
+
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network')]
+
+K = [1210.5, 0.0, 31.5, 0.0, 1208.25, 23.5, 0.0, 0.0, 1.0]
+D = [-0.12, 0.05, 0.001, -0.002, 0.0]
+P = [1190.0, 0.0, 31.0, 0.0, 0.0, 1188.0, 23.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+
+
+def write_calibration(path):
+    """camera_calibration's YAML for a 64 x 48 camera."""
+    path.write_text(yaml.safe_dump({
+        'image_width': 64, 'image_height': 48, 'camera_name': 'stage_cam',
+        'camera_matrix': {'rows': 3, 'cols': 3, 'data': K},
+        'distortion_model': 'plumb_bob',
+        'distortion_coefficients': {'rows': 1, 'cols': 5, 'data': D},
+        'rectification_matrix': {'rows': 3, 'cols': 3, 'data': [1., 0, 0, 0, 1, 0, 0, 0, 1]},
+        'projection_matrix': {'rows': 3, 'cols': 4, 'data': P}}))
+    return path
+
+
+class StageClient(RosClient):
+    def __init__(self, domain_id):
+        super().__init__(domain_id)
+        from diagnostic_msgs.msg import DiagnosticArray
+        from lightstage_camera.camera_node import CAMERA_INFO_TOPIC, IMAGE_QOS, IMAGE_TOPIC
+        from sensor_msgs.msg import CameraInfo, Image
+        self.images, self.infos, self.diagnostics = [], [], []
+        self.node.create_subscription(Image, IMAGE_TOPIC, self.images.append, IMAGE_QOS)
+        self.node.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self.infos.append, IMAGE_QOS)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append, 50)
+
+    def fire(self, n, exposure_us=2000):
+        from lightstage_interfaces.msg import Pattern
+        from lightstage_interfaces.srv import ApplyPatterns
+        rng = np.random.default_rng(n)
+        patterns = [Pattern(intensities=(rng.random(32) > 0.5).astype(np.float32),
+                            exposure_us=exposure_us, gain_db=float('nan')) for _ in range(n)]
+        response = self.call(ApplyPatterns, '/lightstage/apply_patterns',
+                             ApplyPatterns.Request(patterns=patterns, trigger=True))
+        assert response.success, response.message
+        return [stamp_to_ns(s) for s in response.trigger_stamps], list(response.sequences)
+
+    def camera_errors(self):
+        return [kv.value for msg in self.diagnostics for st in msg.status
+                if st.name.startswith('camera') for kv in st.values if kv.key == 'last_error']
+
+    def wait_camera_ready(self):
+        from diagnostic_msgs.msg import DiagnosticStatus
+
+        def ready():
+            return any(st.name.startswith('camera') and st.level == DiagnosticStatus.OK
+                       for msg in self.diagnostics[-5:] for st in msg.status)
+        self.spin_until(ready, 30.0, lambda: f'the camera to be open: {self.camera_errors()[-1:]}')
+
+
+@pytest.fixture(scope='module')
+def rig(tmp_path_factory):
+    root = tmp_path_factory.mktemp('basler_rig')
+    rng = np.random.default_rng(1414)
+    images = write_served_images(root / 'served', [rng.integers(0, 65536, (48, 64), dtype=np.uint16)
+                                                   for _ in range(4)])
+    calibration = write_calibration(root / 'stage_cam.yaml')
+    features = '; '.join(emulator_features(root / 'served'))
+    params = write_params(root / 'params.yaml', {'camera': {
+        'backend': 'basler', 'transport_layer': 'BaslerCamEmu', 'serial_number': EMULATED_SERIALS[0],
+        'trigger_source': 'Software', 'pixel_format': 'Mono16', 'frame_id': 'stage_cam',
+        'camera_info_url': f'file://{calibration}', 'camera_features': features,
+        'frame_timeout_s': 0.5, 'diagnostics_period_s': 0.2}})
+    domain_id = fresh_domain_id()
+    client = StageClient(domain_id)
+    try:
+        with Supervisor(sigint_timeout_s=5.0) as supervisor:
+            start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)
+            client.spin_until(lambda: client.subscribed_by('/illumination', 'camera'), 10.0,
+                              'the camera to subscribe /illumination')
+            client.wait_camera_ready()
+            yield client, images, features
+    finally:
+        client.close()
+
+
+def received(client, stamps):
+    by_stamp = {stamp_to_ns(m.header.stamp): m for m in client.images}
+    return [by_stamp.get(s) for s in stamps]
+
+
+def test_one_exact_mono16_image_per_trigger_with_its_camera_info(rig):
+    client, images, _ = rig
+    client.images.clear(), client.infos.clear()
+    stamps, sequences = client.fire(6)
+    client.spin_until(lambda: len(client.images) >= 6 and len(client.infos) >= 6, 30.0, 'six images')
+    client.spin_for(0.3)
+    assert len(client.images) == len(client.infos) == 6   # one per trigger, none extra
+    for i, (stamp, msg) in enumerate(zip(stamps, received(client, stamps))):
+        assert msg is not None, f'no image stamped with trigger {sequences[i]}'
+        assert (msg.encoding, msg.height, msg.width, msg.header.frame_id) == ('mono16', 48, 64, 'stage_cam')
+        image = image_from_buffer(msg.data, msg.height, msg.width, msg.step, msg.encoding, msg.is_bigendian)
+        np.testing.assert_array_equal(image, images[i % len(images)])
+    for image, info in zip(client.images, client.infos):
+        assert info.header == image.header
+        assert (info.width, info.height, info.distortion_model) == (64, 48, 'plumb_bob')
+        np.testing.assert_allclose(info.k, K)
+        np.testing.assert_allclose(info.d, D)
+        np.testing.assert_allclose(info.p, P)
+
+
+def test_a_failed_buffer_and_a_trigger_without_frame_give_their_errors_and_no_mispaired_image(rig):
+    client, images, features = rig
+    # the camera reopens with these features: its first buffer fails
+    results = client.set_parameters('camera', camera_features=features + '; ForceFailedBufferCount=1; '
+                                                                         'ForceFailedBuffer')
+    assert all(r.successful for r in results), results
+    client.wait_camera_ready()
+    client.images.clear(), client.diagnostics.clear()
+    stamps, sequences = client.fire(3)
+    client.spin_until(lambda: len(client.images) >= 2, 30.0, 'two images')
+    client.spin_for(0.5)
+    first, second, third = received(client, stamps)
+    assert first is None and len(client.images) == 2
+    assert any(f'trigger {sequences[0]} not imaged: failed buffer: The buffer was incompletely grabbed.'
+               in e for e in client.camera_errors()), client.camera_errors()
+    # the failed buffer took the first served image: triggers 2 and 3 have the 2nd and 3rd
+    for msg, expected in ((second, images[1]), (third, images[2])):
+        image = image_from_buffer(msg.data, msg.height, msg.width, msg.step, msg.encoding, msg.is_bigendian)
+        np.testing.assert_array_equal(image, expected)
+
+    # Line1 without a wire: the triggers reach no camera; each is a grab timeout, no image
+    assert all(r.successful for r in client.set_parameters('camera', camera_features=features,
+                                                           trigger_source='Line1'))
+    client.wait_camera_ready()
+    client.images.clear(), client.diagnostics.clear()
+    stamps, sequences = client.fire(2)
+    client.spin_until(lambda: any(f'trigger {sequences[1]} not imaged' in e for e in client.camera_errors()),
+                      30.0, 'the second trigger to be reported lost')
+    assert not client.images
+    errors = client.camera_errors()
+    assert any(f'trigger {sequences[0]} not imaged: no frame within' in e and 'grab timeout' in e
+               for e in errors), errors
+
+    # back to the software trigger: the camera goes on, same node, no restart
+    assert all(r.successful for r in client.set_parameters('camera', trigger_source='Software'))
+    client.wait_camera_ready()
+    client.images.clear()
+    stamps, _ = client.fire(2)
+    client.spin_until(lambda: len(client.images) >= 2, 30.0, 'two images')
+    assert all(m is not None for m in received(client, stamps))
