@@ -51,6 +51,7 @@ class TriggeredBackend(CameraBackend):
         self.last_fault = ''
         self.reopens = 0
         self.frames = 0
+        self.lost_unpaired = 0   # lost without reaching the pairing (its own count: `pairing.lost`)
         self.actual_exposure_us = math.nan
         self.actual_gain_db = math.nan
         self._frame_times: deque[float] = deque(maxlen=64)
@@ -60,7 +61,11 @@ class TriggeredBackend(CameraBackend):
         self._triggers: queue.Queue[Trigger] = queue.Queue()
         self._stop = threading.Event()
         self._opened = threading.Event()   # the first open attempt finished (either way)
-        self._thread = threading.Thread(target=self._run, name=f'{self.name}-grab', daemon=True)
+        self._emit_lock = threading.Lock()    # outcomes come from the control and grab threads
+        self._grabbing = threading.Event()
+        self._grab_thread: threading.Thread | None = None
+        self._grab_fault = ''                 # set by the grab thread, handled by the control thread
+        self._thread = threading.Thread(target=self._run, name=f'{self.name}-control', daemon=True)
         self._thread.start()
 
     # ------------------------------------------------------------------ device calls
@@ -117,7 +122,7 @@ class TriggeredBackend(CameraBackend):
         rate = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 and times[-1] > times[0] else 0.0
         temperature = self._device_temperature() if self._open else None
         values = {**self.device_info, 'trigger_source': self.trigger_source, 'frames': self.frames,
-                  'frame_rate_hz': f'{rate:.2f}', 'frames_lost': self.pairing.lost,
+                  'frame_rate_hz': f'{rate:.2f}', 'frames_lost': self.pairing.lost + self.lost_unpaired,
                   'grab_timeouts': self.pairing.timeouts, 'unclaimed_frames': self.pairing.unclaimed,
                   'exposure_us_actual': f'{self.actual_exposure_us:.1f}',
                   'gain_db_actual': f'{self.actual_gain_db:.3f}', 'reopens': self.reopens,
@@ -140,12 +145,22 @@ class TriggeredBackend(CameraBackend):
     def _gain_of(self, trigger: Trigger) -> float:
         return self.gain_db if not math.isfinite(trigger.gain_db) else float(trigger.gain_db)
 
+    def _lose(self, trigger: Trigger, reason: str) -> None:
+        """A trigger lost before it reached the pairing (camera closed, refused, not ready)."""
+        with self._emit_lock:
+            self.lost_unpaired += 1
+            self._lost(LostFrame(trigger, reason))
+
     def _emit(self, outcomes) -> None:
+        with self._emit_lock:
+            self._emit_locked(outcomes)
+
+    def _emit_locked(self, outcomes) -> None:
         for outcome in outcomes:
             if isinstance(outcome, Frame):
                 reason = self._mismatched.pop(outcome.trigger.sequence, None)
                 if reason is not None:
-                    self.pairing.lost += 1
+                    self.lost_unpaired += 1
                     self._lost(LostFrame(outcome.trigger, reason))
                     continue
                 self.frames += 1
@@ -159,6 +174,7 @@ class TriggeredBackend(CameraBackend):
                 self._lost(outcome)
 
     def _run(self) -> None:
+        """The control thread: opens (and reopens) the camera, handles triggers in order."""
         next_open = 0.0
         while not self._stop.is_set():
             if not self._open:
@@ -170,42 +186,64 @@ class TriggeredBackend(CameraBackend):
                 if not self._open:
                     self._stop.wait(0.02)
                 continue
+            if self._grab_fault:
+                self._fault(self._grab_fault)
+                continue
             try:
-                while True:
-                    try:
-                        trigger = self._triggers.get_nowait()
-                    except queue.Empty:
-                        break
-                    self._handle_trigger(trigger)
-                grabbed = self._device_retrieve(0.01)
-                if grabbed is not None:
-                    self._emit(self.pairing.add_frame(grabbed))
-                self._emit(self.pairing.expire())
-            except CameraError as exc:
-                self._fault(str(exc))
+                trigger = self._triggers.get(timeout=0.02)
+            except queue.Empty:
+                continue
+            try:
+                self._handle_trigger(trigger)
             except Exception as exc:  # noqa: BLE001 - a device error of any kind is a fault
-                self._fault(f'{type(exc).__name__}: {exc}')
+                self._fault(str(exc) if isinstance(exc, CameraError) else f'{type(exc).__name__}: {exc}')
+        self._stop_grabbing()
         self._lose_queued('camera backend closed')
         self._emit(self.pairing.fail_all('camera backend closed'))
         if self._open:
             self._safe_close()
 
+    def _grab(self) -> None:
+        """The grab thread (one per opening): frames in, paired; triggers past their limit lost.
+        Separate from the control thread, so that waiting for trigger-ready never keeps the
+        camera's buffers from being emptied."""
+        while self._grabbing.is_set():
+            try:
+                grabbed = self._device_retrieve(0.02)
+                if grabbed is not None:
+                    self._emit(self.pairing.add_frame(grabbed))
+                self._emit(self.pairing.expire())
+            except Exception as exc:  # noqa: BLE001 - a device error of any kind is a fault
+                self._grab_fault = str(exc) if isinstance(exc, CameraError) else f'{type(exc).__name__}: {exc}'
+                return
+
+    def _stop_grabbing(self) -> None:
+        self._grabbing.clear()
+        if self._grab_thread is not None:
+            self._grab_thread.join(timeout=10.0)
+            self._grab_thread = None
+
     def _try_open(self) -> None:
         try:
             self.device_info = self._device_open()
+            self.actual_exposure_us, self.actual_gain_db = self._device_apply(self.exposure_us, self.gain_db)
         except Exception as exc:  # noqa: BLE001 - any failure to open is reported the same way
             self.error = str(exc) if isinstance(exc, CameraError) else f'{type(exc).__name__}: {exc}'
+            self._safe_close()
             return
-        self.actual_exposure_us, self.actual_gain_db = self._device_apply(self.exposure_us, self.gain_db)
         if self.error:
             self.reopens += 1
-        self._open, self.error = True, ''
+        self._open, self.error, self._grab_fault = True, '', ''
+        self._grabbing.set()
+        self._grab_thread = threading.Thread(target=self._grab, name=f'{self.name}-grab', daemon=True)
+        self._grab_thread.start()
 
     def _fault(self, reason: str) -> None:
+        self._stop_grabbing()
         self.last_fault = reason
-        self._emit(self.pairing.fail_all(f'camera fault: {reason}'))
-        self._safe_close()
         self._open, self.error = False, f'{reason}; reopening every {self.reopen_period_s:g} s'
+        self._safe_close()
+        self._emit(self.pairing.fail_all(f'camera fault: {reason}'))
 
     def _safe_close(self) -> None:
         try:
@@ -219,8 +257,7 @@ class TriggeredBackend(CameraBackend):
                 trigger = self._triggers.get_nowait()
             except queue.Empty:
                 return
-            self._lost(LostFrame(trigger, reason))
-            self.pairing.lost += 1
+            self._lose(trigger, reason)
 
     def _handle_trigger(self, trigger: Trigger) -> None:
         exposure, gain = self._exposure_of(trigger), self._gain_of(trigger)
@@ -228,13 +265,11 @@ class TriggeredBackend(CameraBackend):
             try:
                 self.actual_exposure_us, self.actual_gain_db = self._device_apply(exposure, gain)
             except ValueError as exc:
-                self._lost(LostFrame(trigger, f'the camera cannot take this trigger\'s settings: {exc}'))
-                self.pairing.lost += 1
+                self._lose(trigger, f'the camera cannot take this trigger\'s settings: {exc}')
                 return
             if not self._device_wait_ready(self._time_limit_s(trigger)):
-                self._lost(LostFrame(trigger, 'the camera was not ready for the trigger within '
-                                              f'{self._time_limit_s(trigger):.3g} s'))
-                self.pairing.lost += 1
+                self._lose(trigger, 'the camera was not ready for the trigger within '
+                                    f'{self._time_limit_s(trigger):.3g} s')
                 return
             self._taken_with[trigger.sequence] = (self.actual_exposure_us, self.actual_gain_db)
             self._emit(self.pairing.add_trigger(trigger))
