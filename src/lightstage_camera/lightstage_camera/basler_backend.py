@@ -21,32 +21,10 @@ import os
 from typing import Callable, Sequence
 
 from .camera_backend import CameraError, Frame, LostFrame, to_mono16
-from .triggered_backend import SOFTWARE, TriggeredBackend
+from .triggered_backend import SOFTWARE, TriggeredBackend, check_pixel_format, parse_features
 from .trigger_pairing import GrabbedFrame
 
-PIXEL_FORMATS = {'Mono8': 8, 'Mono10': 10, 'Mono12': 12, 'Mono16': 16}
 EMULATION_TL = 'BaslerCamEmu'
-
-
-def parse_features(features: Sequence[str]) -> list[tuple[str, str | None]]:
-    """``["Name=Value", "Command", ...]`` -> [(name, value or None for a command to execute)];
-    ValueError naming a malformed entry."""
-    out = []
-    for item in features:
-        name, sep, value = (part.strip() for part in str(item).partition('='))
-        if not name.isidentifier():
-            raise ValueError(f'camera feature {item!r} is not Name=Value or a command Name (e.g. '
-                             'ImageFileMode=On, UserSetLoad)')
-        out.append((name, value if sep else None))
-    return out
-
-
-def check_pixel_format(pixel_format: str) -> int:
-    """Bit depth of a supported pixel format; ValueError naming the supported ones."""
-    if pixel_format not in PIXEL_FORMATS:
-        raise ValueError(f'pixel format {pixel_format!r} is not supported; use one of '
-                         f'{", ".join(PIXEL_FORMATS)} (published as mono16, MSB-aligned)')
-    return PIXEL_FORMATS[pixel_format]
 
 
 def _pylon():

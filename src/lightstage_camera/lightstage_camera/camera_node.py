@@ -39,6 +39,7 @@ from .frames import stamp_to_ns
 from .noise import PAPER_CALIBRATION, NoiseModel, load_noise_file
 from .sim_camera import NOISE_CHOICES, SimCameraBackend, parse_noise, resolve_sample
 from .spinning import spin_until_stopped
+from .triggered_backend import PIXEL_FORMATS, parse_features
 
 NODE_NAME = 'camera'
 IMAGE_TOPIC = '/image_raw'
@@ -46,7 +47,6 @@ ILLUMINATION_TOPIC = '/illumination'
 CAMERA_INFO_TOPIC = IMAGE_TOPIC.rpartition('/')[0] + '/camera_info'  # beside the image topic
 BACKENDS = ('sim', 'basler', 'aravis')
 TRIGGER_SOURCES = ('Line1', 'Line2', 'Line3', 'Line4', 'Software')
-PIXEL_FORMATS = ('Mono8', 'Mono10', 'Mono12', 'Mono16')
 
 # Reliable, keep-last 32 (not SensorData's best-effort depth 5): the classifier needs every
 # frame of a trigger sequence and matches them by stamp, so a dropped frame is a failed
@@ -348,7 +348,6 @@ class CameraNode(Node):
             if s['trigger_source'] not in TRIGGER_SOURCES or s['pixel_format'] not in PIXEL_FORMATS:
                 raise ValueError(f'trigger_source must be one of {", ".join(TRIGGER_SOURCES)} and '
                                  f'pixel_format one of {", ".join(PIXEL_FORMATS)}')
-            from .basler_backend import parse_features
             parse_features(split_features(s['camera_features']))
         except ValueError as exc:
             return SetParametersResult(successful=False, reason=str(exc))

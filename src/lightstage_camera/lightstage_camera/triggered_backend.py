@@ -22,13 +22,35 @@ import queue
 import threading
 import time
 from collections import deque
-from typing import Callable
+from typing import Callable, Sequence
 
 from .camera_backend import BackendStatus, CameraBackend, CameraError, Frame, LostFrame, Trigger
 from .trigger_pairing import GrabbedFrame, TriggerPairing
 
 SOFTWARE = 'Software'
 GAIN_TOLERANCE_DB = 0.05   # cameras quantise gain; closer than this counts as "the same"
+PIXEL_FORMATS = {'Mono8': 8, 'Mono10': 10, 'Mono12': 12, 'Mono16': 16}
+
+
+def parse_features(features: Sequence[str]) -> list[tuple[str, str | None]]:
+    """``["Name=Value", "Command", ...]`` -> [(name, value or None for a command to execute)];
+    ValueError naming a malformed entry."""
+    out = []
+    for item in features:
+        name, sep, value = (part.strip() for part in str(item).partition('='))
+        if not name.isidentifier():
+            raise ValueError(f'camera feature {item!r} is not Name=Value or a command Name (e.g. '
+                             'ImageFileMode=On, UserSetLoad)')
+        out.append((name, value if sep else None))
+    return out
+
+
+def check_pixel_format(pixel_format: str) -> int:
+    """Bit depth of a supported pixel format; ValueError naming the supported ones."""
+    if pixel_format not in PIXEL_FORMATS:
+        raise ValueError(f'pixel format {pixel_format!r} is not supported; use one of '
+                         f'{", ".join(PIXEL_FORMATS)} (published as mono16, MSB-aligned)')
+    return PIXEL_FORMATS[pixel_format]
 
 
 class TriggeredBackend(CameraBackend):
