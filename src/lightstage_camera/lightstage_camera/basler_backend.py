@@ -124,6 +124,8 @@ class BaslerBackend(TriggeredBackend):
         self._set('TriggerSelector', 'FrameStart')
         self._set('TriggerMode', 'On')
         self._set('TriggerSource', self.trigger_source)
+        if self.trigger_source != SOFTWARE:
+            self._set('TriggerActivation', 'RisingEdge', required=False)  # the firmware pulses high
         mode = self._node('ExposureMode')
         self._by_pulse = (self.trigger_source != SOFTWARE and mode is not None
                           and 'TriggerWidth' in mode.GetSymbolics())
