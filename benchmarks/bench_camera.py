@@ -75,7 +75,8 @@ def measure(backend, timed, n_triggers, burst, exposure_us):
     elapsed = max(timed.done[s] for s in range(first, first + burst)) - start
     ms = np.asarray(latencies) * 1e3
     return {'latency_ms_p50': float(np.percentile(ms, 50)), 'latency_ms_p99': float(np.percentile(ms, 99)),
-            'frames_per_s': burst / elapsed, 'lost': len(timed.lost)}
+            'frames_per_s': burst / elapsed, 'lost': len(timed.lost),
+            'lost_reasons': sorted({lost.reason for lost in timed.lost})}
 
 
 def bench_basler(width, height, n_triggers, burst, exposure_us):
@@ -144,6 +145,9 @@ def main(argv=None) -> int:
     for r in results:
         print(f'{r["backend"]:<20}{r["size"]:>11}{r["latency_ms_p50"]:>9.2f}{r["latency_ms_p99"]:>9.2f}'
               f'{r["frames_per_s"]:>10.1f}{r["lost"]:>6}')
+    for r in results:
+        for reason in r['lost_reasons']:
+            print(f'lost ({r["backend"]} {r["size"]}): {reason}')
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2))
     return 0
