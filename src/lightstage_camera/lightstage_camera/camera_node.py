@@ -66,6 +66,12 @@ def _text(description: str, *, read_only: bool = False, constraints: str = '',
                                dynamic_typing=dynamic)
 
 
+def _double(description: str, lo: float, hi: float, *, read_only: bool = False) -> ParameterDescriptor:
+    return ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE, description=description,
+                               read_only=read_only,
+                               floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])
+
+
 PARAMETERS = {
     'backend': ('sim', _text('camera backend: sim renders the sample on the stage from a capture '
                              'folder; basler (pypylon) and aravis (GenICam: GigE Vision, USB3 '
@@ -86,14 +92,10 @@ PARAMETERS = {
                                      description='noise seed; -1 = fresh entropy',
                                      integer_range=[IntegerRange(from_value=-1, to_value=2**31 - 1, step=1)])),
     'frame_id': ('camera', _text('frame_id of the published images')),
-    'dimmer': (0.45, ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE,
-                                         description='scale of the single-LED images before '
-                                                     'multiplexing (the authors\' 0.45)',
-                                         floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)])),
-    'default_gain_db': (15.0, ParameterDescriptor(
-        type=ParameterType.PARAMETER_DOUBLE,
-        description='gain [dB] for triggers that ask for the camera default (gain_db NaN)',
-        floating_point_range=[FloatingPointRange(from_value=0.0, to_value=48.0)])),
+    'dimmer': (0.45, _double('scale of the single-LED images before multiplexing (the authors\' '
+                             '0.45)', 0.001, 10.0)),
+    'default_gain_db': (15.0, _double('gain [dB] for triggers that ask for the camera default '
+                                      '(gain_db NaN)', 0.0, 48.0)),
     # ---- real cameras (basler, aravis)
     'serial_number': ('', _text('camera to open: basler: serial number; aravis: device id, serial '
                                 'or IP address (opened by address: no discovery); empty = the '
@@ -106,16 +108,12 @@ PARAMETERS = {
     'pixel_format': ('Mono10', _text('PixelFormat; published as mono16 MSB-aligned (10-bit v -> '
                                      'v << 6), the bit depth is on /diagnostics',
                                      constraints='one of: ' + ', '.join(PIXEL_FORMATS))),
-    'exposure_us': (30000.0, ParameterDescriptor(
-        type=ParameterType.PARAMETER_DOUBLE,
-        description='exposure [us] for triggers that carry none; the camera\'s value is read '
-                    'back and reported as exposure_us_actual on /diagnostics',
-        floating_point_range=[FloatingPointRange(from_value=1.0, to_value=10_000_000.0)])),
-    'gain_db': (15.0, ParameterDescriptor(
-        type=ParameterType.PARAMETER_DOUBLE,
-        description='gain [dB] for triggers that ask for the camera default (gain_db NaN); read '
-                    'back and reported as gain_db_actual on /diagnostics',
-        floating_point_range=[FloatingPointRange(from_value=0.0, to_value=48.0)])),
+    'exposure_us': (30000.0, _double('exposure [us] for triggers that carry none; the camera\'s '
+                                     'value is read back and reported as exposure_us_actual on '
+                                     '/diagnostics', 1.0, 10_000_000.0)),
+    'gain_db': (15.0, _double('gain [dB] for triggers that ask for the camera default (gain_db '
+                              'NaN); read back and reported as gain_db_actual on /diagnostics',
+                              0.0, 48.0)),
     'camera_info_url': ('', _text('camera calibration (the YAML camera_calibration writes): '
                                   'file:///path/camera.yaml, a path or package://pkg/path; '
                                   'empty = uncalibrated camera_info')),
@@ -124,19 +122,12 @@ PARAMETERS = {
     'camera_features': ('', _text('extra GenICam settings applied in order after the node\'s '
                                   'own, when the camera opens: "Name=Value; Command; ..." (e.g. '
                                   '"UserSetSelector=UserSet1; UserSetLoad; LineDebouncerTime=10")')),
-    'frame_timeout_s': (1.0, ParameterDescriptor(
-        type=ParameterType.PARAMETER_DOUBLE,
-        description='time a trigger may wait for its frame on top of its exposure [s]; then it '
-                    'is reported lost (grab timeout)',
-        floating_point_range=[FloatingPointRange(from_value=0.01, to_value=60.0)])),
-    'reopen_period_s': (1.0, ParameterDescriptor(
-        type=ParameterType.PARAMETER_DOUBLE,
-        description='while the camera is missing or after a fault: time between attempts to '
-                    'open it [s]',
-        floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)])),
-    'diagnostics_period_s': (1.0, ParameterDescriptor(
-        type=ParameterType.PARAMETER_DOUBLE, description='/diagnostics period [s]', read_only=True,
-        floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)])),
+    'frame_timeout_s': (1.0, _double('time a trigger may wait for its frame on top of its '
+                                     'exposure [s]; then it is reported lost (grab timeout)',
+                                     0.01, 60.0)),
+    'reopen_period_s': (1.0, _double('while the camera is missing or after a fault: time between '
+                                     'attempts to open it [s]', 0.1, 60.0)),
+    'diagnostics_period_s': (1.0, _double('/diagnostics period [s]', 0.1, 60.0, read_only=True)),
 }
 BACKEND_SETTINGS = ('capture_dir', 'sample', 'noise', 'noise_file', 'seed', 'dimmer',
                     'default_gain_db')
@@ -272,9 +263,11 @@ class CameraNode(Node):
         self.error = ''
         if self.real_camera:
             opened = self.backend.wait_open(10.0)
-            health = self.backend.status()
-            log = self.get_logger().info if opened else self.get_logger().error
-            log(f'{self.p("backend")} camera: {health.message}')
+            text = f'{self.p("backend")} camera: {self.backend.status().message}'
+            if opened:
+                self.get_logger().info(text)
+            else:
+                self.get_logger().error(text)
             return
         cam = self.backend.camera
         self.get_logger().info(
