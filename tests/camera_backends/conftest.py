@@ -12,30 +12,19 @@ import os
 import numpy as np
 import pytest
 
+from emulated_cameras import write_served_images
 from suite_helpers import network_interfaces
 
-os.environ['PYLON_CAMEMU'] = '2'   # two emulated cameras: 0815-0000 and 0815-0001
-EMULATED_SERIALS = ('0815-0000', '0815-0001')
+os.environ['PYLON_CAMEMU'] = '2'   # two emulated cameras: EMULATED_SERIALS
 
 
-@pytest.fixture
+@pytest.fixture(scope='session')
 def private_network():
     interfaces = network_interfaces()
     if interfaces != ['lo']:
         pytest.fail(f'this test enumerates cameras, which broadcasts discovery packets on every '
                     f'interface; it runs only in a private network namespace with loopback alone '
                     f'(here: {", ".join(interfaces)}). Run it through scripts/run_tests.sh (as root).')
-
-
-def write_served_images(folder, images) -> list:
-    """16-bit TIFFs (pylon's own writer) that the emulator serves in sorted order, cycling."""
-    from pypylon import pylon
-    folder.mkdir(parents=True, exist_ok=True)
-    for i, image in enumerate(images):
-        pim = pylon.PylonImage()
-        pim.AttachArray(np.ascontiguousarray(image, np.uint16), pylon.PixelType_Mono16)
-        pim.Save(pylon.ImageFileFormat_Tiff, str(folder / f'{i:03d}.tiff'))
-    return images
 
 
 @pytest.fixture
@@ -46,8 +35,3 @@ def served_images(tmp_path):
     folder = tmp_path / 'served'
     write_served_images(folder, images)
     return folder, images
-
-
-def emulator_features(folder) -> list[str]:
-    """The emulator's image-file feature: serve the files in `folder`, no test pattern."""
-    return [f'ImageFilename={folder}', 'ImageFileMode=On', 'TestImageSelector=Off']

@@ -12,11 +12,12 @@ import time
 import numpy as np
 import pytest
 from lightstage_bringup.supervisor import Supervisor
-
 from lightstage_camera.aravis_backend import AravisBackend, FrameIdCounter
 from lightstage_camera.camera_backend import Trigger
 from lightstage_camera.frames import image_from_buffer, stamp_to_ns
-from suite_helpers import RosClient, fresh_domain_id, start_nodes, write_params
+
+from emulated_cameras import CameraGraphClient
+from suite_helpers import fresh_domain_id, start_nodes, write_params
 
 ADDRESS, SERIAL = '127.0.0.1', 'FAKE-LS-0001'
 SIZE = (48, 64)
@@ -29,12 +30,8 @@ def fake_image(frame_id: int) -> np.ndarray:
 
 
 @pytest.fixture(scope='module')
-def fake_camera():
+def fake_camera(private_network):
     """One GigE Vision fake camera for the module (its UDP port 3956 is fixed)."""
-    from suite_helpers import network_interfaces
-    if network_interfaces() != ['lo']:
-        pytest.fail('the Aravis tests run only in a private network namespace with loopback alone '
-                    '(GigE Vision discovery broadcasts); run them through scripts/run_tests.sh')
     import gi
     gi.require_version('Aravis', '0.8')
     from gi.repository import Aravis
@@ -94,32 +91,24 @@ def test_a_pattern_sequence_through_the_driver_gives_one_image_per_trigger(fake_
     params = write_params(tmp_path / 'params.yaml', {'camera': {
         'backend': 'aravis', 'serial_number': ADDRESS, 'trigger_source': 'Software',
         'pixel_format': 'Mono16', 'exposure_us': 10000.0, 'gain_db': 0.0,
-        'camera_features': '; '.join(FEATURES), 'frame_timeout_s': 2.0}})
+        'camera_features': '; '.join(FEATURES), 'frame_timeout_s': 2.0, 'diagnostics_period_s': 0.2}})
     domain_id = fresh_domain_id()
-    client = RosClient(domain_id)
-    from lightstage_camera.camera_node import CAMERA_INFO_TOPIC, IMAGE_QOS, IMAGE_TOPIC
-    from lightstage_interfaces.msg import Pattern
-    from lightstage_interfaces.srv import ApplyPatterns
-    from sensor_msgs.msg import CameraInfo, Image
-    images, infos = [], []
-    client.node.create_subscription(Image, IMAGE_TOPIC, images.append, IMAGE_QOS)
-    client.node.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, infos.append, IMAGE_QOS)
+    client = CameraGraphClient(domain_id)
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
             start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)
             client.spin_until(lambda: client.subscribed_by('/illumination', 'camera'), 10.0,
                               'the camera to subscribe /illumination')
-            patterns = [Pattern(intensities=np.full(32, 0.5, np.float32), exposure_us=10000,
-                                gain_db=0.0) for _ in range(5)]
-            response = client.call(ApplyPatterns, '/lightstage/apply_patterns',
-                                   ApplyPatterns.Request(patterns=patterns, trigger=True))
-            assert response.success, response.message
-            client.spin_until(lambda: len(images) >= 5 and len(infos) >= 5, 30.0, 'five images')
+            client.wait_camera_ready()
+            stamps, _ = client.fire(5, exposure_us=10000)
+            client.spin_until(lambda: len(client.images) >= 5 and len(client.infos) >= 5, 30.0,
+                              lambda: f'five images; camera errors: {client.camera_errors()[-3:]}')
             client.spin_for(0.3)
     finally:
         client.close()
+    images, infos = client.images, client.infos
     assert len(images) == len(infos) == 5
-    assert [stamp_to_ns(m.header.stamp) for m in images] == [stamp_to_ns(s) for s in response.trigger_stamps]
+    assert [stamp_to_ns(m.header.stamp) for m in images] == stamps
     decoded = [image_from_buffer(m.data, m.height, m.width, m.step, m.encoding, m.is_bigendian)
                for m in images]
     first = next(i for i in range(255) if np.array_equal(decoded[0], fake_image(i)))

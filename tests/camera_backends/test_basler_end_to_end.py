@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from conftest import EMULATED_SERIALS, emulator_features, write_served_images
+from emulated_cameras import EMULATED_SERIALS, emulator_features, write_served_images
 from lightstage_camera.capture_format import load_capture
 from lightstage_camera.noise import load_noise_file
 from lightstage_camera.sim_camera import SimCamera, encode_mono16

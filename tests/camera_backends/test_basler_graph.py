@@ -9,9 +9,9 @@ import pytest
 import yaml
 from lightstage_bringup.supervisor import Supervisor
 
-from conftest import EMULATED_SERIALS, emulator_features, write_served_images
+from emulated_cameras import CameraGraphClient, EMULATED_SERIALS, emulator_features, write_served_images
 from lightstage_camera.frames import image_from_buffer, stamp_to_ns
-from suite_helpers import RosClient, fresh_domain_id, start_nodes, write_params
+from suite_helpers import fresh_domain_id, start_nodes, write_params
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network')]
 
@@ -32,41 +32,6 @@ def write_calibration(path):
     return path
 
 
-class StageClient(RosClient):
-    def __init__(self, domain_id):
-        super().__init__(domain_id)
-        from diagnostic_msgs.msg import DiagnosticArray
-        from lightstage_camera.camera_node import CAMERA_INFO_TOPIC, IMAGE_QOS, IMAGE_TOPIC
-        from sensor_msgs.msg import CameraInfo, Image
-        self.images, self.infos, self.diagnostics = [], [], []
-        self.node.create_subscription(Image, IMAGE_TOPIC, self.images.append, IMAGE_QOS)
-        self.node.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self.infos.append, IMAGE_QOS)
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append, 50)
-
-    def fire(self, n, exposure_us=2000):
-        from lightstage_interfaces.msg import Pattern
-        from lightstage_interfaces.srv import ApplyPatterns
-        rng = np.random.default_rng(n)
-        patterns = [Pattern(intensities=(rng.random(32) > 0.5).astype(np.float32),
-                            exposure_us=exposure_us, gain_db=float('nan')) for _ in range(n)]
-        response = self.call(ApplyPatterns, '/lightstage/apply_patterns',
-                             ApplyPatterns.Request(patterns=patterns, trigger=True))
-        assert response.success, response.message
-        return [stamp_to_ns(s) for s in response.trigger_stamps], list(response.sequences)
-
-    def camera_errors(self):
-        return [kv.value for msg in self.diagnostics for st in msg.status
-                if st.name.startswith('camera') for kv in st.values if kv.key == 'last_error']
-
-    def wait_camera_ready(self):
-        from diagnostic_msgs.msg import DiagnosticStatus
-
-        def ready():
-            return any(st.name.startswith('camera') and st.level == DiagnosticStatus.OK
-                       for msg in self.diagnostics[-5:] for st in msg.status)
-        self.spin_until(ready, 30.0, lambda: f'the camera to be open: {self.camera_errors()[-1:]}')
-
-
 @pytest.fixture(scope='module')
 def rig(tmp_path_factory):
     root = tmp_path_factory.mktemp('basler_rig')
@@ -81,7 +46,7 @@ def rig(tmp_path_factory):
         'camera_info_url': f'file://{calibration}', 'camera_features': features,
         'frame_timeout_s': 0.5, 'diagnostics_period_s': 0.2}})
     domain_id = fresh_domain_id()
-    client = StageClient(domain_id)
+    client = CameraGraphClient(domain_id)
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
             start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)
