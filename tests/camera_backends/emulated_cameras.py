@@ -1,11 +1,16 @@
 """Shared by the tests of this directory: the emulated cameras' serials and served files, and
 the ROS client of the graph tests."""
 import numpy as np
+import pytest
 
 from lightstage_camera.frames import stamp_to_ns
 from suite_helpers import RosClient
 
 EMULATED_SERIALS = ('0815-0000', '0815-0001')   # PYLON_CAMEMU=2, set in conftest.py
+# pylon runs a POSIX timer that signals SIGALRM to a handler it installs when a camera opens;
+# pytest-timeout's signal method restores the handler it found before the test (none) after
+# it, and pylon's next alarm then kills the run. The thread method leaves signals alone.
+PYLON_TIMEOUT = pytest.mark.timeout(300, method='thread')
 
 
 def write_served_images(folder, images) -> list:

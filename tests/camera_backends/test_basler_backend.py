@@ -8,11 +8,11 @@ import time
 import numpy as np
 import pytest
 
-from emulated_cameras import EMULATED_SERIALS, emulator_features
+from emulated_cameras import EMULATED_SERIALS, PYLON_TIMEOUT, emulator_features
 from lightstage_camera.basler_backend import BaslerBackend
 from lightstage_camera.camera_backend import CameraError, Trigger
 
-pytestmark = pytest.mark.usefixtures('private_network')
+pytestmark = [pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
 
 
 class Collected:
@@ -184,3 +184,38 @@ def test_after_a_removal_the_waiting_triggers_are_lost_and_the_camera_is_reopene
     while not b.status().ok and time.monotonic() < end:
         time.sleep(0.01)
     assert b.status().ok and b.reopens == 1 and 'removed' in b.status().values['last_fault']
+
+
+def test_hardware_triggered_frames_pair_with_triggers_announced_after_them(backends, served_images):
+    """Line1 as on the stage; TriggerSoftware stands in for the wire (the emulator fires on it
+    whatever the source). Frames come before the driver's announcements; a frame taken at
+    another gain than its trigger asked for is not delivered as that trigger's."""
+    folder, images = served_images
+    got = Collected()
+    backends.append(b := make(got, features=emulator_features(folder), trigger_source='Line1',
+                              gain_db=6.0))
+    assert b.wait_open(10.0)
+
+    def pulse():
+        assert b._camera.WaitForFrameTriggerReady(2000, 0)   # TimeoutHandling_Return
+        b._camera.TriggerSoftware.Execute()
+
+    for _ in range(3):
+        pulse()
+    end = time.monotonic() + 10
+    while b.pairing.unclaimed == 0 and len(b.pairing._early) < 3 and time.monotonic() < end:
+        time.sleep(0.005)
+    for seq in range(3):   # NaN: the node's gain (6 dB), which the camera has
+        b.trigger(trigger(seq, exposure_us=2000, gain_db=float('nan')))
+    assert got.wait(3) == 3 and not got.lost, (got.lost, b.pairing.unclaimed, len(got.frames))
+    for i, f in enumerate(got.frames):
+        assert f.trigger.sequence == i
+        np.testing.assert_array_equal(f.image, images[i])
+        assert f.info['gain_db'] == pytest.approx(6.0, abs=0.01)
+    pulse()
+    b.trigger(trigger(3, gain_db=12.0))   # the pulse was taken at 6 dB
+    assert got.wait(4) == 4
+    (lost,) = got.lost
+    assert lost.trigger.sequence == 3
+    assert lost.reason.startswith('the frame was taken at 6.00 dB, the trigger asked for 12.00 dB')
+    assert b.actual_gain_db == pytest.approx(12.0, abs=0.01)   # set for the next triggers

@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from emulated_cameras import EMULATED_SERIALS, emulator_features, write_served_images
+from emulated_cameras import (EMULATED_SERIALS, PYLON_TIMEOUT, emulator_features,
+                              write_served_images)
 from lightstage_camera.capture_format import load_capture
 from lightstage_camera.noise import load_noise_file
 from lightstage_camera.sim_camera import SimCamera, encode_mono16
 from suite_helpers import RosClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
-pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network')]
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
 
 SAMPLE = 'orange-real/s1/p02'
 

@@ -9,11 +9,12 @@ import pytest
 import yaml
 from lightstage_bringup.supervisor import Supervisor
 
-from emulated_cameras import CameraGraphClient, EMULATED_SERIALS, emulator_features, write_served_images
+from emulated_cameras import (PYLON_TIMEOUT, CameraGraphClient, EMULATED_SERIALS, emulator_features,
+                              write_served_images)
 from lightstage_camera.frames import image_from_buffer, stamp_to_ns
 from suite_helpers import fresh_domain_id, start_nodes, write_params
 
-pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network')]
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
 
 K = [1210.5, 0.0, 31.5, 0.0, 1208.25, 23.5, 0.0, 0.0, 1.0]
 D = [-0.12, 0.05, 0.001, -0.002, 0.0]

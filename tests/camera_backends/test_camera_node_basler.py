@@ -3,9 +3,10 @@ at run time, camera_info_url checks (emulated camera, emulation transport layer 
 
 import pytest
 
+from emulated_cameras import PYLON_TIMEOUT
 from suite_helpers import fresh_domain_id
 
-pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network')]
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
 
 
 @pytest.fixture

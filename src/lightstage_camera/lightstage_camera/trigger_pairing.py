@@ -43,11 +43,15 @@ class TriggerPairing:
     """Frames and triggers in, `Frame` / `LostFrame` outcomes out (thread-safe).
 
     `timeout_s(trigger)` is the time a trigger may wait for its frame (its exposure plus
-    readout and transfer). `clock` returns seconds (monotonic).
+    readout and transfer); `early_limit_s` the time a frame may wait for its trigger to be
+    announced (a hardware-triggered frame can come before the driver's message). `clock`
+    returns seconds (monotonic).
     """
 
-    def __init__(self, timeout_s: Callable[[Trigger], float], clock: Callable[[], float] = time.monotonic):
+    def __init__(self, timeout_s: Callable[[Trigger], float], early_limit_s: float = 1.0,
+                 clock: Callable[[], float] = time.monotonic):
         self.timeout_s = timeout_s
+        self.early_limit_s = float(early_limit_s)
         self.clock = clock
         self._lock = threading.Lock()
         self._pending: deque[tuple[Trigger, float]] = deque()    # triggers waiting for a frame
@@ -131,7 +135,7 @@ class TriggerPairing:
                     while self._pending:
                         other, _ = self._pending.popleft()
                         out.append(self._lose(other, f'camera out of step ({self._out_of_step})'))
-            while self._early and now - self._early[0][1] > self._frame_limit_s:
+            while self._early and now - self._early[0][1] > max(self.early_limit_s, self._frame_limit_s):
                 self._early.popleft()
                 self.unclaimed += 1
         return out

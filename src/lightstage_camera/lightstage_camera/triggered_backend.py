@@ -67,7 +67,7 @@ class TriggeredBackend(CameraBackend):
         self.gain_db = float(gain_db)           # for triggers that ask for the default (NaN)
         self.frame_timeout_s = float(frame_timeout_s)
         self.reopen_period_s = float(reopen_period_s)
-        self.pairing = TriggerPairing(self._time_limit_s)
+        self.pairing = TriggerPairing(self._time_limit_s, early_limit_s=self.frame_timeout_s)
         self.device_info: dict = {}
         self.error = ''                   # why the camera is not open ('' while it is)
         self.last_fault = ''
@@ -299,15 +299,17 @@ class TriggeredBackend(CameraBackend):
             return
         # hardware trigger: the frame was (or is being) taken when the pin pulsed, with the
         # settings the camera had then; one taken with other settings is not the frame asked for
+        by_pulse = self._device_exposure_by_pulse()
         wrong_gain = abs(gain - self.actual_gain_db) > GAIN_TOLERANCE_DB
-        wrong_exposure = (not self._device_exposure_by_pulse()
-                          and abs(exposure - self.actual_exposure_us) > max(1.0, 1e-3 * exposure))
+        wrong_exposure = not by_pulse and abs(exposure - self.actual_exposure_us) > max(1.0, 1e-3 * exposure)
         if wrong_gain or wrong_exposure:
-            taken = f'{self.actual_exposure_us:.0f} us, {self.actual_gain_db:.2f} dB'
+            taken, asked = f'{self.actual_gain_db:.2f} dB', f'{gain:.2f} dB'
+            if not by_pulse:   # with TriggerWidth the pulse is the exposure: always the asked one
+                taken, asked = f'{taken}, {self.actual_exposure_us:.0f} us', f'{asked}, {exposure:.0f} us'
             self._mismatched[trigger.sequence] = (
-                f'the frame was taken at {taken}, the trigger asked for {exposure:.0f} us, '
-                f'{gain:.2f} dB (a hardware-triggered camera is set when the trigger is announced, '
-                'after it fired); the camera has them now for the next triggers')
+                f'the frame was taken at {taken}, the trigger asked for {asked} (a '
+                'hardware-triggered camera is set when the trigger is announced, after it fired); '
+                'the camera has them now for the next triggers')
         else:
             self._taken_with[trigger.sequence] = (self.actual_exposure_us, self.actual_gain_db)
         self._emit(self.pairing.add_trigger(trigger))
