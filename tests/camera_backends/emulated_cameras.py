@@ -1,10 +1,13 @@
 """Shared by the tests of this directory: the emulated cameras' serials and served files, and
 the ROS client of the graph tests."""
+import contextlib
+
 import numpy as np
 import pytest
+from lightstage_bringup.supervisor import Supervisor
 
 from lightstage_camera.frames import stamp_to_ns
-from suite_helpers import RosClient
+from suite_helpers import RosClient, fresh_domain_id, start_nodes
 
 EMULATED_SERIALS = ('0815-0000', '0815-0001')   # PYLON_CAMEMU=2, set in conftest.py
 # pylon runs a POSIX timer that signals SIGALRM to a handler it installs when a camera opens;
@@ -65,3 +68,20 @@ class CameraGraphClient(RosClient):
             return any(st.name.startswith('camera') and st.level == DiagnosticStatus.OK
                        for msg in self.diagnostics[-5:] for st in msg.status)
         self.spin_until(ready, 30.0, lambda: f'the camera to be open: {self.camera_errors()[-1:]}')
+
+
+@contextlib.contextmanager
+def camera_graph(params):
+    """The driver (Python firmware simulator) and the camera node of `params` as processes,
+    and a CameraGraphClient once the camera listens to /illumination and says it is open."""
+    domain_id = fresh_domain_id()
+    client = CameraGraphClient(domain_id)
+    try:
+        with Supervisor(sigint_timeout_s=5.0) as supervisor:
+            start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)
+            client.spin_until(lambda: client.subscribed_by('/illumination', 'camera'), 10.0,
+                              'the camera to subscribe /illumination')
+            client.wait_camera_ready()
+            yield client
+    finally:
+        client.close()

@@ -11,13 +11,12 @@ import time
 
 import numpy as np
 import pytest
-from lightstage_bringup.supervisor import Supervisor
 from lightstage_camera.aravis_backend import AravisBackend, FrameIdCounter
 from lightstage_camera.camera_backend import Trigger
 from lightstage_camera.frames import image_from_buffer, stamp_to_ns
 
-from emulated_cameras import CameraGraphClient
-from suite_helpers import fresh_domain_id, start_nodes, write_params
+from emulated_cameras import camera_graph
+from suite_helpers import write_params
 
 ADDRESS, SERIAL = '127.0.0.1', 'FAKE-LS-0001'
 SIZE = (48, 64)
@@ -92,20 +91,11 @@ def test_a_pattern_sequence_through_the_driver_gives_one_image_per_trigger(fake_
         'backend': 'aravis', 'serial_number': ADDRESS, 'trigger_source': 'Software',
         'pixel_format': 'Mono16', 'exposure_us': 10000.0, 'gain_db': 0.0,
         'camera_features': '; '.join(FEATURES), 'frame_timeout_s': 2.0, 'diagnostics_period_s': 0.2}})
-    domain_id = fresh_domain_id()
-    client = CameraGraphClient(domain_id)
-    try:
-        with Supervisor(sigint_timeout_s=5.0) as supervisor:
-            start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)
-            client.spin_until(lambda: client.subscribed_by('/illumination', 'camera'), 10.0,
-                              'the camera to subscribe /illumination')
-            client.wait_camera_ready()
-            stamps, _ = client.fire(5, exposure_us=10000)
-            client.spin_until(lambda: len(client.images) >= 5 and len(client.infos) >= 5, 30.0,
-                              lambda: f'five images; camera errors: {client.camera_errors()[-3:]}')
-            client.spin_for(0.3)
-    finally:
-        client.close()
+    with camera_graph(params) as client:
+        stamps, _ = client.fire(5, exposure_us=10000)
+        client.spin_until(lambda: len(client.images) >= 5 and len(client.infos) >= 5, 30.0,
+                          lambda: f'five images; camera errors: {client.camera_errors()[-3:]}')
+        client.spin_for(0.3)
     images, infos = client.images, client.infos
     assert len(images) == len(infos) == 5
     assert [stamp_to_ns(m.header.stamp) for m in images] == stamps

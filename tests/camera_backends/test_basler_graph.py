@@ -7,12 +7,11 @@ documented errors and no mis-paired image, and the camera goes on without a rest
 import numpy as np
 import pytest
 import yaml
-from lightstage_bringup.supervisor import Supervisor
 
-from emulated_cameras import (PYLON_TIMEOUT, CameraGraphClient, EMULATED_SERIALS, emulator_features,
+from emulated_cameras import (EMULATED_SERIALS, PYLON_TIMEOUT, camera_graph, emulator_features,
                               write_served_images)
 from lightstage_camera.frames import image_from_buffer, stamp_to_ns
-from suite_helpers import fresh_domain_id, start_nodes, write_params
+from suite_helpers import write_params
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
 
@@ -46,17 +45,8 @@ def rig(tmp_path_factory):
         'trigger_source': 'Software', 'pixel_format': 'Mono16', 'frame_id': 'stage_cam',
         'camera_info_url': f'file://{calibration}', 'camera_features': features,
         'frame_timeout_s': 0.5, 'diagnostics_period_s': 0.2}})
-    domain_id = fresh_domain_id()
-    client = CameraGraphClient(domain_id)
-    try:
-        with Supervisor(sigint_timeout_s=5.0) as supervisor:
-            start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)
-            client.spin_until(lambda: client.subscribed_by('/illumination', 'camera'), 10.0,
-                              'the camera to subscribe /illumination')
-            client.wait_camera_ready()
-            yield client, images, features
-    finally:
-        client.close()
+    with camera_graph(params) as client:
+        yield client, images, features
 
 
 def received(client, stamps):
