@@ -72,6 +72,15 @@ def test_one_exact_mono16_image_per_trigger_with_its_camera_info(rig):
         np.testing.assert_allclose(info.k, K)
         np.testing.assert_allclose(info.d, D)
         np.testing.assert_allclose(info.p, P)
+    client.diagnostics.clear()
+
+    def camera_statuses():
+        return [st for msg in client.diagnostics for st in msg.status if st.name.startswith('camera')]
+    client.spin_until(camera_statuses, 10.0, "the camera's /diagnostics")
+    status = camera_statuses()[-1]
+    values = {kv.key: kv.value for kv in status.values}
+    assert values['bit_depth'] == '16' and values['frames_lost'] == '0' and values['grab_timeouts'] == '0'
+    assert float(values['frame_rate_hz']) > 0 and values['camera_info'].endswith('stage_cam.yaml')
 
 
 def test_a_failed_buffer_and_a_trigger_without_frame_give_their_errors_and_no_mispaired_image(rig):

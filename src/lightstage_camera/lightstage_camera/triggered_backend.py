@@ -29,6 +29,7 @@ from .trigger_pairing import GrabbedFrame, TriggerPairing
 
 SOFTWARE = 'Software'
 GAIN_TOLERANCE_DB = 0.05   # cameras quantise gain; closer than this counts as "the same"
+RATE_WINDOW_S = 5.0        # /diagnostics frame rate: frames delivered over the last 5 s
 PIXEL_FORMATS = {'Mono8': 8, 'Mono10': 10, 'Mono12': 12, 'Mono16': 16}
 
 
@@ -76,7 +77,7 @@ class TriggeredBackend(CameraBackend):
         self.lost_unpaired = 0   # lost without reaching the pairing (its own count: `pairing.lost`)
         self.actual_exposure_us = math.nan
         self.actual_gain_db = math.nan
-        self._frame_times: deque[float] = deque(maxlen=64)
+        self._frame_times: deque[float] = deque(maxlen=4096)
         self._mismatched: dict[int, str] = {}  # trigger sequence -> why its frame is not its own
         self._taken_with: dict[int, tuple[float, float]] = {}  # sequence -> (exposure, gain) read back
         self._open = False
@@ -140,8 +141,8 @@ class TriggeredBackend(CameraBackend):
         self._thread.join(timeout=10.0)
 
     def status(self) -> BackendStatus:
-        times = list(self._frame_times)
-        rate = (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 and times[-1] > times[0] else 0.0
+        now = time.monotonic()
+        rate = sum(1 for t in list(self._frame_times) if now - t <= RATE_WINDOW_S) / RATE_WINDOW_S
         temperature = self._device_temperature() if self._open else None
         values = {**self.device_info, 'trigger_source': self.trigger_source, 'frames': self.frames,
                   'frame_rate_hz': f'{rate:.2f}', 'frames_lost': self.pairing.lost + self.lost_unpaired,
