@@ -86,7 +86,7 @@ def _record(capture: Path, artifact: Path, bag: Path, domain_id: int, work: Path
 
 
 def _check(bag: Path, answers) -> None:
-    from lightstage_bringup.bag_format import BagReader, format_info
+    from lightstage_recording import BagReader, format_info
     from lightstage_interfaces.msg import IlluminationState
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import Image

@@ -69,7 +69,7 @@ def main(argv=None) -> int:
 
     from lightstage_bringup.supervisor import Supervisor
     from lightstage_camera import synth
-    from lightstage_camera.calibration import write_calibration_target
+    from lightstage_camera.calibration_target import write_calibration_target
     from lightstage_camera.capture_format import load_capture
     from lightstage_camera.noise import PAPER_CALIBRATION
     from lightstage_interfaces.action import CalibrateNoise, CaptureModel
@@ -167,13 +167,14 @@ def core_calibration(args) -> int:
     """The calibration cases through the pure core on sim camera frames (see the docstring)."""
     from acquisition_helpers import sim_grab
     from lightstage_camera import calibration as cal
+    from lightstage_camera.calibration_target import write_calibration_target
     from lightstage_camera.capture_format import load_capture
     from lightstage_camera.frames import mono16_to_gray
     from lightstage_camera.noise import PAPER_CALIBRATION
     from lightstage_camera.sim_camera import SimCamera
 
     work = Path(tempfile.mkdtemp(prefix='bench-calibration-'))
-    target_dir = cal.write_calibration_target(work / 'target', shape=tuple(args.target_size),
+    target_dir = write_calibration_target(work / 'target', shape=tuple(args.target_size),
                                               dimmer=1.0)
     target = load_capture(target_dir, cache=False)
     truth = PAPER_CALIBRATION.at(args.gain_db, args.exposure_us / 1000)

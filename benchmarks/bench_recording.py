@@ -60,7 +60,7 @@ def frames(n: int, size: int, seed: int = 0) -> list[bytes]:
 
 
 def bench_writer(data: list[bytes], tmp: Path) -> None:
-    from lightstage_bringup.bag_format import BagReader, BagWriter
+    from lightstage_recording import BagReader, BagWriter
     mb = sum(len(d) for d in data) / 1e6
     print(f'writer: {len(data)} images of {len(data[0]) / 1e6:.2f} MB')
     for compression in ('lz4', 'none'):
@@ -87,7 +87,7 @@ def bench_recorder(data: list[bytes], tmp: Path, rates: list[float], domain_id: 
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
 
-    from lightstage_bringup.bag_format import BagReader
+    from lightstage_recording import BagReader
     from lightstage_bringup.launcher import NODE_REGISTRY, node_command
 
     client = RosClient(domain_id, 'bench_recording_publisher')
@@ -141,7 +141,7 @@ def full_size_copy(bag: Path, size: int, out: Path) -> Path:
     from rclpy.serialization import deserialize_message, serialize_message
     from sensor_msgs.msg import Image
 
-    from lightstage_bringup.bag_format import BagReader, BagWriter
+    from lightstage_recording import BagReader, BagWriter
     reader = BagReader(bag)
     info = reader.info()
     frame = deserialize_message(frames(1, size)[0], Image)
@@ -160,7 +160,7 @@ def full_size_copy(bag: Path, size: int, out: Path) -> Path:
 
 
 def bench_verify(bags: list[Path]) -> None:
-    from lightstage_bringup.bag_format import BagReader
+    from lightstage_recording import BagReader
     print('verify: `lightstage bag info` trusting the summaries vs reading every chunk back (CRCs)')
     for bag in bags:
         times = {}
@@ -179,7 +179,7 @@ def bench_verify(bags: list[Path]) -> None:
 
 
 def bench_size(bag: Path) -> None:
-    from lightstage_bringup.bag_format import BagReader
+    from lightstage_recording import BagReader
     reader = BagReader(bag)
     info = reader.info()
     by_topic: dict[str, int] = {}

@@ -15,10 +15,10 @@ import time
 
 import numpy as np
 
-from lightstage_camera.models import ModelSet
 from lightstage_camera.noise import preset
 from lightstage_camera.render import render_noisy
 from lightstage_camera.rig import Rig
+from lightstage_camera.scene_models import ModelSet
 
 
 def make_models(n: int, size: int, seed: int = 0) -> ModelSet:

@@ -40,7 +40,7 @@ from lightstage_camera.capture_format import load_capture  # noqa: E402
 from mux_trainer.data import search_data  # noqa: E402
 from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk  # noqa: E402
 from mux_trainer.greedy import REFINE_TOP, GreedyPatternSelector  # noqa: E402
-from mux_trainer.patterns import site_pattern_candidates  # noqa: E402
+from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
 from mux_trainer.reference import reference_candidate_scores  # noqa: E402
 from mux_trainer.rendering import SearchData  # noqa: E402
 

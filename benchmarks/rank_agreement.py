@@ -42,7 +42,7 @@ from mux_trainer.data import search_data  # noqa: E402
 from mux_trainer.evaluation import CandidateEvaluator  # noqa: E402
 from mux_trainer.greedy import (REFINE_BATCH, REFINE_MAX, REFINE_TOP,  # noqa: E402
                                 could_still_win)
-from mux_trainer.patterns import site_pattern_candidates  # noqa: E402
+from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
 from mux_trainer.rendering import add_noise, image_features, render_site_patterns  # noqa: E402
 from mux_trainer.split_scoring import RidgeSplitScorer, SquaredHingeSplitScorer  # noqa: E402
 

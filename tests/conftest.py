@@ -71,5 +71,5 @@ def stage_artifact_path(stage_capture, tmp_path_factory):
 
 @pytest.fixture(scope='session')
 def stage_artifact(stage_artifact_path):
-    from mux_classifier.model import TrainedArtifact
+    from mux_classifier.artifact import TrainedArtifact
     return TrainedArtifact.load(stage_artifact_path)

@@ -25,7 +25,7 @@ def test_every_core_module_imports_without_rclpy():
     modules = pure_modules()
     assert {'lightstage_camera.acquisition', 'lightstage_camera.calibration',
             'mux_trainer.greedy', 'mux_classifier.observe',
-            'lightstage_bringup.recording', 'lightstage_driver.protocol'} <= set(modules)
+            'lightstage_recording.recording', 'lightstage_recording.writer', 'lightstage_driver.protocol'} <= set(modules)
     code = ('import importlib, sys\n'
             f'for name in {modules!r}:\n'
             '    importlib.import_module(name)\n'

@@ -15,9 +15,6 @@ setup(
         ('share/' + package_name + '/config', ['lightstage_bringup/config/fastdds_profile.xml',
                                                'config/lightstage.yaml']),
         ('share/' + package_name + '/launch', ['launch/lightstage.launch.py']),
-        # `ros2 run lightstage_bringup recorder|player` look in <prefix>/lib/<pkg>/; pip puts
-        # console_scripts in bin/, so small wrappers are installed there as data.
-        ('lib/' + package_name, ['scripts/recorder', 'scripts/player']),
     ],
     install_requires=['setuptools'],
     zip_safe=False,
@@ -28,8 +25,6 @@ setup(
     entry_points={
         'console_scripts': [
             'lightstage = lightstage_bringup.cli:main',
-            'lightstage-recorder = lightstage_bringup.recorder_node:main',
-            'lightstage-player = lightstage_bringup.player_node:main',
         ],
     },
 )

@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 
-from lightstage_camera.models import ModelSet
 from lightstage_camera.rig import Rig
+from lightstage_camera.scene_models import ModelSet
 from suite_helpers import RosClient, lightstage_command, parameter_msgs, start_nodes
 
 

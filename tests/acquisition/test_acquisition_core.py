@@ -8,6 +8,8 @@ import yaml
 from acquisition_helpers import (averaged_capture_z, check_z, gaussian_regime, sim_grab,
                                  smooth_modelset)
 from lightstage_camera import acquisition as acq
+from lightstage_camera import capture_destination as dest
+from lightstage_camera import errors, output_files, rescue
 from lightstage_camera.capture_format import load_capture
 from lightstage_camera.frames import AcquisitionError
 from lightstage_camera.noise import PAPER_CALIBRATION
@@ -21,7 +23,7 @@ def test_single_led_plan_names_and_settings():
     assert p.shape == (32, 32) and np.array_equal(p, np.eye(32))
     assert [acq.led_name(i) for i in (0, 1, 3, 4, 31)] == ['s0_red', 's0_green', 's0_nir',
                                                             's1_red', 's7_nir']
-    assert acq.model_files()[:2] == ['s0_red.png', 's0_green.png']
+    assert dest.model_files()[:2] == ['s0_red.png', 's0_green.png']
     s = acq.CaptureSettings(exposure_us=1000, frames=5)
     assert (s.n_leds, s.total_frames, s.max_level) == (32, 160, 1023)
     for bad, match in ((dict(exposure_us=0), 'exposure_us'), (dict(frames=0), 'frames'),
@@ -70,7 +72,7 @@ def test_preview_refuses_a_clipping_led_before_the_long_capture():
     cam = SimCamera(ms, sample=0, dimmer=1.0, seed=1)
     calls = []
     settings = acq.CaptureSettings(exposure_us=20000, frames=50)
-    with pytest.raises(acq.ExposureError) as info:
+    with pytest.raises(errors.ExposureError) as info:
         acq.capture_model(sim_grab(cam, 20000, GAIN_DB, calls), settings)
     message = str(info.value)
     assert 's2_green has 1e+02 % of its pixels' in message and 'exposure_us 20000' in message
@@ -95,7 +97,7 @@ def test_preview_suggests_an_exposure_from_the_brightest_led():
 def test_cancel_between_images_raises_and_nothing_is_written(tmp_path):
     cam = SimCamera(smooth_modelset(), dimmer=1.0, seed=2)
     done = []
-    with pytest.raises(acq.CaptureCancelled, match='s0_nir .*3 of 32.*nothing was written'):
+    with pytest.raises(errors.CaptureCancelled, match='s0_nir .*3 of 32.*nothing was written'):
         acq.capture_model(sim_grab(cam, 1000, GAIN_DB), acq.CaptureSettings(exposure_us=1000, frames=2),
                           on_image=lambda *a: done.append(a), cancelled=lambda: len(done) >= 3)
     assert not any(tmp_path.iterdir())
@@ -113,8 +115,8 @@ def _captured(seed=0, frames=2, level=None, shape=(24, 32)):
 
 def _destination(root, pose='p00', settings=None, shape=(24, 32), overwrite=False, **kw):
     settings = settings or acq.CaptureSettings(exposure_us=1000, frames=2)
-    return acq.check_destination(root, 'banana-fake', 's0', pose,
-                                 acq.capture_rig(settings, shape), overwrite=overwrite, **kw)
+    return dest.check_destination(root, 'banana-fake', 's0', pose,
+                                 dest.capture_rig(settings, shape), overwrite=overwrite, **kw)
 
 
 def test_write_creates_a_loadable_capture_folder_and_extends_it(tmp_path):
@@ -122,43 +124,43 @@ def test_write_creates_a_loadable_capture_folder_and_extends_it(tmp_path):
     settings, model = _captured()
     d = _destination(root, settings=settings)
     assert not d.rig_exists and not d.pose_exists
-    pose_dir = acq.write_model(d, model)
+    pose_dir = dest.write_model(d, model)
     assert pose_dir == root / 'banana-fake' / 's0' / 'p00'
-    assert sorted(p.name for p in pose_dir.iterdir()) == sorted(acq.model_files())
+    assert sorted(p.name for p in pose_dir.iterdir()) == sorted(dest.model_files())
     rig = yaml.safe_load((root / 'rig.yaml').read_text())['camera']
     assert (rig['exposure_us'], rig['gain_db'], rig['frames_averaged']) == (1000.0, 15.0, 2)
     assert (rig['image_height'], rig['image_width']) == (24, 32)
     _, model2 = _captured(seed=1)
-    acq.write_model(_destination(root, 'p01'), model2)
+    dest.write_model(_destination(root, 'p01'), model2)
     ms = load_capture(root, cache=False)
     assert ms.sample_names == ['banana-fake/s0/p00', 'banana-fake/s0/p01']
     # stored MSB-aligned with 1/64 gray-level steps: the averages' precision survives
     np.testing.assert_allclose(ms.models[0], model, atol=0.5 / 64 + 1e-6)
     np.testing.assert_allclose(ms.models[1], model2, atol=0.5 / 64 + 1e-6)
-    assert not (root / acq.STAGING_DIR).exists()
+    assert not (root / dest.STAGING_DIR).exists()
 
 
 def test_an_existing_pose_is_refused_unless_overwrite_and_then_replaced(tmp_path):
     settings, model = _captured(level=100.0)
-    acq.write_model(_destination(tmp_path, settings=settings), model)
-    with pytest.raises(acq.DestinationError, match='p00 already exists.*overwrite'):
+    dest.write_model(_destination(tmp_path, settings=settings), model)
+    with pytest.raises(errors.DestinationError, match='p00 already exists.*overwrite'):
         _destination(tmp_path)
     d = _destination(tmp_path, overwrite=True)
     assert d.pose_exists
     # a refusal at write time too (the pose appeared during the capture)
-    with pytest.raises(acq.DestinationError, match='already exists'):
-        acq.write_model(d, model, overwrite=False)
-    acq.write_model(d, np.full_like(model, 200.0), overwrite=True)
+    with pytest.raises(errors.DestinationError, match='already exists'):
+        dest.write_model(d, model, overwrite=False)
+    dest.write_model(d, np.full_like(model, 200.0), overwrite=True)
     ms = load_capture(tmp_path, cache=False)
     assert len(ms) == 1 and np.all(ms.models == 200.0)
-    assert not (tmp_path / acq.STAGING_DIR).exists()
+    assert not (tmp_path / dest.STAGING_DIR).exists()
 
 
 def test_a_folder_whose_rig_disagrees_is_refused_naming_each_difference(tmp_path):
     settings, model = _captured(level=50.0)
-    acq.write_model(_destination(tmp_path, settings=settings), model)
+    dest.write_model(_destination(tmp_path, settings=settings), model)
     other = acq.CaptureSettings(exposure_us=30000, gain_db=12.0, frames=2)
-    with pytest.raises(acq.DestinationError) as info:
+    with pytest.raises(errors.DestinationError) as info:
         _destination(tmp_path, 'p01', settings=other, shape=(24, 33))
     message = str(info.value)
     assert 'camera.exposure_us: folder 1000.0, this capture 30000.0' in message
@@ -166,40 +168,40 @@ def test_a_folder_whose_rig_disagrees_is_refused_naming_each_difference(tmp_path
     assert 'image_height x image_width: folder (24, 32), this capture (24, 33)' in message
     assert 'exposure_us 1000, gain_db 15, frames 2' in message  # what to do
     # the site geometry is compared only against an explicit rig file
-    moved = acq.capture_rig(settings, (24, 32))
+    moved = dest.capture_rig(settings, (24, 32))
     moved.sites[0] = replace(moved.sites[0], x_mm=1.0)
-    acq.check_destination(tmp_path, 'banana-fake', 's0', 'p01', moved)
-    with pytest.raises(acq.DestinationError, match='site 0 position'):
-        acq.check_destination(tmp_path, 'banana-fake', 's0', 'p01', moved, rig_from_file=True)
+    dest.check_destination(tmp_path, 'banana-fake', 's0', 'p01', moved)
+    with pytest.raises(errors.DestinationError, match='site 0 position'):
+        dest.check_destination(tmp_path, 'banana-fake', 's0', 'p01', moved, rig_from_file=True)
 
 
 @pytest.mark.parametrize('label,sample,pose', [('../x', 's0', 'p0'), ('a/b', 's0', 'p0'),
                                                ('banana', '.hidden', 'p0'), ('x', 's0', '')])
 def test_bad_names_are_refused(tmp_path, label, sample, pose):
     settings = acq.CaptureSettings()
-    with pytest.raises(acq.DestinationError, match='not a usable folder name'):
-        acq.check_destination(tmp_path, label, sample, pose, acq.capture_rig(settings, (8, 8)))
+    with pytest.raises(errors.DestinationError, match='not a usable folder name'):
+        dest.check_destination(tmp_path, label, sample, pose, dest.capture_rig(settings, (8, 8)))
 
 
 def test_unusable_folders_are_refused_before_anything_is_captured(tmp_path):
-    rig = acq.capture_rig(acq.CaptureSettings(), (8, 8))
+    rig = dest.capture_rig(acq.CaptureSettings(), (8, 8))
     (tmp_path / 'file').write_text('x')
-    with pytest.raises(acq.DestinationError, match='not a folder'):
-        acq.check_destination(tmp_path / 'file', 'a-b', 's0', 'p0', rig)
-    with pytest.raises(acq.DestinationError, match='not a folder'):
-        acq.check_destination(tmp_path / 'file' / 'sub', 'a-b', 's0', 'p0', rig)
-    with pytest.raises(acq.DestinationError, match='cannot write into /proc'):
-        acq.check_destination('/proc/lightstage-capture', 'a-b', 's0', 'p0', rig)
+    with pytest.raises(errors.DestinationError, match='not a folder'):
+        dest.check_destination(tmp_path / 'file', 'a-b', 's0', 'p0', rig)
+    with pytest.raises(errors.DestinationError, match='not a folder'):
+        dest.check_destination(tmp_path / 'file' / 'sub', 'a-b', 's0', 'p0', rig)
+    with pytest.raises(errors.DestinationError, match='cannot write into /proc'):
+        dest.check_destination('/proc/lightstage-capture', 'a-b', 's0', 'p0', rig)
     (tmp_path / 'notes').mkdir()
     (tmp_path / 'notes' / 'readme.txt').write_text('x')
-    with pytest.raises(acq.DestinationError, match='has no rig.yaml: it is not a capture folder'):
-        acq.check_destination(tmp_path / 'notes', 'a-b', 's0', 'p0', rig)
+    with pytest.raises(errors.DestinationError, match='has no rig.yaml: it is not a capture folder'):
+        dest.check_destination(tmp_path / 'notes', 'a-b', 's0', 'p0', rig)
     (tmp_path / 'broken').mkdir()
     (tmp_path / 'broken' / 'rig.yaml').write_text('sites: [')
-    with pytest.raises(acq.DestinationError, match='rig.yaml does not load'):
-        acq.check_destination(tmp_path / 'broken', 'a-b', 's0', 'p0', rig)
-    with pytest.raises(acq.DestinationError, match='no output folder'):
-        acq.check_destination('', 'a-b', 's0', 'p0', rig)
+    with pytest.raises(errors.DestinationError, match='rig.yaml does not load'):
+        dest.check_destination(tmp_path / 'broken', 'a-b', 's0', 'p0', rig)
+    with pytest.raises(errors.DestinationError, match='no output folder'):
+        dest.check_destination('', 'a-b', 's0', 'p0', rig)
 
 
 def test_a_write_that_fails_midway_leaves_nothing_behind(tmp_path, monkeypatch):
@@ -211,15 +213,15 @@ def test_a_write_that_fails_midway_leaves_nothing_behind(tmp_path, monkeypatch):
         (pose_dir / 's0_red.png').write_bytes(b'partial')
         raise OSError(28, 'No space left on device')
 
-    monkeypatch.setattr(acq, 'write_pose', failing_write)
-    with pytest.raises(acq.DestinationError, match='No space left.*nothing of this pose'):
-        acq.write_model(d, model)
+    monkeypatch.setattr(dest, 'write_pose', failing_write)
+    with pytest.raises(errors.DestinationError, match='No space left.*nothing of this pose'):
+        dest.write_model(d, model)
     assert not root.exists()  # the folder was created for this pose: gone again
     monkeypatch.undo()
-    acq.write_model(_destination(tmp_path / 'kept', settings=settings), model)
-    monkeypatch.setattr(acq, 'write_pose', failing_write)
-    with pytest.raises(acq.DestinationError):
-        acq.write_model(_destination(tmp_path / 'kept', 'p01', settings=settings), model)
+    dest.write_model(_destination(tmp_path / 'kept', settings=settings), model)
+    monkeypatch.setattr(dest, 'write_pose', failing_write)
+    with pytest.raises(errors.DestinationError):
+        dest.write_model(_destination(tmp_path / 'kept', 'p01', settings=settings), model)
     assert sorted(p.name for p in (tmp_path / 'kept').iterdir()) == ['banana-fake', 'rig.yaml']
     assert [p.name for p in (tmp_path / 'kept' / 'banana-fake' / 's0').iterdir()] == ['p00']
 
@@ -235,13 +237,13 @@ def test_classifier_reexports_the_camera_frame_matching():
 
 
 def test_output_files_are_not_replaced_unless_asked(tmp_path):
-    acq.check_output_file(tmp_path / 'noise.yaml')
+    output_files.check_output_file(tmp_path / 'noise.yaml')
     (tmp_path / 'noise.yaml').write_text('x')
-    with pytest.raises(acq.DestinationError, match='already exists'):
-        acq.check_output_file(tmp_path / 'noise.yaml')
-    acq.check_output_file(tmp_path / 'noise.yaml', overwrite=True)
-    with pytest.raises(acq.DestinationError, match='is a folder'):
-        acq.check_output_file(tmp_path)
+    with pytest.raises(errors.DestinationError, match='already exists'):
+        output_files.check_output_file(tmp_path / 'noise.yaml')
+    output_files.check_output_file(tmp_path / 'noise.yaml', overwrite=True)
+    with pytest.raises(errors.DestinationError, match='is a folder'):
+        output_files.check_output_file(tmp_path)
 
 
 def test_goal_fields_fall_back_to_the_node_parameters():
@@ -253,14 +255,14 @@ def test_goal_fields_fall_back_to_the_node_parameters():
 
 def _failing_once(monkeypatch):
     """write_pose fails with a full disk until the returned list says otherwise."""
-    real, fail = acq.write_pose, [True]
+    real, fail = dest.write_pose, [True]
 
     def write_pose(pose_dir, model, bit_depth, compress_level):
         if fail[0]:
             raise OSError(28, 'No space left on device')
         return real(pose_dir, model, bit_depth, compress_level)
 
-    monkeypatch.setattr(acq, 'write_pose', write_pose)
+    monkeypatch.setattr(dest, 'write_pose', write_pose)
     return fail
 
 
@@ -280,7 +282,7 @@ def test_acquire_pose_checks_first_captures_and_writes(tmp_path):
     np.testing.assert_allclose(loaded.models[0], captured.model, atol=1 / 64)
     # a bad name is refused before anything is lit
     lit = []
-    with pytest.raises(acq.DestinationError, match='pose'):
+    with pytest.raises(errors.DestinationError, match='pose'):
         acq.acquire_pose(sim_grab(cam, EXPOSURE_US, GAIN_DB, lit), settings, tmp_path / 'cap',
                          'banana-fake', 's0', '../p01')
     assert lit == []
@@ -292,7 +294,7 @@ def test_a_capture_that_cannot_be_written_is_kept_and_written_later(tmp_path, mo
     cam = SimCamera(ms, sample=1, dimmer=1.0, seed=3)
     settings = acq.CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=2)
     fail = _failing_once(monkeypatch)
-    with pytest.raises(acq.DestinationError) as err:
+    with pytest.raises(errors.DestinationError) as err:
         acq.acquire_pose(sim_grab(cam, EXPOSURE_US, GAIN_DB), settings, tmp_path / 'cap',
                          'banana-fake', 's1', 'p00', preview=False)
     message = str(err.value)
@@ -300,11 +302,11 @@ def test_a_capture_that_cannot_be_written_is_kept_and_written_later(tmp_path, mo
     (rescued,) = (tmp_path / 'rescue').glob('*.npz')
     assert str(rescued) in message
     assert not (tmp_path / 'cap' / 'banana-fake').exists()
-    kept = acq.load_rescued(rescued)
+    kept = rescue.load_rescued(rescued)
     assert (kept.label, kept.sample, kept.pose) == ('banana-fake', 's1', 'p00')
     assert kept.rig.exposure_us == EXPOSURE_US and kept.rig.frames_averaged == 2
     fail[0] = False
-    pose_dir = acq.write_rescued(rescued)
+    pose_dir = rescue.write_rescued(rescued)
     assert pose_dir == tmp_path / 'cap' / 'banana-fake' / 's1' / 'p00' and not rescued.exists()
     loaded = load_capture(tmp_path / 'cap', cache=False)
     np.testing.assert_allclose(loaded.models[0], kept.model, atol=1 / 64)
@@ -314,19 +316,19 @@ def test_a_capture_that_cannot_be_written_is_kept_and_written_later(tmp_path, mo
 def test_a_rescue_file_that_is_not_one_is_refused_clearly(tmp_path):
     bad = tmp_path / 'x.npz'
     np.savez(bad, model=np.zeros(3))
-    with pytest.raises(acq.DestinationError, match='not a readable rescue file'):
-        acq.load_rescued(bad)
-    with pytest.raises(acq.DestinationError, match='not a readable rescue file'):
-        acq.load_rescued(tmp_path / 'missing.npz')
+    with pytest.raises(errors.DestinationError, match='not a readable rescue file'):
+        rescue.load_rescued(bad)
+    with pytest.raises(errors.DestinationError, match='not a readable rescue file'):
+        rescue.load_rescued(tmp_path / 'missing.npz')
 
 
 def test_nothing_to_keep_the_rescue_in_says_so(tmp_path, monkeypatch):
-    monkeypatch.setattr(acq, 'rescue_dirs', lambda: [tmp_path / 'file' / 'below-a-file'])
+    monkeypatch.setattr(rescue, 'rescue_dirs', lambda: [tmp_path / 'file' / 'below-a-file'])
     (tmp_path / 'file').write_text('not a folder')
     ms = smooth_modelset()
     settings = acq.CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=1)
     _failing_once(monkeypatch)
-    with pytest.raises(acq.DestinationError, match='could not be kept anywhere else'):
+    with pytest.raises(errors.DestinationError, match='could not be kept anywhere else'):
         acq.acquire_pose(sim_grab(SimCamera(ms, dimmer=1.0), EXPOSURE_US, GAIN_DB), settings,
                          tmp_path / 'cap', 'banana-fake', 's0', 'p00', preview=False)
 
@@ -337,9 +339,9 @@ def test_the_capture_command_writes_a_rescued_pose_without_ros(tmp_path, capsys)
     settings = acq.CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=1)
     captured = acq.capture_model(sim_grab(SimCamera(ms, dimmer=1.0), EXPOSURE_US, GAIN_DB),
                                  settings, preview=False)
-    rescued = acq.save_rescued(acq.RescuedModel(
+    rescued = rescue.save_rescued(rescue.RescuedModel(
         tmp_path / 'meant', 'banana-real', 's3', 'p02',
-        acq.capture_rig(settings, captured.model.shape[-2:]), captured.model))
+        dest.capture_rig(settings, captured.model.shape[-2:]), captured.model))
     assert capture_main([str(tmp_path / 'other'), 'a/b/c', '--from-rescued', str(rescued)]) == 2
     assert 'give no TARGET' in capsys.readouterr().err
     assert capture_main([str(tmp_path / 'other'), '--from-rescued', str(rescued)]) == 0

@@ -5,11 +5,14 @@ import yaml
 
 from acquisition_helpers import sim_grab
 from lightstage_camera import calibration as cal
-from lightstage_camera.acquisition import CaptureCancelled, DestinationError
+from lightstage_camera import calibration_outputs as couts
+from lightstage_camera import calibration_target as ctarget
+from lightstage_camera import noise_fit as nfit
 from lightstage_camera.capture_format import load_capture
+from lightstage_camera.errors import CaptureCancelled, DestinationError, NoiseFileError
 from lightstage_camera.frames import AcquisitionError
-from lightstage_camera.noise import (PAPER_CALIBRATION, SETTINGS, NoiseFileError, NoiseModel,
-                                     load_noise_file, noise_setting, save_noise_file)
+from lightstage_camera.noise import (PAPER_CALIBRATION, SETTINGS, NoiseModel, load_noise_file,
+                                     noise_setting, save_noise_file)
 from lightstage_camera.sim_camera import SimCamera
 
 # the 1/12 gray level^2 that rounding to whole gray levels adds to every frame's variance
@@ -31,11 +34,11 @@ def test_levels_light_nested_sets_of_leds_spread_over_sites_and_colours():
 
 def test_streamed_moments_and_characteristic_equal_the_batch_ones():
     rng = np.random.default_rng(0)
-    stacks = cal.simulate_calibration_frames(NoiseModel(0.7, 66.0), n_levels=3, n_frames=15,
+    stacks = ctarget.simulate_calibration_frames(NoiseModel(0.7, 66.0), n_levels=3, n_frames=15,
                                              shape=(8, 12), rng=rng)
     moments = []
     for stack in stacks:
-        acc, split = cal.PixelMoments(), cal.SplitMoments()
+        acc, split = nfit.PixelMoments(), nfit.SplitMoments()
         for frame in stack:
             acc.add(frame)
             split.add(frame)
@@ -48,7 +51,7 @@ def test_streamed_moments_and_characteristic_equal_the_batch_ones():
         np.testing.assert_allclose(var_b, stack[1::2].astype(np.float64).var(axis=0, ddof=1),
                                    rtol=1e-9, atol=1e-9)
         moments.append(split.moments())
-    a, b = cal.noise_characteristic(stacks), cal.characteristic_from_moments(moments)
+    a, b = nfit.noise_characteristic(stacks), nfit.characteristic_from_moments(moments)
     np.testing.assert_allclose(a.bin_mean, b.bin_mean)
     np.testing.assert_allclose(a.bin_var, b.bin_var, rtol=1e-9)
     np.testing.assert_allclose(a.bin_dof, b.bin_dof)
@@ -59,14 +62,14 @@ def test_streamed_moments_and_characteristic_equal_the_batch_ones():
 
 
 def test_fewer_than_three_frames_per_level_are_refused_with_the_reason():
-    frames = cal.simulate_calibration_frames(NoiseModel(), n_levels=3, n_frames=2, shape=(8, 12),
+    frames = ctarget.simulate_calibration_frames(NoiseModel(), n_levels=3, n_frames=2, shape=(8, 12),
                                              rng=np.random.default_rng(0))
     with pytest.raises(ValueError, match='level 0: 2 frames; the fit needs at least 3 frames '
                                          'per level: .*two interleaved halves'):
-        cal.fit_noise_model(frames)
+        nfit.fit_noise_model(frames)
     with pytest.raises(ValueError, match='frames_per_level must be >= 3, got 2: .*halves'):
         cal.CalibrationSettings(frames_per_level=2)
-    split = cal.SplitMoments()
+    split = nfit.SplitMoments()
     split.add(frames[0][0])
     with pytest.raises(ValueError, match='1 frames; the fit needs at least 3'):
         split.moments()
@@ -74,19 +77,19 @@ def test_fewer_than_three_frames_per_level_are_refused_with_the_reason():
 
 @pytest.fixture(scope='module')
 def target(tmp_path_factory):
-    path = cal.write_calibration_target(tmp_path_factory.mktemp('target') / 'target',
+    path = ctarget.write_calibration_target(tmp_path_factory.mktemp('target') / 'target',
                                         shape=(24, 32), dimmer=1.0)
     return load_capture(path, cache=False)
 
 
 def test_calibration_target_capture_folder(target, tmp_path):
-    assert target.sample_names == [cal.CALIBRATION_TARGET_NAME]
+    assert target.sample_names == [ctarget.CALIBRATION_TARGET_NAME]
     all_on = target.models[0].sum(axis=(0, 1))
     assert all_on.max() == pytest.approx(1.1 * 1023, rel=1e-3)  # the top level saturates
     assert all_on.min() > 0.03 * all_on.max()  # a ramp, no black pixels
     (tmp_path / 'x').write_text('x')
     with pytest.raises(ValueError, match='not empty'):
-        cal.write_calibration_target(tmp_path, shape=8)
+        ctarget.write_calibration_target(tmp_path, shape=8)
 
 
 def test_calibrating_the_simulated_stage_recovers_its_noise(target):
@@ -153,15 +156,15 @@ def test_calibration_outputs_are_written_and_not_replaced_unless_asked(tmp_path,
     cam = SimCamera(target, dimmer=1.0, seed=4)
     settings = cal.CalibrationSettings(exposure_us=1000, frames_per_level=6, levels=3)
     result = cal.calibrate_noise(sim_grab(cam, 1000, 15.0), settings)
-    noise, plot = cal.write_calibration_outputs(result, tmp_path / 'sub' / 'noise.yaml',
+    noise, plot = couts.write_calibration_outputs(result, tmp_path / 'sub' / 'noise.yaml',
                                                 tmp_path / 'noise.png', measured_at='now')
     assert load_noise_file(noise) == result.model
     doc = yaml.safe_load(open(noise))
     assert doc['measured']['levels'] == 3 and doc['measured']['at'] == 'now'
     assert open(plot, 'rb').read(8) == b'\x89PNG\r\n\x1a\n'
     with pytest.raises(DestinationError, match='already exists'):
-        cal.write_calibration_outputs(result, noise)
-    assert cal.write_calibration_outputs(result, '', '') == ('', '')
+        couts.write_calibration_outputs(result, noise)
+    assert couts.write_calibration_outputs(result, '', '') == ('', '')
 
 
 def test_synth_writes_a_calibration_target_folder(tmp_path):
@@ -169,20 +172,20 @@ def test_synth_writes_a_calibration_target_folder(tmp_path):
     assert synth.main([str(tmp_path / 't'), '--calibration-target', '--size', '16',
                        '--dimmer', '1.0', '--quiet']) == 0
     ms = load_capture(tmp_path / 't', cache=False)
-    assert ms.sample_names == [cal.CALIBRATION_TARGET_NAME] and ms.image_shape == (12, 16)
+    assert ms.sample_names == [ctarget.CALIBRATION_TARGET_NAME] and ms.image_shape == (12, 16)
     assert synth.main([str(tmp_path / 't'), '--calibration-target', '--quiet']) == 2  # not empty
 
 
 def test_output_paths_are_checked_before_anything_is_lit(tmp_path):
-    assert cal.check_calibration_outputs('', '') == (None, None)
-    noise, plot = cal.check_calibration_outputs(tmp_path / 'n.yaml', tmp_path / 'n.pdf')
+    assert couts.check_calibration_outputs('', '') == (None, None)
+    noise, plot = couts.check_calibration_outputs(tmp_path / 'n.yaml', tmp_path / 'n.pdf')
     assert (noise.name, plot.name) == ('n.yaml', 'n.pdf')
     with pytest.raises(DestinationError, match=r'plot .*noise\.txt should end in one of \.png'):
-        cal.check_calibration_outputs('', tmp_path / 'noise.txt')
+        couts.check_calibration_outputs('', tmp_path / 'noise.txt')
     with pytest.raises(DestinationError, match=r'noise file .*noise\.png should end in .*\.yaml'):
-        cal.check_calibration_outputs(tmp_path / 'noise.png')
+        couts.check_calibration_outputs(tmp_path / 'noise.png')
     with pytest.raises(DestinationError, match='should end'):  # one file cannot be both
-        cal.check_calibration_outputs(tmp_path / 'same.yaml', tmp_path / 'same.yaml')
+        couts.check_calibration_outputs(tmp_path / 'same.yaml', tmp_path / 'same.yaml')
 
 
 def test_a_failed_write_keeps_the_fit_in_the_error(tmp_path, target, monkeypatch):
@@ -197,10 +200,10 @@ def test_a_failed_write_keeps_the_fit_in_the_error(tmp_path, target, monkeypatch
     def full_disk(*_a, **_k):
         raise OSError(28, 'No space left on device')
 
-    from lightstage_camera import plots
-    monkeypatch.setattr(plots, 'plot_noise_characteristic', full_disk)
+    from lightstage_camera import camera_plots
+    monkeypatch.setattr(camera_plots, 'plot_noise_characteristic', full_disk)
     with pytest.raises(DestinationError) as err:
-        cal.write_calibration_outputs(result, tmp_path / 'noise.yaml', tmp_path / 'noise.png')
+        couts.write_calibration_outputs(result, tmp_path / 'noise.yaml', tmp_path / 'noise.png')
     message = str(err.value)
     assert 'No space left' in message and f'sigma_p2 = {result.model.sigma_p2:.6g}' in message
     assert 'written: ' in message and 'noise.yaml' in message  # the noise file made it

@@ -12,6 +12,8 @@ from scipy.stats import binom
 
 from acquisition_helpers import sim_grab
 from lightstage_camera import calibration as cal
+from lightstage_camera import calibration_target as ctarget
+from lightstage_camera import noise_fit as nfit
 from lightstage_camera.capture_format import load_capture
 from lightstage_camera.noise import PAPER_CALIBRATION, NoiseModel
 from lightstage_camera.sim_camera import SimCamera
@@ -44,12 +46,12 @@ def z_scores():
     out = {}
     for n in FRAME_COUNTS:
         for seed in range(SEEDS):
-            frames = cal.simulate_calibration_frames(
+            frames = ctarget.simulate_calibration_frames(
                 TRUTH, n_levels=6, n_frames=n, shape=(24, 32), peak_level=0.55 * 1023,
                 rng=np.random.default_rng([12, n, seed]))
-            char = cal.noise_characteristic(frames)
-            fit = cal.fit_noise_model(char)
-            se = cal.fit_uncertainty(char, fit)
+            char = nfit.noise_characteristic(frames)
+            fit = nfit.fit_noise_model(char)
+            se = nfit.fit_uncertainty(char, fit)
             out[n, seed] = ((fit.sigma_p2 - MEASURED[0]) / se[0],
                             (fit.sigma_r2 - MEASURED[1]) / se[1])
     return out
@@ -84,7 +86,7 @@ def dim_stage(tmp_path_factory):
     """The simulated stage as docs/NODES.md's recipe builds it (`lightstage synth
     --calibration-target --dimmer 1.0`), seen by a camera at the node's default dimmer 0.45:
     the brightest pixel at about 0.5 x max, most pixels at low means."""
-    path = cal.write_calibration_target(tmp_path_factory.mktemp('target') / 't',
+    path = ctarget.write_calibration_target(tmp_path_factory.mktemp('target') / 't',
                                         shape=(72, 96), dimmer=1.0)
     return load_capture(path, cache=False)
 
@@ -106,7 +108,7 @@ def test_issue_12_item_6_sim_stage_calibration_is_unbiased(dim_stage, frames, le
     char = result.characteristic
     low = char.bin_mean < 100
     assert low.sum() >= 5, char.bin_mean  # the low means are there to check
-    r = cal.standardized_residuals(char, fit)[low]
+    r = nfit.standardized_residuals(char, fit)[low]
     assert abs(r.mean()) < 5 / np.sqrt(low.sum()), r
     assert not any('scatter' in w for w in result.warnings())
 
@@ -115,13 +117,13 @@ def test_extra_scatter_is_reported_not_hidden():
     """Frames whose noise is 2x the model's in a band of pixels (say, a flickering light on
     part of the target) scatter the bins more than frame noise explains: the result says so."""
     rng = np.random.default_rng(5)
-    frames = cal.simulate_calibration_frames(TRUTH, n_levels=6, n_frames=20, shape=(24, 32),
+    frames = ctarget.simulate_calibration_frames(TRUTH, n_levels=6, n_frames=20, shape=(24, 32),
                                              rng=rng)
     for stack in frames:
         stack[:, :, ::3] += rng.normal(0, 25, stack[:, :, ::3].shape).astype(np.float32)
-    char = cal.noise_characteristic(frames)
-    fit = cal.fit_noise_model(char)
-    assert cal.excess_scatter(char, fit) > 1.5
-    clean = cal.noise_characteristic(cal.simulate_calibration_frames(
+    char = nfit.noise_characteristic(frames)
+    fit = nfit.fit_noise_model(char)
+    assert nfit.excess_scatter(char, fit) > 1.5
+    clean = nfit.noise_characteristic(ctarget.simulate_calibration_frames(
         TRUTH, n_levels=6, n_frames=20, shape=(24, 32), rng=rng))
-    assert cal.excess_scatter(clean, cal.fit_noise_model(clean)) < 1.5
+    assert nfit.excess_scatter(clean, nfit.fit_noise_model(clean)) < 1.5

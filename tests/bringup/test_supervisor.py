@@ -1,8 +1,11 @@
-"""The process supervisor: output forwarding, death detection, ordered shutdown (no ROS)."""
+"""The process supervisor: output forwarding, death detection, ordered shutdown (no ROS).
+Waits are on events (a line of output, a process's exit through its pidfd), not on time."""
 import io
 import os
+import select
 import signal
 import sys
+import threading
 import time
 
 import pytest
@@ -16,16 +19,47 @@ def py(code: str) -> list[str]:
     return [PY, '-c', code]
 
 
-# a child that says it is ready, then sleeps; optional signal handling set up before "ready"
+# a child that says it is ready, then waits for a signal; optional signal handling set up
+# before "ready"
 def sleeper(setup: str = '') -> list[str]:
-    return py('import signal, sys, time\n' + setup + '\nprint("ready", flush=True)\ntime.sleep(60)')
+    return py('import signal, sys\n' + setup + '\nprint("ready", flush=True)\nwhile True: signal.pause()')
 
 
-def wait_for_line(stream: io.StringIO, text: str, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while text not in stream.getvalue():
-        assert time.monotonic() < deadline, f'{text!r} not seen; output so far:\n{stream.getvalue()}'
-        time.sleep(0.02)
+class Lines(io.StringIO):
+    """A stream the supervisor forwards to, which wakes `wait_for` on each write."""
+
+    def __init__(self):
+        super().__init__()
+        self._written = threading.Condition()
+
+    def write(self, text: str) -> int:
+        with self._written:
+            n = super().write(text)
+            self._written.notify_all()
+        return n
+
+    def wait_for(self, text: str, timeout_s: float = 30.0) -> None:
+        with self._written:
+            if not self._written.wait_for(lambda: text in self.getvalue(), timeout_s):
+                raise AssertionError(f'{text!r} not seen; output so far:\n{self.getvalue()}')
+
+
+def wait_for_line(stream: Lines, text: str) -> None:
+    stream.wait_for(text)
+
+
+def wait_for_pid_exit(pid: int, timeout_s: float = 30.0) -> bool:
+    """True once process ``pid`` (any process, not only a child) has exited: its pidfd becomes
+    readable then. False if it is still running after ``timeout_s``."""
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return True
+    try:
+        readable, _, _ = select.select([fd], [], [], timeout_s)
+        return bool(readable)
+    finally:
+        os.close(fd)
 
 
 def pid_alive(pid: int) -> bool:
@@ -55,15 +89,23 @@ def test_output_is_forwarded_line_by_line_with_the_name_and_logged(tmp_path):
     assert r.expected is False  # exited by itself, nobody asked it to stop
 
 
-def test_a_dying_child_is_reported_with_its_exit_code():
-    out = io.StringIO()
+def test_a_dying_child_is_reported_with_its_exit_code(tmp_path):
+    out = Lines()
+    crash = tmp_path / 'crash_now'
+    os.mkfifo(crash)
+    held_open = os.open(crash, os.O_RDWR)  # the crasher's read of the FIFO ends when this closes
     with Supervisor(stdout=out, stderr=io.StringIO()) as sup:
         sup.start(ProcessSpec('steady', sleeper()))
-        sup.start(ProcessSpec('crasher', py('import sys, time; time.sleep(0.3); sys.exit(3)')))
+        # dies when told, while the supervisor watches the other one
+        sup.start(ProcessSpec('crasher', py(
+            f'import sys\nfifo = open({str(crash)!r})\nprint("ready", flush=True)\nfifo.read()\n'
+            'sys.exit(3)')))
         # a SIGINT that lands while the child's interpreter is still starting can be lost
         # (seen once under load): only stop it once it runs its code
         wait_for_line(out, '[steady] ready')
-        dead = sup.wait_for_exit(timeout_s=10)
+        wait_for_line(out, '[crasher] ready')
+        os.close(held_open)
+        dead = sup.wait_for_exit(timeout_s=60)
         assert dead is not None and dead.name == 'crasher' and dead.returncode == 3
         assert sup['steady'].returncode is None
         reports = {r.name: r for r in sup.shutdown()}
@@ -73,7 +115,7 @@ def test_a_dying_child_is_reported_with_its_exit_code():
 
 
 def test_shutdown_escalates_sigint_sigterm_sigkill():
-    out = io.StringIO()
+    out = Lines()
     # grace periods long enough for a Python child to unwind on a loaded 2-core machine
     # (0.5 s was missed once with two CPU-bound benchmark workers running)
     sup = Supervisor(stdout=out, stderr=io.StringIO(), sigint_timeout_s=2.0, sigterm_timeout_s=2.0)
@@ -92,47 +134,42 @@ def test_shutdown_escalates_sigint_sigterm_sigkill():
     assert reports['deaf_to_int'].returncode == -signal.SIGTERM and reports['deaf_to_int'].clean
     assert reports['stubborn'].signal_sent == 'SIGKILL'
     assert reports['stubborn'].returncode == -signal.SIGKILL and not reports['stubborn'].clean
-    assert 3.9 < elapsed < 10.0  # waited out both grace periods, no more
+    assert elapsed >= 4.0  # waited out both grace periods before the harder signal
     assert not any(pid_alive(pid) for pid in pids)
 
 
 def test_grandchildren_are_stopped_with_their_parent():
-    out = io.StringIO()
+    out = Lines()
     with Supervisor(stdout=out, stderr=io.StringIO(), sigint_timeout_s=2) as sup:
         sup.start(ProcessSpec('parent', py(
-            'import subprocess, sys, time\n'
-            'c = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])\n'
+            'import signal, subprocess, sys\n'
+            'c = subprocess.Popen([sys.executable, "-c", "import signal\\nwhile True: signal.pause()"])\n'
             'print("grandchild", c.pid, flush=True)\n'
-            'time.sleep(60)')))
+            'while True: signal.pause()')))
         wait_for_line(out, '[parent] grandchild ')
         grandchild = int(out.getvalue().split('grandchild ')[1].split()[0])
         assert pid_alive(grandchild)
-    deadline = time.monotonic() + 5
-    while pid_alive(grandchild) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not pid_alive(grandchild)
+    assert wait_for_pid_exit(grandchild)
 
 
 def test_child_gets_sigterm_when_the_supervisor_process_dies(tmp_path):
     # A supervisor process that starts a child and is then SIGKILLed: no orphan survives.
     import subprocess
     code = (
-        'import io, sys, time\n'
+        'import io, signal, sys\n'
         'from lightstage_bringup.supervisor import ProcessSpec, Supervisor\n'
         'sup = Supervisor()\n'
-        'p = sup.start(ProcessSpec("orphan", [sys.executable, "-c", "import time; time.sleep(60)"]))\n'
+        'p = sup.start(ProcessSpec("orphan", [sys.executable, "-c",\n'
+        '                                     "import signal\\nwhile True: signal.pause()"]))\n'
         'print(p.pid, flush=True)\n'
-        'time.sleep(60)\n')
+        'while True: signal.pause()\n')
     boss = subprocess.Popen([PY, '-c', code], stdout=subprocess.PIPE, text=True)
     try:
         child_pid = int(boss.stdout.readline())
         assert pid_alive(child_pid)
         boss.kill()
-        boss.wait(timeout=5)
-        deadline = time.monotonic() + 5
-        while pid_alive(child_pid) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert not pid_alive(child_pid)
+        boss.wait(timeout=30)
+        assert wait_for_pid_exit(child_pid)
     finally:
         boss.kill()
         boss.stdout.close()

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from lightstage_camera.calibration import (fit_noise_model, noise_characteristic,
-                                           simulate_calibration_frames)
+from lightstage_camera.calibration_target import simulate_calibration_frames
+from lightstage_camera.noise_fit import fit_noise_model, noise_characteristic
 from lightstage_camera.noise import PRESETS, SETTINGS, NoiseModel
 
 

@@ -2,7 +2,13 @@ import numpy as np
 import pytest
 
 from lightstage_camera.noise import (PAPER_CALIBRATION, PRESETS, SETTINGS, NoiseModel,
-                                     brightness_factor, choose_gain, gain_ratio, preset)
+                                     choose_gain, gain_ratio, preset)
+
+
+def brightness_factor(gain_db: float, exposure_ms: float, reference_gain_db: float,
+                      reference_exposure_ms: float) -> float:
+    """How much brighter an image is at (gain, exposure) than at the reference setting."""
+    return gain_ratio(gain_db, reference_gain_db) * exposure_ms / reference_exposure_ms
 
 
 def test_generalization_formula():

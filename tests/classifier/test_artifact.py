@@ -4,15 +4,18 @@ import os
 import re
 import stat
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mux_classifier.model import (FORMAT_VERSION, ArtifactError, MuxClassifier,
-                                  TrainedArtifact, noise_to_dict)
-from mux_classifier.patterns import site_to_led_patterns
+from lightstage_camera.rig import DEFAULT_DIMMER, site_to_led_patterns
+from mux_classifier.artifact import (FORMAT_VERSION, UNRECORDED_DIMMER, ArtifactError,
+                                     DimmerMismatch, TrainedArtifact, check_dimmer,
+                                     noise_to_dict)
+from mux_classifier.estimator import MuxClassifier
 
 from artifact_mutations import mutated_artifacts
 
@@ -102,6 +105,71 @@ def test_other_version_is_refused(artifact, tmp_path):
              change_header=lambda h: h.update(format_version=FORMAT_VERSION + 1))
     with pytest.raises(ArtifactError, match=rf"version {FORMAT_VERSION + 1}.*reads version {FORMAT_VERSION}.*Retrain"):
         TrainedArtifact.load(tmp_path / "b.npz")
+    _rewrite(tmp_path / "a.npz", tmp_path / "c.npz", change_header=lambda h: h.update(format_version=0))
+    with pytest.raises(ArtifactError, match=r"version 0; .*reads version 2 and the older 1\."):
+        TrainedArtifact.load(tmp_path / "c.npz")
+
+
+def test_the_dimmer_is_recorded(artifact, tmp_path):
+    assert artifact.dimmer == DEFAULT_DIMMER and artifact.dimmer_recorded
+    clfs = [artifact.classifier(k) for k in artifact.n_images]
+    dim = TrainedArtifact.from_classifiers(clfs, artifact.led_patterns, noise=SIGMA3, dimmer=0.3)
+    dim.save(tmp_path / "d.npz")
+    with np.load(tmp_path / "d.npz", allow_pickle=False) as npz:
+        assert json.loads(npz["header"].tobytes().decode())["dimmer"] == 0.3
+    loaded = TrainedArtifact.load(tmp_path / "d.npz")
+    assert loaded.dimmer == 0.3 and loaded.dimmer_recorded
+    assert loaded.describe().endswith("noise sigma3, dimmer 0.3")
+    _rewrite(tmp_path / "d.npz", tmp_path / "e.npz", change_header=lambda h: h.pop("dimmer"))
+    with pytest.raises(ArtifactError, match="'dimmer' must be a positive number, got None"):
+        TrainedArtifact.load(tmp_path / "e.npz")
+    with pytest.raises(ArtifactError, match="dimmer must be a positive number, got nan"):
+        TrainedArtifact(artifact.led_patterns, artifact.class_names, artifact.stages,
+                        dimmer=float("nan"))
+
+
+def _as_format_1(header):
+    """What the lightstage before format 2 wrote: no dimmer in the header."""
+    header.update(format_version=1)
+    header.pop("dimmer")
+
+
+def test_a_format_1_file_loads_with_the_dimmer_every_earlier_training_used(artifact, toy_stacks,
+                                                                           tmp_path):
+    stacks, _ = toy_stacks
+    artifact.save(tmp_path / "a.npz")
+    _rewrite(tmp_path / "a.npz", tmp_path / "old.npz", change_header=_as_format_1)
+    old = TrainedArtifact.load(tmp_path / "old.npz")
+    assert UNRECORDED_DIMMER == 0.45
+    assert old.dimmer == 0.45 and not old.dimmer_recorded
+    assert "dimmer 0.45 (not recorded: a format-1 file; every training before format 2 used " \
+           "0.45)" in old.describe()
+    np.testing.assert_array_equal(old.predict(stacks), artifact.predict(stacks))
+    # saved again, it is a format-2 file that records the dimmer
+    old.save(tmp_path / "again.npz")
+    again = TrainedArtifact.load(tmp_path / "again.npz")
+    assert again.dimmer == 0.45 and again.dimmer_recorded
+
+
+def test_the_bundled_format_1_artifact_still_loads():
+    bundled = Path(__file__).resolve().parents[2] / "bags" / "sim_session_classifier.npz"
+    with np.load(bundled, allow_pickle=False) as npz:
+        assert json.loads(npz["header"].tobytes().decode())["format_version"] == 1
+    art = TrainedArtifact.load(bundled)
+    assert art.dimmer == 0.45 and not art.dimmer_recorded and "not recorded" in art.describe()
+
+
+def test_check_dimmer_names_both_values_and_what_to_set():
+    check_dimmer(0.45, 0.45)
+    check_dimmer(0.45, np.float32(0.45))  # a float32 parameter of the same value
+    with pytest.raises(DimmerMismatch, match=r"trained with dimmer 0.45 but the camera's dimmer "
+                                             r"is 0.9: .*2 x as bright.*Set the camera node's "
+                                             r"dimmer parameter to 0.45"):
+        check_dimmer(0.45, 0.9)
+    assert issubclass(DimmerMismatch, ArtifactError)  # a node refuses it as any unusable file
+    for bad in (0.0, -1.0, float("nan"), None, "x"):
+        with pytest.raises(ArtifactError, match="camera's dimmer must be a positive number"):
+            check_dimmer(0.45, bad)
 
 
 def test_truncated_file_is_refused(artifact, tmp_path):
@@ -235,6 +303,10 @@ def test_header_array_of_another_type_is_refused(tmp_path):
      "exposure_ms must be a finite number >= 0, got -1.0"),
     ("noise", {"name": "x", "sigma_p2": "a", "sigma_r2": 1, "gain_db": 0, "exposure_ms": 1},
      "sigma_p2 must be a number or null"),
+    ("dimmer", None, "'dimmer' must be a positive number"),
+    ("dimmer", True, "dimmer must be a positive number, got True"),
+    ("dimmer", -0.45, "dimmer must be a positive number, got -0.45"),
+    ("dimmer", 0, "dimmer must be a positive number, got 0"),
 ])
 def test_malformed_header_fields_are_named(artifact, tmp_path, field, value, message):
     artifact.save(tmp_path / "a.npz")

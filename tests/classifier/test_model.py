@@ -5,9 +5,9 @@ from sklearn.base import clone
 from sklearn.exceptions import NotFittedError
 from sklearn.svm import LinearSVC
 
+from mux_classifier.estimator import MuxClassifier
 from mux_classifier.features import stack_features
 from mux_classifier.hog import HogConfig, hog_batch
-from mux_classifier.model import MuxClassifier
 
 
 def test_stack_features_concatenates_in_image_order(toy_stacks):

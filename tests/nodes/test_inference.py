@@ -61,7 +61,7 @@ def test_mono16_to_gray_undoes_the_msb_alignment():
 
 def _upsampled(modelset, factor=2):
     """The same scene seen by a camera with `factor` x the resolution (each pixel a block)."""
-    from lightstage_camera.models import ModelSet
+    from lightstage_camera.scene_models import ModelSet
     big = modelset.models.repeat(factor, axis=-1).repeat(factor, axis=-2)
     return ModelSet(big, modelset.labels, modelset.class_names, modelset.sample_names,
                     modelset.pose_index, modelset.instance,

@@ -99,8 +99,22 @@ def bag_results(bag, topic: str = '/lightstage/result') -> list:
     from lightstage_interfaces.msg import ClassificationResult
     from rclpy.serialization import deserialize_message
 
-    from lightstage_bringup.bag_format import BagReader
+    from lightstage_recording import BagReader
     return [deserialize_message(m.data, ClassificationResult) for m in BagReader(bag).messages([topic])]
+
+
+def recover(src, dst):
+    """`lightstage_recording.recover_bag`, for tests that want the new bag or an exception:
+    the info of ``dst``; `BagWriteError` if the copy stopped midway, `BagError` if nothing
+    could be recovered."""
+    from lightstage_recording import BagError, BagWriteError, recover_bag
+    result = recover_bag(src, dst)
+    if result.error:
+        raise BagWriteError(result.error)
+    if result.info is None:
+        raise BagError(f'nothing could be recovered: {src} holds no intact message '
+                       f'({"; ".join(result.source_problems) or "it is empty"}); no bag was written')
+    return result.info
 
 
 def mcap_ros2_decode(path, topics):

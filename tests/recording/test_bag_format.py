@@ -9,10 +9,11 @@ import pytest
 import yaml
 from rclpy.serialization import deserialize_message, serialize_message
 
-from lightstage_bringup import bag_format as bf
-from lightstage_bringup.bag_ros import message_class
+import lightstage_recording as lr
+from lightstage_recording.bag_ros import message_class
+from lightstage_recording.qos import INFINITE_NS, dump_qos_profiles, parse_qos_profiles
 from recording_helpers import (apply_event, classify_event, fields_equal, illumination, image,
-                               mcap_ros2_decode, result)
+                               mcap_ros2_decode, recover, result)
 from suite_helpers import lightstage_command
 
 T0 = 1_700_000_000_000_000_000
@@ -21,8 +22,8 @@ TOPICS = {'/illumination': 'lightstage_interfaces/msg/IlluminationState',
           '/lightstage/result': 'lightstage_interfaces/msg/ClassificationResult',
           '/lightstage/classify/_service_event': 'lightstage_interfaces/srv/Classify_Event',
           '/lightstage/apply_patterns/_service_event': 'lightstage_interfaces/srv/ApplyPatterns_Event'}
-RELIABLE = bf.QosProfile(history='unknown', depth=0)
-LATCHED = bf.QosProfile(history='unknown', depth=0, durability='transient_local')
+RELIABLE = lr.QosProfile(history='unknown', depth=0)
+LATCHED = lr.QosProfile(history='unknown', depth=0, durability='transient_local')
 
 
 def _messages():
@@ -42,7 +43,7 @@ def _messages():
 
 def _write(path, messages=None, **kwargs):
     messages = _messages() if messages is None else messages
-    with bf.BagWriter(path, **kwargs) as w:
+    with lr.BagWriter(path, **kwargs) as w:
         for topic, type_name in TOPICS.items():
             w.add_topic(topic, type_name, [LATCHED if topic == '/lightstage/result' else RELIABLE])
         for topic, msg, log_t, pub_t in messages:
@@ -92,7 +93,7 @@ def test_mcap_records_are_those_rosbag2_writes(bag):
         for channel in summary.channels.values():
             assert channel.message_encoding == 'cdr'
             assert set(channel.metadata) == {'offered_qos_profiles', 'topic_type_hash'}
-            assert bf.parse_qos_profiles(channel.metadata['offered_qos_profiles'])
+            assert parse_qos_profiles(channel.metadata['offered_qos_profiles'])
         (meta,) = [m for m in reader.iter_metadata() if m.name == 'rosbag2']
         assert meta.metadata['ROS_DISTRO'] == 'jazzy'
         assert yaml.safe_load(meta.metadata['serialized_metadata'])['message_count'] == len(messages)
@@ -102,7 +103,7 @@ def test_mcap_records_are_those_rosbag2_writes(bag):
 
 def test_reader_gives_back_every_message_with_its_times(bag):
     path, messages = bag
-    reader = bf.BagReader(path)
+    reader = lr.BagReader(path)
     info = reader.info()
     assert info.complete and not info.problems and info.has_metadata_yaml
     assert info.message_count == len(messages)
@@ -177,44 +178,44 @@ def test_mcap_ros2_decodes_the_message_topics(bag):
 
 
 def test_qos_profiles_round_trip_and_accept_version_8_numbers():
-    q = bf.QosProfile(history='keep_last', depth=7, reliability='best_effort',
+    q = lr.QosProfile(history='keep_last', depth=7, reliability='best_effort',
                       durability='transient_local', deadline_ns=1_500_000_000)
-    (back,) = bf.parse_qos_profiles(bf.dump_qos_profiles([q]))
+    (back,) = parse_qos_profiles(dump_qos_profiles([q]))
     assert back == q
     assert q.to_dict()['deadline'] == {'sec': 1, 'nsec': 500_000_000}
-    v8 = bf.QosProfile.from_dict({'history': 3, 'depth': 0, 'reliability': 1, 'durability': 1,
+    v8 = lr.QosProfile.from_dict({'history': 3, 'depth': 0, 'reliability': 1, 'durability': 1,
                                   'deadline': {'sec': 9223372036, 'nsec': 854775807},
                                   'lifespan': {'sec': 9223372036, 'nsec': 854775807},
                                   'liveliness': 1, 'liveliness_lease_duration':
                                   {'sec': 9223372036, 'nsec': 854775807},
                                   'avoid_ros_namespace_conventions': False})
     assert (v8.history, v8.reliability, v8.durability) == ('unknown', 'reliable', 'transient_local')
-    assert v8.deadline_ns == bf.INFINITE_NS
+    assert v8.deadline_ns == INFINITE_NS
     with pytest.raises(ValueError, match='reliability'):
-        bf.QosProfile.from_dict({'reliability': 'sometimes'})
+        lr.QosProfile.from_dict({'reliability': 'sometimes'})
 
 
 def test_writer_refuses_to_overwrite_and_unknown_topics(tmp_path):
     (tmp_path / 'taken').mkdir()
     (tmp_path / 'taken' / 'x').write_text('x')
-    with pytest.raises(bf.BagError, match='already exists'):
-        bf.BagWriter(tmp_path / 'taken')
-    with bf.BagWriter(tmp_path / 'b') as w:
-        with pytest.raises(bf.BagError, match='add_topic first'):
+    with pytest.raises(lr.BagError, match='already exists'):
+        lr.BagWriter(tmp_path / 'taken')
+    with lr.BagWriter(tmp_path / 'b') as w:
+        with pytest.raises(lr.BagError, match='add_topic first'):
             w.write('/nothing', b'\x00\x01\x00\x00', 1)
         w.add_topic('/a', 'sensor_msgs/msg/Image')
-        with pytest.raises(bf.BagError, match='one bag topic has one type'):
+        with pytest.raises(lr.BagError, match='one bag topic has one type'):
             w.add_topic('/a', 'std_msgs/msg/String')
-    with pytest.raises(bf.BagError, match='compression'):
-        bf.BagWriter(tmp_path / 'c', compression='bz2')
+    with pytest.raises(lr.BagError, match='compression'):
+        lr.BagWriter(tmp_path / 'c', compression='bz2')
 
 
 def test_a_type_without_definition_is_recorded_without_schema(tmp_path):
-    with bf.BagWriter(tmp_path / 'b') as w:
+    with lr.BagWriter(tmp_path / 'b') as w:
         w.add_topic('/odd', 'no_such_pkg/msg/Odd')
         w.write('/odd', b'\x00\x01\x00\x00abc', T0)
     assert 'no_such_pkg/msg/Odd' in w.warnings[0]
-    reader = bf.BagReader(tmp_path / 'b')
+    reader = lr.BagReader(tmp_path / 'b')
     (m,) = reader.messages()
     assert (m.topic, m.type, m.data) == ('/odd', 'no_such_pkg/msg/Odd', b'\x00\x01\x00\x00abc')
 
@@ -242,7 +243,7 @@ def test_a_cut_off_bag_yields_every_message_before_the_cut(chunked, tmp_path, fr
     src, messages = chunked
     mcap = _copy_mcap(src, tmp_path / 'cut')
     os.truncate(mcap, int(mcap.stat().st_size * fraction))
-    reader = bf.BagReader(tmp_path / 'cut')
+    reader = lr.BagReader(tmp_path / 'cut')
     info = reader.info()
     assert not info.complete
     assert any('no metadata.yaml' in p for p in info.problems)
@@ -253,12 +254,12 @@ def test_a_cut_off_bag_yields_every_message_before_the_cut(chunked, tmp_path, fr
     assert [(m.topic, m.log_time_ns) for m in got] == [(m[0], m[2]) for m in messages[:n]]
     if fraction >= 0.5:
         assert n >= len(messages) // 3  # one message per chunk: little is lost
-    text = bf.format_info(info)
+    text = lr.format_info(info)
     assert 'INCOMPLETE BAG' in text and 'lightstage bag recover' in text
     # recover: a complete bag with exactly those messages
-    info2 = bf.recover(tmp_path / 'cut', tmp_path / 'fixed')
+    info2 = recover(tmp_path / 'cut', tmp_path / 'fixed')
     assert info2.complete and info2.message_count == n
-    assert [m.data for m in bf.BagReader(tmp_path / 'fixed').messages()] == [m.data for m in got]
+    assert [m.data for m in lr.BagReader(tmp_path / 'fixed').messages()] == [m.data for m in got]
 
 
 def test_a_damaged_chunk_costs_only_its_own_messages(chunked, tmp_path):
@@ -271,7 +272,7 @@ def test_a_damaged_chunk_costs_only_its_own_messages(chunked, tmp_path):
     assert at > 0
     data[at:at + 8] = bytes(255 - b for b in data[at:at + 8])
     mcap.write_bytes(bytes(data))
-    reader = bf.BagReader(tmp_path / 'bad')
+    reader = lr.BagReader(tmp_path / 'bad')
     got = list(reader.messages())
     assert len(got) == len(messages) - 1
     assert any('damaged' in p and 'skipped' in p for p in reader.problems)
@@ -293,18 +294,18 @@ def test_files_that_are_no_bag_are_clear_errors(tmp_path, bag):
     (tmp_path / 'empty.mcap').write_bytes(b'')
     (tmp_path / 'emptydir').mkdir()
     for name, (p, message) in cases.items():
-        with pytest.raises(bf.BagError, match=message):
-            bf.BagReader(p)
+        with pytest.raises(lr.BagError, match=message):
+            lr.BagReader(p)
     # metadata.yaml naming a file the directory lacks
     broken = tmp_path / 'broken'
     shutil.copytree(path, broken)
     (broken / 'session_0.mcap').unlink()
-    with pytest.raises(bf.BagError, match='lists session_0.mcap.*copy the whole bag'):
-        bf.BagReader(broken)
+    with pytest.raises(lr.BagError, match='lists session_0.mcap.*copy the whole bag'):
+        lr.BagReader(broken)
     # an unreadable metadata.yaml: the .mcap is read directly, with a note
     shutil.copytree(path, tmp_path / 'garbled')
     (tmp_path / 'garbled' / 'metadata.yaml').write_text(': : [unclosed')
-    reader = bf.BagReader(tmp_path / 'garbled')
+    reader = lr.BagReader(tmp_path / 'garbled')
     assert reader.info().message_count == len(_messages())
     assert any('metadata.yaml is unreadable' in p for p in reader.problems)
 
@@ -343,7 +344,7 @@ def test_reads_a_bag_another_writer_made_with_zstd_chunks(tmp_path):
     messages = [m for m in _messages() if m[0] in ('/illumination', '/image_raw')]
     store = get_typestore(Stores.ROS2_JAZZY)
     from rosbags.typesys import get_types_from_msg
-    from lightstage_bringup.msg_definitions import full_definition
+    from lightstage_recording.msg_definitions import full_definition
     store.register(get_types_from_msg(full_definition(TOPICS['/illumination']), TOPICS['/illumination']))
     writer = Writer(tmp_path / 'other', version=9, storage_plugin=StoragePlugin.MCAP)
     writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
@@ -353,7 +354,7 @@ def test_reads_a_bag_another_writer_made_with_zstd_chunks(tmp_path):
                        for t in ('/illumination', '/image_raw')}
         for (topic, _, log_t, _), data in zip(messages, payloads):
             writer.write(connections[topic], log_t, data)
-    reader = bf.BagReader(tmp_path / 'other')
+    reader = lr.BagReader(tmp_path / 'other')
     info = reader.info(verify=True)
     assert info.complete and info.message_count == len(messages)
     got = list(reader.messages())

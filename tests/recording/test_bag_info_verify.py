@@ -6,7 +6,7 @@ import shutil
 import struct
 import subprocess
 
-from lightstage_bringup.bag_format import _FileScan
+from lightstage_recording.scan import FileScan
 from recording_helpers import REPO
 from suite_helpers import lightstage_command
 
@@ -19,7 +19,7 @@ def _bad_crc_copy(tmp_path):
     bag = tmp_path / 'sim_session'
     shutil.copytree(BAG, bag)
     mcap = bag / 'sim_session_0.mcap'
-    scan = _FileScan(mcap)
+    scan = FileScan(mcap)
     chunks = [(i.chunk_start_offset, i) for i in scan.summary.chunk_indexes]
     counts = [len(c.messages) for c in scan.walk()]
     assert sum(counts) == 106 and 12 in counts

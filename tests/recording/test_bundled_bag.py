@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message
 
-from lightstage_bringup.bag_format import BagReader
+from lightstage_recording import BagReader
 from recording_helpers import REPO, bag_results, mcap_ros2_decode, replay_into_observing_classifier
 
 BAG = REPO / 'bags' / 'sim_session'

@@ -13,7 +13,7 @@ import subprocess
 import pytest
 
 from lightstage_bringup import demo
-from lightstage_bringup.bag_format import BagReader
+from lightstage_recording import BagReader
 from lightstage_bringup.ros_env import ros_environment
 from recording_helpers import bag_results
 from suite_helpers import RosClient, fresh_domain_id, lightstage_command

@@ -2,7 +2,7 @@
 checked against an independent parser (rosbags) and the rclpy message classes."""
 import pytest
 
-from lightstage_bringup import msg_definitions as md
+from lightstage_recording import msg_definitions as md
 
 SEP = '=' * 80
 
@@ -59,7 +59,7 @@ TYPES = ['lightstage_interfaces/msg/IlluminationState', 'lightstage_interfaces/m
 
 @pytest.mark.parametrize('type_name', TYPES)
 def test_rosbags_parses_each_definition_into_the_fields_of_the_rclpy_class(type_name):
-    from lightstage_bringup.bag_ros import message_class
+    from lightstage_recording.bag_ros import message_class
     from rosbags.typesys import get_types_from_msg
     types = get_types_from_msg(md.full_definition(type_name), type_name)
     root = next(iter(types))  # rosbags keys srv types as pkg/srv/msg/Name: the root comes first

@@ -10,7 +10,7 @@ import pytest
 import yaml
 from rclpy.serialization import deserialize_message, serialize_message
 
-from lightstage_bringup.bag_format import BagReader, BagWriter
+from lightstage_recording import BagReader, BagWriter
 from recording_helpers import REPO, apply_event, classify_event, illumination, result
 
 BAG = REPO / 'bags' / 'sim_session'
@@ -33,7 +33,7 @@ def _files(bag):
 
 
 def _rclpy_class(type_name):
-    from lightstage_bringup.bag_ros import message_class
+    from lightstage_recording.bag_ros import message_class
     return message_class(type_name)
 
 

@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message
 
-from lightstage_bringup import msg_definitions
-from lightstage_bringup.bag_format import BagReader
+from lightstage_recording import BagReader, msg_definitions
 from lightstage_bringup.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
 from recording_helpers import bag_results, replay_into_observing_classifier

@@ -2,13 +2,14 @@
 (transient-local) topics through record and replay, and the command-line errors."""
 import signal
 import subprocess
+import threading
 
 import pytest
 
-from lightstage_bringup.bag_format import BagError, BagReader, recover
+from lightstage_recording import BagError, BagReader
 from lightstage_bringup.launcher import node_command
 from lightstage_bringup.ros_env import ros_environment
-from recording_helpers import illumination
+from recording_helpers import illumination, recover
 from suite_helpers import RosClient, fresh_domain_id, lightstage_command, write_params
 
 pytestmark = pytest.mark.ros
@@ -41,7 +42,7 @@ def test_killed_recorder_bag_is_readable_and_replay_keeps_the_recorded_qos(tmp_p
         status = client.node.create_publisher(String, '/stage_status', latched)
         states = client.node.create_publisher(IlluminationState, '/illumination', 100)
         status.publish(String(data='stage ready'))  # before the recorder exists
-        recorder = subprocess.Popen(node_command('lightstage_bringup.recorder_node', 'recorder', params),
+        recorder = subprocess.Popen(node_command('lightstage_recording.recorder_node', 'recorder', params),
                                     env=ros_environment(domain_id), stdout=subprocess.PIPE,
                                     stderr=subprocess.STDOUT, text=True)
         try:
@@ -80,7 +81,7 @@ def test_killed_recorder_bag_is_readable_and_replay_keeps_the_recorded_qos(tmp_p
 
         # replay: the player's publishers offer what was recorded; a late subscriber of the
         # latched topic still gets its message
-        player = subprocess.Popen(node_command('lightstage_bringup.player_node', 'player', params),
+        player = subprocess.Popen(node_command('lightstage_recording.player_node', 'player', params),
                                   env=ros_environment(domain_id), stdout=subprocess.PIPE,
                                   stderr=subprocess.STDOUT, text=True)
         try:
@@ -109,7 +110,7 @@ def test_command_line_errors_say_what_to_do(tmp_path):
     domain_id = fresh_domain_id()
     env = ros_environment(domain_id)
     # a bag to play: two illumination states
-    from lightstage_bringup.bag_format import BagWriter
+    from lightstage_recording import BagWriter
     from rclpy.serialization import serialize_message
     with BagWriter(tmp_path / 'small') as w:
         w.add_topic('/illumination', 'lightstage_interfaces/msg/IlluminationState')
@@ -151,21 +152,37 @@ def test_record_splits_by_duration_and_keeps_the_newest_files(tmp_path):
                                '--max-bag-files', '2', '--domain-id', str(domain_id)),
             env=ros_environment(domain_id), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
             text=True)
+        lines, deleted = [], threading.Event()
+
+        def read_output():
+            for line in recorder.stdout:
+                lines.append(line)
+                if 'deleted' in line and 'to keep max_bag_files 2' in line:
+                    deleted.set()
+        reader = threading.Thread(target=read_output, daemon=True)
+        reader.start()
         try:
             client.spin_until(lambda: pub.get_subscription_count() > 0, 30.0,
                               'the recorder to subscribe')
-            for i in range(60):  # 3 s at 20 Hz: 6 files of 0.5 s
-                pub.publish(illumination(seq=i))
+            # about 20 Hz (the log times must span several 0.5 s files), until the recorder
+            # says it deleted a file to keep 2
+            published = 0
+            while not deleted.is_set():
+                assert published < 2000, f'no file deleted after {published} messages:\n{"".join(lines)}'
+                pub.publish(illumination(seq=published))
+                published += 1
                 client.spin_for(0.05)
         finally:
             recorder.send_signal(signal.SIGINT)
-            report, _ = recorder.communicate(timeout=60)
+            recorder.wait(timeout=60)
+            reader.join(timeout=10)
     finally:
         client.close()
+    report = ''.join(lines)
     assert recorder.returncode == 0, report
     meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert len(meta['relative_file_paths']) == 2 == len(list(bag.glob('*.mcap')))
     assert 'were deleted to keep max_bag_files 2' in meta['custom_data']['deleted_files']
     assert 'not kept: ' in report and 'in 2 files)' in report, report
     held = BagReader(bag).info(verify=True)
-    assert held.complete and 0 < held.message_count < 60
+    assert held.complete and 0 < held.message_count < published

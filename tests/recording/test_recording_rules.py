@@ -1,8 +1,8 @@
 """Which topics are recorded / played and with which QoS (no graph)."""
 import pytest
 
-from lightstage_bringup.bag_format import QosProfile
-from lightstage_bringup.recording import (TopicSelector, is_hidden, playback_delay_s, playback_qos,
+from lightstage_recording import QosProfile
+from lightstage_recording.recording import (TopicSelector, is_hidden, playback_delay_s, playback_qos,
                                           select_play_topics, subscription_qos)
 
 IMG = 'sensor_msgs/msg/Image'
@@ -73,8 +73,8 @@ def test_play_topic_selection_and_timing():
 def test_the_recording_cores_do_not_import_rclpy():
     import subprocess
     import sys
-    code = ('import sys, lightstage_bringup.bag_format, lightstage_bringup.recording, '
-            'lightstage_bringup.msg_definitions, mux_classifier.observe; '
+    code = ('import sys, lightstage_recording, lightstage_recording.recording, '
+            'lightstage_recording.msg_definitions, mux_classifier.observe; '
             'assert "rclpy" not in sys.modules, sorted(m for m in sys.modules if "rclpy" in m)')
     p = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr

@@ -8,9 +8,9 @@ import pytest
 import yaml
 from rclpy.serialization import serialize_message
 
-from lightstage_bringup import bag_cli
-from lightstage_bringup import bag_format as bf
-from recording_helpers import image
+import lightstage_recording as lr
+from lightstage_recording import bag_cli
+from recording_helpers import image, recover
 from write_faults import FailingDisk
 
 T0 = 1_700_000_000_000_000_000
@@ -20,7 +20,7 @@ IMG = 'sensor_msgs/msg/Image'
 def _source(path, n=12, size=320, chunk_size_bytes=1 << 20):
     """n images of size x size (205 kB each at 320 px: the default 1 MiB chunks take 6)."""
     sent = []
-    with bf.BagWriter(path, chunk_size_bytes=chunk_size_bytes) as w:
+    with lr.BagWriter(path, chunk_size_bytes=chunk_size_bytes) as w:
         w.add_topic('/image_raw', IMG)
         for i in range(n):
             data = serialize_message(image(seed=i, size=size))
@@ -61,9 +61,9 @@ def test_recover_prints_what_was_damaged_and_lost_in_the_source(tmp_path, capsys
     assert f'lost in {src}: 6 of the 12 messages its summary / metadata.yaml lists' in out, out
     dst = tmp_path / 'damaged_recovered'
     assert f'recovered 6 messages on 1 topics into {dst}' in out
-    info = bf.BagReader(dst).info(verify=True)
+    info = lr.BagReader(dst).info(verify=True)
     assert info.complete and info.message_count == 6
-    assert [m.data for m in bf.BagReader(dst).messages()] == [s[0] for s in sent[6:]]
+    assert [m.data for m in lr.BagReader(dst).messages()] == [s[0] for s in sent[6:]]
     meta = _metadata(dst)
     assert meta['message_count'] == 6
     assert meta['custom_data']['recovered_from'] == str(src)
@@ -83,13 +83,13 @@ def test_recover_of_a_cut_off_bag_names_the_cut(tmp_path, capsys):
     assert f'no metadata.yaml (the recorder did not close the bag)' in out, out
     assert 'cut_0.mcap is cut off at byte ' in out
     assert f'lost in {cut}: whatever was written after the damage above' in out
-    n = bf.BagReader(tmp_path / 'fixed').info().message_count
+    n = lr.BagReader(tmp_path / 'fixed').info().message_count
     assert 0 < n < len(sent) and f'recovered {n} messages on 1 topics' in out
 
 
 def test_recover_stopped_by_a_full_disk_lists_only_what_it_copied(tmp_path, capsys, monkeypatch):
-    """The second chunk of the copy hits a full disk (space is back for the summary): the
-    new bag, its summary and metadata.yaml hold the first chunk's 6 messages; exit 1."""
+    """The second chunk of the copy hits a full disk (space is back when it closes): the new
+    bag's file ends after the first chunk, whose 6 messages metadata.yaml lists; exit 1."""
     src = tmp_path / 'src'
     sent = _source(src)
     dst = tmp_path / 'copy'
@@ -103,21 +103,22 @@ def test_recover_stopped_by_a_full_disk_lists_only_what_it_copied(tmp_path, caps
     assert f'partly recovered: 6 messages on 1 topics into {dst}' in out
     assert f'Not copied: the rest of {src} (12 messages in all by its info)' in out
     assert 'the copy stopped midway' in err
-    info = bf.BagReader(dst).info()
-    assert info.complete and info.message_count == 6  # summary: what is in the file
-    assert [m.data for m in bf.BagReader(dst).messages()] == [s[0] for s in sent[:6]]
+    info = lr.BagReader(dst).info()
+    assert not info.complete and info.message_count == 6  # no summary: what is in the file
+    assert any('ends at byte' in p and 'without the MCAP footer' in p for p in info.problems)
+    assert [m.data for m in lr.BagReader(dst).messages()] == [s[0] for s in sent[:6]]
     meta = _metadata(dst)
     assert meta['message_count'] == 6
     assert meta['topics_with_message_count'][0]['message_count'] == 6
     assert meta['duration']['nanoseconds'] == sent[5][1] - sent[0][1]
     assert 'disk full' in meta['custom_data']['recovery_stopped']
-    shown = bf.format_info(info)  # `lightstage bag info` says it is a partial copy
+    shown = lr.format_info(info)  # `lightstage bag info` says it is a partial copy
     assert f'PARTIAL COPY of {src}: the recovery stopped (disk full writing' in shown, shown
     # as a function: the same, and the wrapper raises
     shutil.rmtree(dst)
     disk.failures, disk.chunks = 0, 0
-    with pytest.raises(bf.BagWriteError, match='disk full writing'):
-        bf.recover(src, dst)
+    with pytest.raises(lr.BagWriteError, match='disk full writing'):
+        recover(src, dst)
     assert _metadata(dst)['message_count'] == 6
 
 
@@ -132,8 +133,8 @@ def test_recover_with_nothing_intact_writes_nothing_and_exits_1(tmp_path, capsys
             f'{tmp_path / "lost_recovered"}') in out
     assert 'nothing could be recovered' in err
     assert not (tmp_path / 'lost_recovered').exists()
-    with pytest.raises(bf.BagError, match='nothing could be recovered'):
-        bf.recover(src, tmp_path / 'other')
+    with pytest.raises(lr.BagError, match='nothing could be recovered'):
+        recover(src, tmp_path / 'other')
     assert not (tmp_path / 'other').exists()
 
 

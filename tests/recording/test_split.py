@@ -7,8 +7,8 @@ import pytest
 import yaml
 from rclpy.serialization import serialize_message
 
-from lightstage_bringup import bag_cli
-from lightstage_bringup import bag_format as bf
+import lightstage_recording as lr
+from lightstage_recording import bag_cli
 from recording_helpers import image, result
 from write_faults import FailingDisk
 
@@ -22,7 +22,7 @@ def _write(path, n, step_ns=100_000_000, flush_every=0, **limits):
     """n images (and a result after every 4th) 0.1 s apart; returns the writer (closed) and
     what was written, in order."""
     sent = []
-    w = bf.BagWriter(path, chunk_size_bytes=64 * 1024, **limits)
+    w = lr.BagWriter(path, chunk_size_bytes=64 * 1024, **limits)
     w.add_topic('/image_raw', IMG)
     w.add_topic('/lightstage/result', RESULT)
     try:
@@ -37,7 +37,7 @@ def _write(path, n, step_ns=100_000_000, flush_every=0, **limits):
                 sent.append(('/lightstage/result', data, t + 1))
             if flush_every and i % flush_every == 0:
                 w.flush()
-    except bf.BagWriteError:
+    except lr.BagWriteError:
         w.close()  # as the recorder does: the bag is closed with what it holds
         raise
     return w, sent
@@ -48,7 +48,7 @@ def _metadata(path):
 
 
 def _read(path):
-    return [(m.topic, m.data, m.log_time_ns) for m in bf.BagReader(path).messages()]
+    return [(m.topic, m.data, m.log_time_ns) for m in lr.BagReader(path).messages()]
 
 
 def test_split_by_size_names_files_as_rosbag2_and_lists_each(tmp_path):
@@ -68,11 +68,11 @@ def test_split_by_size_names_files_as_rosbag2_and_lists_each(tmp_path):
     assert sum(e['message_count'] for e in meta['files']) == meta['message_count'] == len(sent)
     assert meta['files'][0]['starting_time']['nanoseconds_since_epoch'] == T0
     for e in meta['files']:  # each file is a complete MCAP file with its own counts
-        info = bf.BagReader(bag / e['path']).info()
+        info = lr.BagReader(bag / e['path']).info()
         assert info.complete and info.message_count == e['message_count']
         assert set(info.topics) == {'/image_raw', '/lightstage/result'}  # every channel in each
     assert _read(bag) == sent
-    info = bf.BagReader(bag).info(verify=True)
+    info = lr.BagReader(bag).info(verify=True)
     assert info.complete and info.message_count == len(sent) and info.verified
     assert {t.name: t.count for t in info.topics.values()} == {'/image_raw': 40, '/lightstage/result': 10}
     # an independent reader takes the split bag as rosbag2 lays it out
@@ -132,7 +132,7 @@ def test_a_killed_writer_of_a_split_bag_loses_only_its_unflushed_chunk(tmp_path,
         shutil.copy(f, killed / f.name.replace('live', 'killed'))
     w.close()
     assert len(list(killed.glob('*.mcap'))) == 4
-    reader = bf.BagReader(killed)
+    reader = lr.BagReader(killed)
     info = reader.info()
     assert not info.complete and not info.has_metadata_yaml
     assert _read(killed) == sent[:flushed]
@@ -145,9 +145,9 @@ def test_a_killed_writer_of_a_split_bag_loses_only_its_unflushed_chunk(tmp_path,
 def test_disk_full_in_a_split_bag_keeps_the_closed_files_and_counts_what_is_held(tmp_path,
                                                                                 monkeypatch):
     bag = tmp_path / 'full'
-    # one failed write (a torn chunk), then the disk takes the summary and metadata.yaml again
+    # one failed write (a torn chunk), then the disk takes metadata.yaml again
     disk = FailingDisk(monkeypatch, after_chunks=9, stays_full=False)
-    with pytest.raises(bf.BagWriteError, match='disk full writing'):
+    with pytest.raises(lr.BagWriteError, match='disk full writing'):
         _write(bag, 40, max_bag_size_bytes=150 * 1024)
     monkeypatch.undo()
     assert disk.failures
@@ -156,12 +156,19 @@ def test_disk_full_in_a_split_bag_keeps_the_closed_files_and_counts_what_is_held
     held = _read(bag)
     assert meta['message_count'] == sum(e['message_count'] for e in meta['files']) == len(held)
     assert 0 < len(held) < 50
-    assert bf.BagReader(bag).info(verify=True).complete
+    # the closed files are complete; the one in progress ends after its last complete chunk
+    info = lr.BagReader(bag).info(verify=True)
+    last = meta['files'][-1]['path']
+    assert [p for p in info.problems if 'MCAP footer' in p] == [
+        p for p in info.problems if p.startswith(f'{last} ends at byte ')], info.problems
+    assert len(info.problems) == 1 and not info.complete
+    assert bag_cli.bag_main(['recover', str(bag)]) == 0
+    assert _read(tmp_path / 'full_recovered') == held
 
 
 def test_split_limits_are_checked(tmp_path):
-    with pytest.raises(bf.BagError, match='max_bag_size_bytes 100 is too small; use 0'):
-        bf.BagWriter(tmp_path / 'a', max_bag_size_bytes=100)
-    with pytest.raises(bf.BagError, match='must be >= 0'):
-        bf.BagWriter(tmp_path / 'b', max_bag_files=-1)
+    with pytest.raises(lr.BagError, match='max_bag_size_bytes 100 is too small; use 0'):
+        lr.BagWriter(tmp_path / 'a', max_bag_size_bytes=100)
+    with pytest.raises(lr.BagError, match='must be >= 0'):
+        lr.BagWriter(tmp_path / 'b', max_bag_files=-1)
     assert not (tmp_path / 'a').exists() and not (tmp_path / 'b').exists()

@@ -1,5 +1,6 @@
 """A recorder whose disk fails (full, I/O error) stops cleanly: the error says what happened,
-what the bag holds and what to do, and the bag is closed with exactly the messages it holds.
+what the bag holds and what to do; the file ends after its last complete chunk, the bag's
+metadata.yaml lists exactly the messages it holds, and `bag recover` completes it.
 Also what the writer makes durable (fsync) and which output directories it takes -- the
 claims of docs/RECORDING.md. The recording core is pure: no ROS, except the last test."""
 import errno
@@ -9,15 +10,16 @@ import pytest
 import yaml
 from rclpy.serialization import serialize_message
 
-from lightstage_bringup import bag_format as bf
-from lightstage_bringup.recording import Recording
-from recording_helpers import REPO, illumination, image
+import lightstage_recording as lr
+from lightstage_recording import fileio
+from lightstage_recording.recording import Recording
+from recording_helpers import REPO, illumination, image, recover
 from write_faults import FailingDisk
 
 T0 = 1_700_000_000_000_000_000
 ILLUM = 'lightstage_interfaces/msg/IlluminationState'
 IMG = 'sensor_msgs/msg/Image'
-RELIABLE = bf.QosProfile(history='unknown', depth=0)
+RELIABLE = lr.QosProfile(history='unknown', depth=0)
 
 
 def _info(i):
@@ -35,7 +37,7 @@ def _message(i):
 
 
 def _recording(path):
-    rec = Recording(bf.BagWriter(path, chunk_size_bytes=1024))
+    rec = Recording(lr.BagWriter(path, chunk_size_bytes=1024))
     assert rec.add_topic('/illumination', ILLUM, [RELIABLE])
     assert rec.add_topic('/image_raw', IMG, [RELIABLE])
     return rec
@@ -53,23 +55,18 @@ def _record(rec, indexes, flush=True):
 
 
 def _assert_bag_holds(path, sent):
-    """Every reader finds exactly ``sent`` in the bag, from its summary and by reading it."""
+    """Every reader finds exactly ``sent`` in the complete bag, from its summary and by reading
+    it."""
     from mcap.reader import make_reader
     from rosbags.rosbag2 import Reader
-    reader = bf.BagReader(path)
+    reader = lr.BagReader(path)
     info = reader.info()  # from the summary
     assert info.complete and not info.problems, info.problems
     assert info.message_count == len(sent)
-    counts = {t: sum(s[0] == t for s in sent) for t in ('/illumination', '/image_raw')}
-    assert {t.name: t.count for t in info.topics.values()} == counts
+    assert {t.name: t.count for t in info.topics.values()} == _counts(sent)
     assert [(m.topic, m.data, m.log_time_ns) for m in reader.messages()] == sent
-    assert bf.BagReader(path).info(verify=True).message_count == len(sent)
-    meta = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
-    assert meta['message_count'] == len(sent)
-    assert {t['topic_metadata']['name']: t['message_count']
-            for t in meta['topics_with_message_count']} == counts
-    assert meta['starting_time']['nanoseconds_since_epoch'] == sent[0][2]
-    assert meta['duration']['nanoseconds'] == sent[-1][2] - sent[0][2]
+    assert lr.BagReader(path).info(verify=True).message_count == len(sent)
+    _assert_metadata_yaml_lists(path, sent)
     (mcap,) = path.glob('*.mcap')
     with open(mcap, 'rb') as f:  # the mcap library, from the summary's chunk indexes
         mr = make_reader(f)
@@ -80,6 +77,37 @@ def _assert_bag_holds(path, sent):
     with Reader(path) as rb:  # rosbags: metadata.yaml and the MCAP file
         assert rb.message_count == len(sent)
         assert sum(1 for _ in rb.messages()) == len(sent)
+
+
+def _counts(sent):
+    return {t: sum(s[0] == t for s in sent) for t in ('/illumination', '/image_raw')}
+
+
+def _assert_metadata_yaml_lists(path, sent):
+    meta = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert meta['message_count'] == len(sent)
+    assert {t['topic_metadata']['name']: t['message_count']
+            for t in meta['topics_with_message_count']} == _counts(sent)
+    assert meta['starting_time']['nanoseconds_since_epoch'] == sent[0][2]
+    assert meta['duration']['nanoseconds'] == sent[-1][2] - sent[0][2]
+
+
+def _assert_stopped_bag_holds(path, sent, tmp_path):
+    """The bag a write error stopped: its file ends after its last complete chunk, without
+    summary and footer, as a killed recorder's does; the reader takes exactly ``sent`` from
+    it, and `lightstage bag recover` (the recovery path) makes it a complete bag."""
+    reader = lr.BagReader(path)
+    info = reader.info()
+    assert not info.complete and info.message_count == len(sent)
+    assert {t.name: t.count for t in info.topics.values()} == _counts(sent)
+    (problem,) = [p for p in info.problems if 'MCAP footer' in p]
+    assert problem.startswith('run_0.mcap ends at byte ') and 'without the MCAP footer' in problem
+    assert not any('cut off' in p or 'damaged' in p for p in info.problems), info.problems
+    assert [(m.topic, m.data, m.log_time_ns) for m in reader.messages()] == sent
+    assert 'INCOMPLETE BAG' in lr.format_info(info)
+    fixed = recover(path, tmp_path / 'fixed')
+    assert fixed.complete and fixed.message_count == len(sent)
+    _assert_bag_holds(tmp_path / 'fixed', sent)
 
 
 @pytest.mark.parametrize('code, head, todo', [
@@ -102,17 +130,20 @@ def test_a_write_error_stops_the_recording_and_closes_the_bag_with_what_it_holds
     assert rec.dropped == 2
     error = rec.close()
     assert error == rec.error and error.startswith(f'{head} {bag}: {os.strerror(code)}; ')
-    assert (f'; the bag holds everything up to {bf.format_time(sent[-1][2])}: 6 messages; {todo}'
-            in error), error
+    assert (f'; the bag holds everything up to {lr.format_time(sent[-1][2])}: 6 messages; '
+            'run_0.mcap ends after its last complete chunk, without a summary: '
+            f'`lightstage bag recover {bag}` writes a complete copy; {todo}' in error), error
     report = rec.report(1.0)
     assert report.startswith(f'RECORDING STOPPED: {error}\nrecorded 6 messages on 2 topics'), report
     assert 'the chunk in progress at the error and the 2 messages that arrived from then on' in report
-    assert rec.writer.summary_written and rec.writer.metadata_written
-    _assert_bag_holds(bag, sent)
+    assert not rec.writer.summary_written and rec.writer.metadata_written
+    _assert_metadata_yaml_lists(bag, sent)
+    _assert_stopped_bag_holds(bag, sent, tmp_path)
 
 
 def test_a_disk_full_when_the_bag_is_closed_keeps_every_flushed_chunk(tmp_path, monkeypatch):
-    """Closing writes the chunk in progress first: that fails; the summary after it does not."""
+    """Closing writes the chunk in progress first: that fails, and the file ends after the
+    last chunk that was flushed."""
     disk = FailingDisk(monkeypatch, after_chunks=5, stays_full=False)
     bag = tmp_path / 'run'
     rec = _recording(bag)
@@ -122,40 +153,33 @@ def test_a_disk_full_when_the_bag_is_closed_keeps_every_flushed_chunk(tmp_path, 
     error = rec.close()
     assert disk.failures == 1
     assert error.startswith(f'disk full writing {bag}: ') and ': 5 messages; ' in error
-    _assert_bag_holds(bag, sent)
+    _assert_metadata_yaml_lists(bag, sent)
+    _assert_stopped_bag_holds(bag, sent, tmp_path)
 
 
 def test_a_disk_that_stays_full_leaves_a_bag_that_ends_after_its_last_complete_chunk(
         tmp_path, monkeypatch):
-    """No summary, no metadata.yaml can be written; the torn chunk is taken back, so the file
-    reads like that of a recorder killed between two flushes, and recover completes it."""
+    """No metadata.yaml can be written either; the torn chunk is taken back, so the file reads
+    like that of a recorder killed between two flushes, and recover completes it."""
     disk = FailingDisk(monkeypatch, after_chunks=4, stays_full=True)
     bag = tmp_path / 'run'
     rec = _recording(bag)
     sent = _record(rec, range(4))
     assert not rec.receive(*_message(5), _info(5))  # an image: a chunk of its own, which fails
     error = rec.close()
-    assert disk.failures == 3  # the chunk, the summary, metadata.yaml
-    assert error.startswith(f'disk full writing {bag}: ') and ': 4 messages; free space' in error
-    assert 'the summary and footer could not be written either' in error
+    assert disk.failures == 2  # the chunk, metadata.yaml
+    assert error.startswith(f'disk full writing {bag}: ') and ': 4 messages; ' in error
     assert 'metadata.yaml could not be written' in error
     assert not rec.writer.summary_written and not rec.writer.metadata_written
     assert sorted(p.name for p in bag.iterdir()) == ['run_0.mcap']  # no leftover metadata.yaml.tmp
-    reader = bf.BagReader(bag)
-    info = reader.info()
-    assert not info.complete and info.message_count == 4
-    assert any('without the MCAP footer' in p for p in info.problems), info.problems
-    assert not any('cut off' in p or 'damaged' in p for p in info.problems), info.problems
-    assert [(m.topic, m.data, m.log_time_ns) for m in reader.messages()] == sent
     disk.full = disk.stays_full = False  # space again
-    fixed = bf.recover(bag, tmp_path / 'fixed')
-    assert fixed.complete and fixed.message_count == 4
+    _assert_stopped_bag_holds(bag, sent, tmp_path)
 
 
 def test_the_bag_writer_context_manager_raises_when_close_could_not_write(tmp_path, monkeypatch):
     disk = FailingDisk(monkeypatch)
-    with pytest.raises(bf.BagWriteError, match='disk full writing .*holds everything up to'):
-        with bf.BagWriter(tmp_path / 'b', chunk_size_bytes=1024) as w:
+    with pytest.raises(lr.BagWriteError, match='disk full writing .*holds everything up to'):
+        with lr.BagWriter(tmp_path / 'b', chunk_size_bytes=1024) as w:
             w.add_topic('/illumination', ILLUM)
             w.write('/illumination', _message(0)[1], T0)
             w.flush()
@@ -179,15 +203,15 @@ def test_flush_hands_the_chunk_to_the_os_and_close_fsyncs_file_metadata_and_dire
         synced.append(os.readlink(f'/proc/self/fd/{fd}'))
         return real_fsync(fd)
 
-    monkeypatch.setattr(bf.os, 'fsync', fsync)
+    monkeypatch.setattr(fileio.os, 'fsync', fsync)
     bag = tmp_path / 'run'
-    w = bf.BagWriter(bag, chunk_size_bytes=1 << 20)
+    w = lr.BagWriter(bag, chunk_size_bytes=1 << 20)
     w.add_topic('/illumination', ILLUM)
     w.write('/illumination', _message(0)[1], T0)
     w.flush()
     assert synced == []
     # what was flushed is in the file for any other process (a killed writer loses none of it)
-    assert [m.log_time_ns for m in bf.BagReader(bag).messages()] == [T0]
+    assert [m.log_time_ns for m in lr.BagReader(bag).messages()] == [T0]
     w.close()
     real = bag.resolve()
     assert synced[0] == str(real / 'run_0.mcap')
@@ -201,26 +225,26 @@ def test_output_dir_may_be_new_or_an_empty_directory_nothing_else(tmp_path):
     docs and the parameter description say so."""
     empty = tmp_path / 'empty'
     empty.mkdir()
-    with bf.BagWriter(empty) as w:
+    with lr.BagWriter(empty) as w:
         w.add_topic('/illumination', ILLUM)
         w.write('/illumination', _message(0)[1], T0)
     assert sorted(p.name for p in empty.iterdir()) == ['empty_0.mcap', 'metadata.yaml']
-    assert bf.BagReader(empty).info().message_count == 1
-    with pytest.raises(bf.BagError, match='already exists and is not empty; choose another output '
+    assert lr.BagReader(empty).info().message_count == 1
+    with pytest.raises(lr.BagError, match='already exists and is not empty; choose another output '
                                           'directory or delete it'):
-        bf.BagWriter(empty)
+        lr.BagWriter(empty)
     (tmp_path / 'file').write_text('x')
-    with pytest.raises(bf.BagError, match='already exists and is not a directory'):
-        bf.BagWriter(tmp_path / 'file')
+    with pytest.raises(lr.BagError, match='already exists and is not a directory'):
+        lr.BagWriter(tmp_path / 'file')
     assert (tmp_path / 'file').read_text() == 'x'
-    with bf.BagWriter(tmp_path / 'new' / 'deeper'):
+    with lr.BagWriter(tmp_path / 'new' / 'deeper'):
         pass
     assert (tmp_path / 'new' / 'deeper' / 'metadata.yaml').is_file()
     # the docs and the parameter description
     doc = (REPO / 'docs' / 'RECORDING.md').read_text()
     (row,) = [line for line in doc.splitlines() if line.startswith('| `output_dir` |')]
     assert 'must not exist, or be an empty directory' in row, row
-    from lightstage_bringup.recorder_node import PARAMETERS
+    from lightstage_recording.recorder_node import PARAMETERS
     assert 'must not exist, or be an empty directory' in PARAMETERS['output_dir'][1].description
 
 
@@ -236,7 +260,7 @@ def test_the_recorder_node_ends_the_recording_on_a_write_error(tmp_path, monkeyp
     from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
 
-    from lightstage_bringup.recorder_node import RecorderNode
+    from lightstage_recording.recorder_node import RecorderNode
     from suite_helpers import fresh_domain_id
     disk = FailingDisk(monkeypatch, after_chunks=1)
     context = Context()
@@ -261,4 +285,4 @@ def test_the_recorder_node_ends_the_recording_on_a_write_error(tmp_path, monkeyp
         rclpy.try_shutdown(context=context)
     assert report.startswith(f'RECORDING STOPPED: disk full writing {bag}: '), report
     assert '\n  /image_raw: 1 (sensor_msgs/msg/Image)\n' in report
-    assert bf.BagReader(bag).info().message_count == 1
+    assert lr.BagReader(bag).info().message_count == 1

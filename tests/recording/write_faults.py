@@ -1,11 +1,11 @@
-"""A disk that fills up under the bag writer: every byte `bag_format` writes into a bag goes
-through `bag_format._write_all`, which `FailingDisk` replaces (no ROS needed)."""
+"""A disk that fills up under the bag writer: every byte the writer puts into a bag goes
+through `lightstage_recording.fileio.write_all`, which `FailingDisk` replaces (no ROS needed)."""
 from __future__ import annotations
 
 import errno
 import os
 
-from lightstage_bringup import bag_format as bf
+from lightstage_recording import fileio
 
 CHUNK_OPCODE = 0x06
 
@@ -24,7 +24,7 @@ class FailingDisk:
         self.full = False
         self.chunks = 0
         self.failures = 0
-        real = bf._write_all
+        real = fileio.write_all
 
         def write_all(fd, data):
             data = bytes(data)
@@ -42,4 +42,4 @@ class FailingDisk:
                 self.chunks += 1
             return real(fd, data)
 
-        monkeypatch.setattr(bf, '_write_all', write_all)
+        monkeypatch.setattr(fileio, 'write_all', write_all)

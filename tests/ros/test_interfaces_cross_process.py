@@ -126,7 +126,7 @@ def tiny_capture(tmp_path_factory):
 
 def test_train_action_streams_feedback_and_returns_a_result(graph, tiny_capture, tmp_path):
     from lightstage_interfaces.action import Train
-    from mux_classifier.model import TrainedArtifact
+    from mux_classifier.artifact import TrainedArtifact
     from rclpy.action import ActionClient
     _sup, c = graph
     client = ActionClient(c.node, Train, TRAIN)

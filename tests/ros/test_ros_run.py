@@ -31,8 +31,8 @@ ROS_RUN = {
     'classifier': ('mux_classifier', 'classifier_node'),
     'acquisition': ('lightstage_camera', 'acquisition_node'),
     'trainer': ('mux_trainer', 'trainer_node'),
-    'recorder': ('lightstage_bringup', 'recorder'),
-    'player': ('lightstage_bringup', 'player'),
+    'recorder': ('lightstage_recording', 'recorder'),
+    'player': ('lightstage_recording', 'player'),
 }
 
 

@@ -40,3 +40,13 @@ def test_naive_is_one_image_with_every_led_on(tiny_data):
 def test_fixed_patterns_shape_is_checked(tiny_data):
     with pytest.raises(ValueError, match=r'per_colour patterns must be \(8, k >= 1\)'):
         FixedPatternClassifier(patterns=np.ones((5, 2))).fit(tiny_data)
+
+
+def test_the_artifact_records_the_dimmer_the_training_rendered_with():
+    from trainer_helpers import TINY_HOG, make_modelset
+    ms = make_modelset(n_poses=8)
+    model = NaiveClassifier(n_repeats=4, dimmer=0.3, hog_config=TINY_HOG).fit(ms)
+    basis = model.evaluator_.data.basis  # (sites, channels, samples, pixels), dimmer applied
+    np.testing.assert_allclose(basis[2, 1, 5], 0.3 * ms.models[5, 1, 2].ravel(), rtol=1e-6)
+    art = model.to_artifact()
+    assert art.dimmer == 0.3 and art.dimmer_recorded

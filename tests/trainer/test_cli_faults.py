@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from lightstage_camera.capture_format import write_capture
 from lightstage_camera.workers import usable_cores
-from mux_classifier.model import TrainedArtifact
+from mux_classifier.artifact import TrainedArtifact
 
 import mux_trainer.cli as cli
 import mux_trainer.report as report

@@ -4,7 +4,8 @@ import json
 import numpy as np
 import pytest
 from lightstage_camera.capture_format import write_capture
-from mux_classifier.model import TrainedArtifact
+from lightstage_camera.rig import DEFAULT_DIMMER
+from mux_classifier.artifact import TrainedArtifact
 
 from mux_trainer.cli import eval_main, train_main
 
@@ -34,6 +35,7 @@ def test_train_json_and_artifact(capture, tmp_path, capsys):
     np.testing.assert_array_equal(art.site_patterns, np.array(doc['patterns']))
     assert art.class_names == doc['class_names']
     assert art.noise['name'] == 'sigma3'
+    assert art.dimmer == DEFAULT_DIMMER and art.dimmer_recorded  # what the training rendered with
 
 
 @pytest.mark.parametrize('method,mode,n_images', [('snr_optimal', 'per_colour', [4, 8]),
@@ -84,6 +86,7 @@ def test_eval_selects_methods_and_noises(capture, capsys):
     joint = doc['methods']['greedy_joint']
     assert set(joint['accuracy_by_images']) == {'1', '2', '3'}
     assert joint['images_per_pattern'] == 1 and doc['settings']['joint_max_images'] == 3
+    assert doc['settings']['dimmer'] == DEFAULT_DIMMER
 
 
 def test_bad_input_fails_clearly(capture, tmp_path, capsys):

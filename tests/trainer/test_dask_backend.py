@@ -4,9 +4,9 @@ import pytest
 
 distributed = pytest.importorskip('distributed')
 
+from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
 from mux_trainer.evaluation import CandidateEvaluator  # noqa: E402
 from mux_trainer.greedy import GreedyPatternSelector  # noqa: E402
-from mux_trainer.patterns import site_pattern_candidates  # noqa: E402
 
 
 def test_dask_backend_gives_the_same_scores_and_patterns(tiny_data):

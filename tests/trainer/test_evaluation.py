@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from mux_trainer.candidate_patterns import gray_code, site_pattern_candidates
 from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk
-from mux_trainer.patterns import gray_code, site_pattern_candidates
 from mux_trainer.reference import reference_candidate_scores
 from mux_trainer.rendering import render_led_patterns, render_site_patterns
 

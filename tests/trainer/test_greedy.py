@@ -2,10 +2,10 @@ import itertools
 
 import numpy as np
 import pytest
-from mux_classifier.model import ArtifactError, TrainedArtifact
+from mux_classifier.artifact import ArtifactError, TrainedArtifact
 
+from mux_trainer.candidate_patterns import pattern_code
 from mux_trainer.greedy import GreedyPatternSelector, could_still_win
-from mux_trainer.patterns import pattern_code
 from mux_trainer.reference import reference_candidate_scores
 
 

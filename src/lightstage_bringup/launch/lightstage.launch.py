@@ -21,7 +21,7 @@ from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 
-from lightstage_bringup.bag_format import default_bag_name
+from lightstage_recording.layout import default_bag_name
 
 
 def generate_launch_description():
@@ -38,7 +38,7 @@ def generate_launch_description():
     optional = [
         ('trainer', 'mux_trainer', 'trainer_node', 'use_trainer'),
         ('acquisition', 'lightstage_camera', 'acquisition_node', 'use_acquisition'),
-        ('recorder', 'lightstage_bringup', 'recorder', 'use_recorder'),
+        ('recorder', 'lightstage_recording', 'recorder', 'use_recorder'),
     ]
     actions = [
         # the same settings as lightstage_bringup.ros_env.ros_environment()

@@ -301,7 +301,7 @@ def _report_bag(bag: Path, artifact: str, out: Path, domain_id: int) -> None:
     """Say what the bag holds and how to replay it; RuntimeError if it is not complete."""
     import shlex
 
-    from lightstage_bringup.bag_format import BagError, BagReader, format_size
+    from lightstage_recording import BagError, BagReader, format_size
 
     try:
         info = BagReader(bag).info(verify=True)

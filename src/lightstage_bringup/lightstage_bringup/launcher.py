@@ -6,8 +6,8 @@ launcher waits until every node is discoverable in the ROS graph and spinning, p
 `graph up: ...` line, forwards the children's output prefixed with their names, and stops
 them all in order on Ctrl-C / SIGTERM or as soon as one of them dies.
 
-The graph records itself by default: a recorder node (`recorder_node`, its section of the
-params file) writes every topic and service call to a new bag
+The graph records itself by default: a recorder node (`lightstage_recording.recorder_node`,
+its section of the params file) writes every topic and service call to a new bag
 `--bag-dir/rosbag2_YYYY_MM_DD-HH_MM_SS` (default `out/bags/`); `--no-record` leaves it out.
 
 Exit codes: 0 clean run and shutdown; 1 a node died or did not stop cleanly; 2 bad
@@ -50,9 +50,9 @@ NODE_REGISTRY: dict[str, NodeEntry] = {
     'trainer': NodeEntry('mux_trainer.trainer_node', 'trainer (Train action)'),
     'acquisition': NodeEntry('lightstage_camera.acquisition_node',
                              'model capture and noise calibration (CaptureModel, CalibrateNoise actions)'),
-    'recorder': NodeEntry('lightstage_bringup.recorder_node',
+    'recorder': NodeEntry('lightstage_recording.recorder_node',
                           'records every topic and service call to an MCAP bag (recorder section of the params)'),
-    'player': NodeEntry('lightstage_bringup.player_node', 'plays a bag into the graph (set its bag parameter)'),
+    'player': NodeEntry('lightstage_recording.player_node', 'plays a bag into the graph (set its bag parameter)'),
 }
 DEFAULT_NODES = ('driver', 'camera', 'classifier')
 RECORDER = 'recorder'  # started as well unless --no-record
@@ -261,7 +261,7 @@ def recorder_ros_args(bag: Path, params: Path | None) -> list[str]:
 
 def _new_bag_path(bag_dir: Path) -> Path:
     """A new, absolute bag path under bag_dir (created), named as `ros2 bag record` names bags."""
-    from lightstage_bringup.bag_format import default_bag_name
+    from lightstage_recording.layout import default_bag_name
     bag_dir = bag_dir.resolve()
     bag_dir.mkdir(parents=True, exist_ok=True)
     bag = bag_dir / default_bag_name()

@@ -20,17 +20,14 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from .models import ModelSet, downscale_images
+from .errors import CaptureFormatError
 from .rig import CHANNELS, Rig
+from .scene_models import ModelSet, downscale_images
 
 RIG_FILE = "rig.yaml"
 CACHE_DIR = ".cache"
 CACHE_VERSION = 1
 IMAGE_NAME = re.compile(r"^s(\d+)_([A-Za-z0-9]+)\.png$")
-
-
-class CaptureFormatError(ValueError):
-    """A capture folder that does not follow the format; the message names the file."""
 
 
 def image_name(site: int, channel: str) -> str:

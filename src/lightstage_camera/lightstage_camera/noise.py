@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .errors import NoiseFileError
 
 def gain_ratio(gain_db: float, reference_gain_db: float) -> float:
     """Linear amplitude gain ratio G/G0 of two gains given in dB."""
@@ -101,12 +102,6 @@ def preset(name: str) -> NoiseModel | None:
     return PRESETS[key]
 
 
-def brightness_factor(gain_db: float, exposure_ms: float, reference_gain_db: float,
-                      reference_exposure_ms: float) -> float:
-    """How much brighter an image is at (gain, exposure) than at the reference setting."""
-    return gain_ratio(gain_db, reference_gain_db) * exposure_ms / reference_exposure_ms
-
-
 def choose_gain(images, exposure_ms: float, reference_gain_db: float,
                 reference_exposure_ms: float, max_level: int = 1023,
                 target_fraction: float = 0.9, percentile: float = 99.9,
@@ -140,10 +135,6 @@ def choose_gain(images, exposure_ms: float, reference_gain_db: float,
 # the NoiseModel back; `noise_setting` accepts a preset name or such a file.
 NOISE_FILE_KIND = "lightstage-noise-calibration"
 NOISE_FILE_VERSION = 1
-
-
-class NoiseFileError(ValueError):
-    """A noise file that does not load; the message names the file and the problem."""
 
 
 def save_noise_file(path, model: NoiseModel, stderr: tuple[float, float] | None = None,

@@ -5,16 +5,15 @@ Two modes:
   single-site images, giving 4 images (R, G, B, NIR) per pattern column;
 - joint (the paper's future work): an LED pattern ``p`` (32,) site-major mixes all
   LEDs into one image.
-The authors' `dimmer` (0.45) scales the single-LED images so many lit LEDs do not saturate.
+The authors' `dimmer` (`rig.DEFAULT_DIMMER`) scales the single-LED images so many lit LEDs
+do not saturate.
 Results are noise-free and unclipped; clipping belongs to the camera (`noise.NoiseModel`).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .rig import N_CHANNELS
-
-DEFAULT_DIMMER = 0.45
+from .rig import DEFAULT_DIMMER, N_CHANNELS
 
 
 def _model_array(models) -> np.ndarray:

@@ -1,6 +1,9 @@
 """The light stage as data: illumination sites, LED channels and the camera of a capture.
 
-LED order is site-major everywhere in the project: ``led = site * 4 + channel``.
+The rig conventions every package shares are defined here once: the channels and their
+order (`CHANNELS`), the paper's stage size (`N_SITES`, `N_LEDS`), the LED order (site-major
+everywhere in the project: ``led = site * 4 + channel``, `led_index`, `site_to_led_patterns`)
+and the authors' `DEFAULT_DIMMER`.
 """
 from __future__ import annotations
 
@@ -14,6 +17,12 @@ import yaml
 CHANNELS: tuple[str, ...] = ("red", "green", "blue", "nir")
 WAVELENGTHS_NM: dict[str, float] = {"red": 615.0, "green": 515.0, "blue": 460.0, "nir": 850.0}
 N_CHANNELS = len(CHANNELS)
+N_SITES = 8  # the paper's stage: 8 illumination sites of 4 LEDs each
+N_LEDS = N_SITES * N_CHANNELS
+# The authors' scale of the single-LED images before multiplexing, so that many lit LEDs do
+# not saturate. Renders, the simulated camera and the training all use it; a classifier is
+# only right for images taken at the dimmer it was trained with (its artifact records it).
+DEFAULT_DIMMER = 0.45
 
 
 def channel_index(channel: str | int) -> int:
@@ -33,6 +42,23 @@ def led_index(site: int, channel: str | int) -> int:
     if int(site) < 0:
         raise ValueError(f"site must be >= 0, got {site}")
     return int(site) * N_CHANNELS + channel_index(channel)
+
+
+def site_to_led_patterns(site_patterns, n_channels: int = N_CHANNELS) -> np.ndarray:
+    """(n_sites, m) site matrix -> (n_sites * n_channels, n_channels * m) LED matrix (float32).
+
+    The paper's per-colour mode: site-pattern column j gives one image per channel, in
+    channel order; image ``n_channels * j + c`` lights LED ``site * n_channels + c`` of every
+    site lit in column j.
+    """
+    W = np.asarray(site_patterns, dtype=np.float32)
+    if W.ndim != 2:
+        raise ValueError(f"site patterns must be a matrix (n_sites, m), got shape {W.shape}")
+    n_sites, m = W.shape
+    P = np.zeros((n_sites, n_channels, m, n_channels), dtype=np.float32)
+    for c in range(n_channels):
+        P[:, c, :, c] = W
+    return P.reshape(n_sites * n_channels, m * n_channels)
 
 
 def _yaml_number(value, key: str, source: str, whole: bool = False) -> float | int:

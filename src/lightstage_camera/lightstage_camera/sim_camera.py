@@ -21,15 +21,13 @@ import numpy as np
 
 from .camera_backend import BackendStatus, CameraBackend, Frame, Trigger
 from .capture_format import load_capture
-from .models import ModelSet
+from .errors import SampleError
 from .noise import PAPER_CALIBRATION, PRESETS, NoiseModel
-from .render import DEFAULT_DIMMER, render_led_patterns
+from .render import render_led_patterns
+from .rig import DEFAULT_DIMMER
+from .scene_models import ModelSet
 
 NOISE_CHOICES = ('auto', 'none', *PRESETS)
-
-
-class SampleError(ValueError):
-    """A sample name or index that is not in the capture; the message lists what is."""
 
 
 def resolve_sample(modelset: ModelSet, sample) -> int:
@@ -77,7 +75,7 @@ class SimCamera:
         ``auto`` derives the noise from each capture's gain and exposure with `calibration`
         (`NoiseModel.at`); a preset or NoiseModel ignores them; ``none`` is noise-free.
     dimmer : float
-        The authors' scale of the single-LED images before multiplexing (0.45).
+        The authors' scale of the single-LED images before multiplexing (`rig.DEFAULT_DIMMER`).
     calibration : NoiseModel
         The affine noise fit `auto` generalizes (default: the paper's 15 dB / 30 ms fit).
     default_gain_db : float or None
@@ -114,9 +112,6 @@ class SimCamera:
         """Put another sample on the stage (name or index); returns its index."""
         self.sample_index = resolve_sample(self.modelset, sample)
         return self.sample_index
-
-    def set_noise(self, noise) -> None:
-        self.noise = parse_noise(noise)
 
     @property
     def bit_depth(self) -> int:

@@ -34,7 +34,7 @@ import numpy as np
 from scipy import ndimage
 
 from .capture_format import write_pose
-from .rig import CHANNELS, Rig
+from .rig import DEFAULT_DIMMER, Rig
 from .workers import jobs_type
 
 OBJECT_TYPES = ("green_apple", "red_apple", "grape", "banana", "orange")
@@ -48,7 +48,7 @@ DEFAULT_SEED = 0
 CHANNEL_POWER = np.array([1.0, 1.1, 0.9, 0.75])
 FLOOR_ALBEDO = np.array([0.05, 0.05, 0.05, 0.09])  # black felt, a little brighter in NIR
 # Gray level (at the capture setting) of a white Lambertian patch at the stage centre lit by
-# one average LED: sets the overall brightness so that all 32 LEDs at the 0.45 dimmer put
+# one average LED: sets the overall brightness so that all 32 LEDs at the default dimmer put
 # a typical fruit (albedo ~0.5) around 500-700 of 1023.
 WHITE_LEVEL_PER_LED = 80.0
 DIFFUSER_SHININESS = 120.0  # a diffused source caps how sharp a highlight can be
@@ -129,10 +129,6 @@ MATERIALS: dict[str, dict[str, Material]] = {
                    relief_mm=0.12, relief_scale_mm=3.0),
     },
 }
-
-
-def class_names_for(object_types) -> list[str]:
-    return [f"{t}-{v}" for t in object_types for v in VARIANTS]
 
 
 def blend_materials(real: Material, fake: Material, strength: float) -> Material:
@@ -476,13 +472,13 @@ def main(argv: list[str] | None = None) -> int:
                              "calibration-target/s0/p00, a reflectance ramp; for `lightstage "
                              "calibrate` on the simulated stage; --size is its width, 3/4 of it "
                              "its height)")
-    parser.add_argument("--dimmer", type=float, default=0.45,
+    parser.add_argument("--dimmer", type=float, default=DEFAULT_DIMMER,
                         help="with --calibration-target: the sim camera's dimmer, so that all "
                              "LEDs bring the target's brightest pixel to 1.1 x the camera's "
-                             "maximum (default 0.45, the camera node's default)")
+                             f"maximum (default {DEFAULT_DIMMER:g}, the camera node's default)")
     args = parser.parse_args(argv)
     if args.calibration_target:
-        from .calibration import CALIBRATION_TARGET_NAME, write_calibration_target
+        from .calibration_target import CALIBRATION_TARGET_NAME, write_calibration_target
         try:
             out = write_calibration_target(args.out_dir, (max(4, args.size * 3 // 4), args.size),
                                            dimmer=args.dimmer, overwrite=args.force)

@@ -11,7 +11,7 @@ One classification (the classifier node maps ROS onto this; nothing here imports
    pattern order; never by arrival order. Images that arrive before the trigger stamps are
    known (the camera can be faster than the driver's reply) wait in a small buffer;
 4. `classify_frames`: mono16 -> gray levels, the same area downscale training used
-   (`lightstage_camera.models.downscale_images`), HOG, the artifact's classifier for k.
+   (`lightstage_camera.scene_models.downscale_images`), HOG, the artifact's classifier for k.
 """
 from __future__ import annotations
 
@@ -29,9 +29,9 @@ from lightstage_camera.frames import (MONO16_ENCODINGS, ImageMatcher, MissingIma
                                       format_stamp, image_from_buffer, mono16_to_gray)
 # The downscale training uses (ModelSet.downscaled / load_capture(downscale_to=...)): the
 # classifier must see images prepared exactly as the training renders were.
-from lightstage_camera.models import downscale_images
+from lightstage_camera.scene_models import downscale_images
 
-from .model import ArtifactError, Prediction, TrainedArtifact
+from .artifact import ArtifactError, Prediction, TrainedArtifact
 
 __all__ = ["AcquisitionPlan", "Classification", "ImageMatcher", "InferenceError",
            "MissingImagesError", "plan_acquisition", "image_from_buffer", "mono16_to_gray",

@@ -22,8 +22,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .artifact import TrainedArtifact
 from .inference import Classification, ImageMatcher, InferenceError, classify_collected
-from .model import TrainedArtifact
 
 # IlluminationState.intensities are float32 copies of the requested drive on PWM rigs; on/off
 # rigs report 0/1 for what was lit (drive > 0.5)

@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import numpy as np
 from joblib import Parallel
+from lightstage_camera.rig import DEFAULT_DIMMER
 from sklearn.base import BaseEstimator
 
+from .candidate_patterns import all_leds_on
 from .data import search_data
 from .evaluation import CandidateEvaluator
 from .pattern_model import PatternModelMixin
-from .patterns import all_leds_on
 from .rendering import SearchData
 from .snr_optimal import SnrOptimalMultiplexer, s_matrix_for_sites
 
@@ -38,7 +39,7 @@ class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
 
     def __init__(self, patterns=None, mode='per_colour', n_repeats=400, test_fraction=0.25,
                  inner_classifier='squared_hinge', alpha=0.5, C=1.0, final_classifier='linear_svm',
-                 final_C=1.0, final_alpha=0.1, noise='sigma3', dimmer=0.45, hog_config=None,
+                 final_C=1.0, final_alpha=0.1, noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None,
                  seed=0, n_jobs=1):
         self.patterns = patterns
         self.mode = mode
@@ -98,7 +99,7 @@ class SnrOptimalClassifier(FixedPatternClassifier):
     def __init__(self, n_images=None, n_iter=20000, mode='per_colour', n_repeats=400,
                  test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5, C=1.0,
                  final_classifier='linear_svm', final_C=1.0, final_alpha=0.1, noise='sigma3',
-                 dimmer=0.45, hog_config=None, seed=0, n_jobs=1, start='both'):
+                 dimmer=DEFAULT_DIMMER, hog_config=None, seed=0, n_jobs=1, start='both'):
         super().__init__(patterns=None, mode=mode, n_repeats=n_repeats,
                          test_fraction=test_fraction, inner_classifier=inner_classifier,
                          alpha=alpha, C=C, final_classifier=final_classifier, final_C=final_C,
@@ -134,7 +135,7 @@ class NaiveClassifier(FixedPatternClassifier):
 
     def __init__(self, n_repeats=400, test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5,
                  C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
-                 noise='sigma3', dimmer=0.45, hog_config=None, seed=0, n_jobs=1):
+                 noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None, seed=0, n_jobs=1):
         super().__init__(patterns=None, mode='joint', n_repeats=n_repeats,
                          test_fraction=test_fraction, inner_classifier=inner_classifier,
                          alpha=alpha, C=C, final_classifier=final_classifier, final_C=final_C,

@@ -9,6 +9,7 @@ import json
 import sys
 from pathlib import Path
 
+from lightstage_camera.rig import DEFAULT_DIMMER
 from lightstage_camera.workers import jobs_type, usable_cores
 
 from .data import NOISE_HELP, resolve_noise
@@ -196,7 +197,7 @@ def eval_main(argv: list[str] | None = None) -> int:
     results['settings'] = {'repeats': args.repeats, 'max_images': args.max_images,
                            'joint_max_images': args.joint_max_images or args.max_images,
                            'holdout': args.holdout, 'renders': args.renders, 'seed': args.seed,
-                           'methods': methods, 'noise': noises}
+                           'methods': methods, 'noise': noises, 'dimmer': DEFAULT_DIMMER}
     doc = json_ready(results)
     if args.json:
         print(json.dumps(doc), flush=True)

@@ -5,9 +5,10 @@ import re
 
 import numpy as np
 from lightstage_camera.noise import NoiseModel, load_noise_file, noise_setting
+from lightstage_camera.rig import DEFAULT_DIMMER
 from mux_classifier.hog import HogConfig
 
-from .rendering import DEFAULT_DIMMER, SearchData
+from .rendering import SearchData
 
 NOISE_SETTINGS = ('sigma1', 'sigma2', 'sigma3', 'none')
 NOISE_HELP = ('sigma1|sigma2|sigma3|none, or a noise file written by `lightstage calibrate` '

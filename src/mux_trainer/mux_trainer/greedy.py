@@ -32,6 +32,7 @@ import time
 
 import numpy as np
 from joblib import Parallel
+from lightstage_camera.rig import DEFAULT_DIMMER
 from sklearn.base import BaseEstimator
 
 from .data import search_data
@@ -116,7 +117,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
                  n_repeats=400, test_fraction=0.25, inner_classifier='ridge', refine_top=REFINE_TOP,
                  refine_max=REFINE_MAX, refine_slack=REFINE_SLACK,
                  alpha=0.5, C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
-                 noise='sigma3', dimmer=0.45, hog_config=None, beam_width=1,
+                 noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None, beam_width=1,
                  max_lit_leds=N_LEDS, seed=0, n_jobs=1, chunk_size=32, progress=False,
                  callback=None):
         self.mode = mode

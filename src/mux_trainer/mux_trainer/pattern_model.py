@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 from joblib import Parallel, delayed
-from mux_classifier.model import MuxClassifier, TrainedArtifact
+from lightstage_camera.rig import N_CHANNELS
+from mux_classifier.artifact import TrainedArtifact
+from mux_classifier.estimator import MuxClassifier
 
 from .data import noise_dict
 from .evaluation import images_per_column
-from .patterns import N_CHANNELS
 
 
 def _fit(classifier, X, y):
@@ -20,7 +21,7 @@ def _fit(classifier, X, y):
 
 
 class PatternModelMixin:
-    """Needs `mode`, `seed`, `final_classifier`, `final_C`, `final_alpha`; after fit:
+    """Needs `mode`, `seed`, `dimmer`, `final_classifier`, `final_C`, `final_alpha`; after fit:
     `patterns_`, `classifiers_`, `accuracy_by_images_`, `class_names_`, `evaluator_`."""
 
     method_name = 'patterns'
@@ -58,7 +59,8 @@ class PatternModelMixin:
     def to_artifact(self, n_patterns: int | None = None, provenance: dict | None = None) -> TrainedArtifact:
         """The trained artifact (patterns + classifier per image count) for the classify node.
 
-        n_patterns: keep the first n columns (default: all).
+        n_patterns: keep the first n columns (default: all). The artifact records the dimmer
+        the training rendered with (the estimator's `dimmer`).
         """
         k = self.patterns_.shape[1] if n_patterns is None else int(n_patterns)
         clfs = [self.classifiers_[i] for i in range(1, k + 1)]
@@ -73,7 +75,7 @@ class PatternModelMixin:
         if self.mode == 'per_colour':
             return TrainedArtifact.from_classifiers(
                 clfs, site_patterns=self.patterns_[:, :k], class_names=self.class_names_,
-                noise=noise, provenance=prov)
+                noise=noise, provenance=prov, dimmer=self.dimmer)
         return TrainedArtifact.from_classifiers(
             clfs, led_patterns=self.patterns_[:, :k], mode='naive' if self.method_name == 'naive' else 'joint',
-            class_names=self.class_names_, noise=noise, provenance=prov)
+            class_names=self.class_names_, noise=noise, provenance=prov, dimmer=self.dimmer)

@@ -19,7 +19,8 @@ import numpy as np
 
 from mux_classifier.hog import HogConfig, hog_batch
 
-DEFAULT_DIMMER = 0.45
+from lightstage_camera.rig import DEFAULT_DIMMER
+
 HOG_CHUNK = 2  # images per hog_batch chunk (speed only, never values)
 
 

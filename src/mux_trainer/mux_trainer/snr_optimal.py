@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
+from lightstage_camera.rig import DEFAULT_DIMMER, N_SITES
 from sklearn.base import BaseEstimator
 
 __all__ = [
@@ -82,7 +83,7 @@ def noise_coefficients(noise) -> tuple[float, float]:
     return sigma_p2, sigma_r2
 
 
-def single_site_mean_level(models, dimmer: float = 0.45) -> float:
+def single_site_mean_level(models, dimmer: float = DEFAULT_DIMMER) -> float:
     """Mean gray level of a one-site image: mean of the relightable models times the dimmer.
 
     ``models``: a ModelSet or its array (n_samples, 4, 8, H, W) of single-LED images.
@@ -155,7 +156,7 @@ class SnrOptimalMultiplexer(BaseEstimator):
     ``history_`` (iteration, mse) of every improvement.
     """
 
-    def __init__(self, n_sites=8, n_images=None, noise="sigma3", n_iter=20000, max_flips=8,
+    def __init__(self, n_sites=N_SITES, n_images=None, noise="sigma3", n_iter=20000, max_flips=8,
                  max_cond=100.0, noise_scale=1.0, start="both", seed=0):
         self.n_sites = n_sites
         self.n_images = n_images
@@ -272,7 +273,7 @@ def s_matrix_for_sites(n_sites: int) -> np.ndarray:
     return W
 
 
-def compare_with_hadamard(n_sites: int = 8, noise="sigma3", mean_level: float = 100.0,
+def compare_with_hadamard(n_sites: int = N_SITES, noise="sigma3", mean_level: float = 100.0,
                           n_iter: int = 20000, seed: int = 0, noise_scale: float = 1.0) -> dict:
     """MSEs of the identity, the Hadamard S-code and the searched SNR-optimal matrix.
 

@@ -1,6 +1,6 @@
 """The player node: a bag's messages back into the graph, as recorded.
 
-    ros2 run lightstage_bringup player --ros-args -p bag:=bags/sim_classify
+    ros2 run lightstage_recording player --ros-args -p bag:=bags/sim_classify
     lightstage play bags/sim_classify --topics /illumination /image_raw --wait-for /image_raw
 
 Every message is published as the recorded CDR bytes (`Publisher.publish(bytes)`, nothing is
@@ -28,8 +28,9 @@ from rclpy.exceptions import InvalidParameterValueException, ParameterUninitiali
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from .bag_format import BagError, BagReader
 from .bag_ros import float_param, int_param, message_class, text_param, to_rclpy_qos
+from .exceptions import BagError
+from .reader import BagReader
 from .recording import DEFAULT_PLAY_EXCLUDE, playback_delay_s, playback_qos, select_play_topics
 
 NODE_NAME = 'player'
@@ -226,7 +227,7 @@ def _spin(executor, node: PlayerNode) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .ros_env import apply_node_environment_and_say
+    from lightstage_bringup.ros_env import apply_node_environment_and_say
     apply_node_environment_and_say(NODE_NAME)  # however it was started (`ros2 run` too)
     return run(sys.argv if argv is None else argv)
 

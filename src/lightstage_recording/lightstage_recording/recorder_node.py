@@ -1,6 +1,6 @@
 """The recorder node: every topic of the graph, as received, into an MCAP bag.
 
-    ros2 run lightstage_bringup recorder --ros-args -p output_dir:=bags/run1
+    ros2 run lightstage_recording recorder --ros-args -p output_dir:=bags/run1
     lightstage record -o bags/run1            # the same, with command-line options
 
 It watches the graph (every ``discovery_period_s``) and subscribes *raw* (serialized CDR,
@@ -8,7 +8,7 @@ no deserialization) to each new topic the selection takes -- including the servi
 topics ``<service>/_service_event`` of services with introspection on, so the Classify and
 ApplyPatterns calls themselves are in the bag -- with a QoS matched to what the topic's
 publishers offer (`recording.subscription_qos`). Each message is written with its receive
-time as log time and its send time as publish time (`bag_format.BagWriter`, through
+time as log time and its send time as publish time (`writer.BagWriter`, through
 `recording.Recording`); the chunk in progress is handed to the OS every ``flush_period_s``
 (no fsync), so a recorder that is killed loses at most that much. With ``max_bag_size_bytes``
 / ``max_bag_duration_s`` the bag is split into files ``NAME_0.mcap``, ``NAME_1.mcap``, ... as
@@ -32,11 +32,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 
-from .bag_format import COMPRESSIONS, MIN_SPLIT_SIZE_BYTES, BagError, BagWriter, default_bag_name
 from .bag_ros import (float_param, from_rclpy_qos, int_param, message_class, text_param,
                       to_rclpy_qos)
+from .exceptions import BagError
+from .layout import default_bag_name
 from .msg_definitions import is_service_event
 from .recording import Recording, TopicSelector, subscription_qos
+from .writer import COMPRESSIONS, MIN_SPLIT_SIZE_BYTES, BagWriter
 
 NODE_NAME = 'recorder'
 
@@ -106,7 +108,7 @@ class RecorderNode(Node):
         try:
             self.writer = BagWriter(Path(output), compression=self.p('compression'),
                                     chunk_size_bytes=self.p('chunk_size_bytes'),
-                                    library='lightstage_bringup recorder',
+                                    library='lightstage_recording recorder',
                                     max_bag_size_bytes=self.p('max_bag_size_bytes'),
                                     max_bag_duration_s=self.p('max_bag_duration_s'),
                                     max_bag_files=self.p('max_bag_files'),
@@ -273,7 +275,7 @@ def run(args: list[str] | None = None, parameter_overrides: list[Parameter] | No
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .ros_env import apply_node_environment_and_say
+    from lightstage_bringup.ros_env import apply_node_environment_and_say
     apply_node_environment_and_say(NODE_NAME)  # however it was started (`ros2 run` too)
     return run(sys.argv if argv is None else argv)
 

@@ -10,8 +10,9 @@ from rclpy.duration import Duration
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile,
                        ReliabilityPolicy)
 
-from .bag_format import INFINITE_NS, QosProfile
 from .msg_definitions import split_type
+from .qos import INFINITE_NS, QosProfile
+
 
 def _name(enum, value) -> str:
     """A policy as rosbag2 names it (rclpy's short key: 'keep_last', 'best_effort', ...)."""

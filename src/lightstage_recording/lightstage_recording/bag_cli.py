@@ -16,7 +16,7 @@ import json
 import sys
 from pathlib import Path
 
-from .ros_env import apply_ros_environment
+from lightstage_bringup.ros_env import apply_ros_environment
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 
@@ -199,8 +199,8 @@ def bag_parser() -> argparse.ArgumentParser:
 
 def format_recovery(result) -> str:
     """What `lightstage bag recover` did: the source's problems, what was lost, what the new
-    bag holds (`bag_format.Recovery`)."""
-    from .bag_format import format_size, format_time
+    bag holds (`recover.Recovery`)."""
+    from .formatting import format_size, format_time
     src, dst = result.src, result.dst
     lines = []
     if result.source_problems:
@@ -235,7 +235,10 @@ def format_recovery(result) -> str:
 
 def bag_main(argv: list[str] | None = None) -> int:
     args = bag_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    from .bag_format import BagError, BagReader, format_info, recover_bag
+    from .exceptions import BagError
+    from .formatting import format_info
+    from .reader import BagReader
+    from .recover import recover_bag
     prog = f'lightstage bag {args.command}'
     try:
         if args.command == 'info':

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import NoiseCharacteristic, bin_standard_errors
 from .noise import NoiseModel
+from .noise_fit import NoiseCharacteristic, bin_standard_errors
 from .render import render_noisy
-from .rig import CHANNELS
+from .rig import CHANNELS, DEFAULT_DIMMER, N_SITES
 
 
 def _pyplot():
@@ -26,7 +26,7 @@ def plot_noise_characteristic(path, characteristic: NoiseCharacteristic, fit: No
                               max_points: int = 4000, seed: int = 0) -> Path:
     """Measured (mean, variance) points, their binned means and the fitted affine line.
 
-    The binned points are the fit's (`calibration.characteristic_from_moments`: binned by
+    The binned points are the fit's (`noise_fit.characteristic_from_moments`: binned by
     an independent half of the frames, so they scatter about the line without bias), with
     error bars of one standard error. `others` adds predicted lines, e.g. the fit
     generalized to the Sigma1..3 settings.
@@ -61,13 +61,14 @@ def plot_noise_characteristic(path, characteristic: NoiseCharacteristic, fit: No
 
 
 def plot_relit_sample(path, modelset, index: int, site_patterns, noise: NoiseModel | None,
-                      rng: np.random.Generator | None = None, dimmer: float = 0.45) -> Path:
+                      rng: np.random.Generator | None = None,
+                      dimmer: float = DEFAULT_DIMMER) -> Path:
     """One sample under each column of `site_patterns` (8, k), one row per colour.
 
     Each image is stretched to its own 99.5th percentile, printed in its corner."""
     plt = _pyplot()
     rng = np.random.default_rng(0) if rng is None else rng
-    W = np.asarray(site_patterns, dtype=float).reshape(8, -1)
+    W = np.asarray(site_patterns, dtype=float).reshape(N_SITES, -1)
     k = W.shape[1]
     images = render_noisy(modelset.subset([index]), W, noise, rng, dimmer=dimmer)[0]
     fig, axes = plt.subplots(len(CHANNELS), k, figsize=(1.9 * k + 0.4, 7.8), squeeze=False)
@@ -98,7 +99,7 @@ def plot_relit_sample(path, modelset, index: int, site_patterns, noise: NoiseMod
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m lightstage_camera.plots OUT_DIR [--capture FOLDER]`: example figures.
+    """`python -m lightstage_camera.camera_plots OUT_DIR [--capture FOLDER]`: example figures.
 
     Writes the noise characteristic of a simulated calibration at the paper's 15 dB / 30 ms
     fit (with the Sigma1..3 lines it generalizes to) and, with --capture, one sample relit
@@ -106,10 +107,11 @@ def main(argv: list[str] | None = None) -> int:
     """
     import argparse
 
-    from .calibration import fit_noise_model, noise_characteristic, simulate_calibration_frames
+    from .calibration_target import simulate_calibration_frames
+    from .noise_fit import fit_noise_model, noise_characteristic
     from .noise import PAPER_CALIBRATION, SETTINGS, preset
 
-    parser = argparse.ArgumentParser(prog="python -m lightstage_camera.plots",
+    parser = argparse.ArgumentParser(prog="python -m lightstage_camera.camera_plots",
                                      description=main.__doc__.split("\n")[0])
     parser.add_argument("out_dir")
     parser.add_argument("--capture", help="capture folder for the relit-sample figure")

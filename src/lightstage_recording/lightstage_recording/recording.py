@@ -11,8 +11,12 @@ import time
 from dataclasses import dataclass, replace
 from typing import Iterable, Sequence
 
-from .bag_format import INFINITE_NS, BagWriteError, BagWriter, QosProfile, format_size
+from .exceptions import BagWriteError
+from .formatting import format_size
 from .msg_definitions import is_service_event
+from .qos import INFINITE_NS, QosProfile
+from .writer import BagWriter
+
 # what `lightstage play` leaves out unless --topics names it: service events (replaying them
 # would pose as calls the live services never served), and the log / parameter topics every
 # node has (replaying them into a live graph only confuses it)
@@ -141,7 +145,8 @@ class Recording:
     False once the recording has stopped. The first write error (disk full, I/O error) stops
     it: `error` says what happened, what the bag holds and what to do; what arrives after
     that is counted in `dropped`, not written; `close` still finishes the bag for the
-    messages in it (summary, footer, metadata.yaml, as far as the disk allows).
+    messages in it (metadata.yaml, as far as the disk allows; the file in progress ends after
+    its last complete chunk, for `lightstage bag recover` to complete).
     """
 
     def __init__(self, writer: BagWriter):

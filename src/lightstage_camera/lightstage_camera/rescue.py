@@ -1,0 +1,126 @@
+"""Rescue files: what a run could not write where it was meant to go, kept to write later.
+
+A captured pose that cannot be written (disk full, the pose appeared meanwhile) goes to a
+rescue file (`save_rescued`) that `write_rescued` (``lightstage capture DIR --from-rescued
+FILE``) writes into a capture folder later; `save_in_rescue_dir` keeps any other output
+(a trained artifact, evaluation results) the same way.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .capture_destination import check_destination, write_model
+from .errors import DestinationError
+from .rig import Rig
+
+__all__ = ["RescuedModel", "rescue_dirs", "save_in_rescue_dir", "save_rescued", "load_rescued",
+           "write_rescued", "rescue_message", "RESCUE_DIR_ENV"]
+
+RESCUE_DIR_ENV = "LIGHTSTAGE_RESCUE_DIR"
+RESCUE_KIND = "lightstage-rescued-model"
+RESCUE_VERSION = 1
+
+
+@dataclass
+class RescuedModel:
+    """A captured pose that could not be written where it was meant to go."""
+    root: Path
+    label: str
+    sample: str
+    pose: str
+    rig: Rig
+    model: np.ndarray
+
+
+def rescue_dirs() -> list[Path]:
+    """Where rescue files go, in order of preference: $LIGHTSTAGE_RESCUE_DIR, the user's
+    cache folder, the temporary folder (another file system than a full capture disk, often)."""
+    dirs = [Path(os.environ[RESCUE_DIR_ENV]).expanduser()] if os.environ.get(RESCUE_DIR_ENV) else []
+    cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return dirs + [Path(cache) / "lightstage" / "rescued",
+                   Path(tempfile.gettempdir()) / "lightstage-rescued"]
+
+
+def save_in_rescue_dir(file_name: str, write: Callable[[Path], None]) -> Path:
+    """`write(path)` a file named `file_name` into the first rescue folder that takes it;
+    returns its path. Raises OSError naming each folder's error when none does."""
+    errors = []
+    for folder in rescue_dirs():
+        path = folder / file_name
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            write(path)
+            return path
+        except OSError as exc:
+            errors.append(f"{folder}: {exc.strerror or exc}")
+            try:
+                path.unlink()
+            except OSError:
+                pass
+    raise OSError("; ".join(errors))
+
+
+def save_rescued(rescued: RescuedModel) -> Path:
+    """Save a pose to the first rescue folder that takes it (an ``.npz`` that loads without
+    pickle: the model and a JSON header). Raises OSError when none does."""
+    header = json.dumps({"kind": RESCUE_KIND, "version": RESCUE_VERSION,
+                         "root": str(Path(rescued.root).absolute()), "label": rescued.label,
+                         "sample": rescued.sample, "pose": rescued.pose,
+                         "rig": rescued.rig.to_dict()})
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+
+    def write(path: Path) -> None:
+        with open(path, "wb") as f:
+            np.savez(f, model=np.asarray(rescued.model, np.float32), header=np.array(header))
+
+    return save_in_rescue_dir(
+        f"{rescued.label}.{rescued.sample}.{rescued.pose}.{stamp}.{os.getpid()}.npz", write)
+
+
+def load_rescued(path) -> RescuedModel:
+    """A rescue file written by `save_rescued`; DestinationError if it is not one."""
+    path = Path(path).expanduser()
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            header = json.loads(str(data["header"]))
+            model = np.asarray(data["model"], np.float32)
+        if header.get("kind") != RESCUE_KIND or header.get("version") != RESCUE_VERSION:
+            raise ValueError(f"not a rescue file of version {RESCUE_VERSION}")
+        rig = Rig.from_dict(header["rig"], source=str(path))
+        return RescuedModel(Path(header["root"]), header["label"], header["sample"],
+                            header["pose"], rig, model)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DestinationError(f"{path} is not a readable rescue file ({exc}); give the file "
+                               "named in the capture's error message") from None
+
+
+def write_rescued(path, root=None, *, overwrite: bool = False) -> Path:
+    """Write a rescue file's pose into ``root`` (default: the folder it was meant for) as a
+    capture would have, then delete the rescue file; returns the pose folder."""
+    rescued = load_rescued(path)
+    root = Path(root).expanduser() if root else rescued.root
+    target = check_destination(root, rescued.label, rescued.sample, rescued.pose, rescued.rig,
+                               overwrite=overwrite, rig_from_file=True)
+    pose_dir = write_model(target, rescued.model, overwrite=overwrite)
+    Path(path).expanduser().unlink()
+    return pose_dir
+
+
+def rescue_message(error: Exception, rescued: RescuedModel) -> str:
+    """The message of a capture that could not be written, with where it was kept."""
+    try:
+        kept = save_rescued(rescued)
+    except OSError as exc:
+        return (f"{error}. The captured images could not be kept anywhere else either ({exc}): "
+                "free space and capture the pose again")
+    return (f"{error}. The captured images are kept in {kept}: fix that, then write them with "
+            f"`lightstage capture {rescued.root} --from-rescued {kept}` instead of capturing "
+            "again")
