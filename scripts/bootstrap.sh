@@ -19,9 +19,12 @@ mkdir -p "$LOG_DIR"
 # Debian packages: the interface build (cmake, ninja, g++), the AVR firmware build
 # (gcc-avr, binutils-avr, avr-libc), the simavr harness it is tested in (libsimavr-dev,
 # libelf-dev), strace, with which a test checks that ROS traffic stays on loopback, and
-# iproute2, with which scripts/run_tests.sh brings up loopback in the tests' network namespace.
+# iproute2, with which scripts/run_tests.sh brings up loopback in the tests' network namespace;
+# Aravis (GenICam cameras) and its GObject introspection data, and the headers PyGObject and
+# pycairo are built against (libgirepository1.0-dev, libcairo2-dev).
 APT_PACKAGES=(cmake ninja-build gcc g++ make pkg-config gcc-avr binutils-avr avr-libc
-              libsimavr-dev libelf-dev strace iproute2)
+              libsimavr-dev libelf-dev strace iproute2
+              libaravis-0.8-0 gir1.2-aravis-0.8 libgirepository1.0-dev libcairo2-dev)
 PROJECT_PACKAGES=(lightstage_graph lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_recording lightstage_bringup)
 
 step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }

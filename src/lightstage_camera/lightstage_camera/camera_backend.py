@@ -5,9 +5,11 @@ simulated or real, implements it in its own module:
 
 - ``sim``    `sim_camera.SimCameraBackend`: renders the sample "on the stage" under the
              trigger's LED intensities and adds the camera's noise (no hardware);
-- a real camera (e.g. a Basler pylon backend) would arm hardware triggering in
-  ``__init__``, record each `Trigger` in `trigger()` and deliver the grabbed image from its
-  grab thread through the same `deliver` callback, paired with the trigger it belongs to.
+- ``basler`` `basler_backend.BaslerBackend` (pypylon) and ``aravis``
+             `aravis_backend.AravisBackend` (any GenICam camera): both
+             `triggered_backend.TriggeredBackend`s, which grab in a thread and pair each
+             frame with its trigger (`trigger_pairing.TriggerPairing`); a frame that cannot be
+             paired for certain is reported through `lost` as a `LostFrame`, never delivered.
 
 No rclpy here: a backend is usable from a notebook or a test.
 """
@@ -52,6 +54,25 @@ class Frame:
     info: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class LostFrame:
+    """A trigger that produced no usable frame, and why (failed buffer, BlockID gap, ...)."""
+    trigger: Trigger
+    reason: str
+
+
+class CameraError(RuntimeError):
+    """The camera cannot be used (missing, unplugged, refused a setting); says what to do."""
+
+
+def to_mono16(image: np.ndarray, bit_depth: int) -> np.ndarray:
+    """An LSB-aligned camera image (uint8 / uint16, `bit_depth` significant bits) -> uint16
+    MSB-aligned (``mono16``: a 10-bit value v becomes v << 6), as the project publishes."""
+    if not 8 <= int(bit_depth) <= 16:
+        raise ValueError(f'bit_depth must be 8..16, got {bit_depth}')
+    return np.asarray(image).astype(np.uint16) << np.uint16(16 - int(bit_depth))
+
+
 @dataclass
 class BackendStatus:
     """Health of a backend for /diagnostics: ok, a one-line message, key/value details."""
@@ -65,8 +86,10 @@ class CameraBackend(ABC):
 
     name = 'abstract'
 
-    def __init__(self, deliver: Callable[[Frame], None]):
+    def __init__(self, deliver: Callable[[Frame], None],
+                 lost: Callable[[LostFrame], None] | None = None):
         self._deliver = deliver
+        self._lost = lost or (lambda _lost_frame: None)
 
     @abstractmethod
     def trigger(self, trigger: Trigger) -> None:

@@ -4,6 +4,13 @@ Subscribes ``/illumination`` (`IlluminationState`, one per trigger), hands each 
 camera backend (`camera_backend.CameraBackend`) and publishes the frame it delivers as
 ``sensor_msgs/Image`` ``mono16`` with ``header.stamp`` = the trigger stamp (acquisition
 time), so that a consumer matches images to patterns by stamp, never by arrival order.
+Every image goes with a ``sensor_msgs/CameraInfo`` (same header) on ``camera_info`` beside
+the image topic, from ``camera_info_url`` (camera_calibration's YAML) or uncalibrated.
+
+Backends ``basler`` (pypylon) and ``aravis`` (any GenICam camera) drive a real camera
+(`triggered_backend`); a trigger whose frame is lost (failed buffer, BlockID gap, no frame,
+camera unplugged) publishes no image: it is logged, counted and reported on ``/diagnostics``
+at once, and the camera is reopened after a fault without restarting the node.
 
 Backend ``sim`` (`sim_camera.SimCameraBackend`) renders the sample "on the stage" (parameter
 ``sample``, changeable at run time) from a capture folder. A missing capture folder or an
@@ -24,18 +31,22 @@ from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescr
                                 ParameterType, SetParametersResult)
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CameraInfo, Image
 
-from .camera_backend import Frame, Trigger
+from .camera_backend import CameraBackend, Frame, LostFrame, Trigger
+from .camera_info import Calibration, load_calibration
 from .frames import stamp_to_ns
 from .noise import PAPER_CALIBRATION, NoiseModel, load_noise_file
 from .sim_camera import NOISE_CHOICES, SimCameraBackend, parse_noise, resolve_sample
 from .spinning import spin_until_stopped
+from .triggered_backend import PIXEL_FORMATS, parse_features
 
 NODE_NAME = 'camera'
 IMAGE_TOPIC = '/image_raw'
 ILLUMINATION_TOPIC = '/illumination'
-BACKENDS = ('sim',)
+CAMERA_INFO_TOPIC = IMAGE_TOPIC.rpartition('/')[0] + '/camera_info'  # beside the image topic
+BACKENDS = ('sim', 'basler', 'aravis')
+TRIGGER_SOURCES = ('Line1', 'Line2', 'Line3', 'Line4', 'Software')
 
 # Reliable, keep-last 32 (not SensorData's best-effort depth 5): the classifier needs every
 # frame of a trigger sequence and matches them by stamp, so a dropped frame is a failed
@@ -55,9 +66,17 @@ def _text(description: str, *, read_only: bool = False, constraints: str = '',
                                dynamic_typing=dynamic)
 
 
+def _double(description: str, lo: float, hi: float, *, read_only: bool = False) -> ParameterDescriptor:
+    return ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE, description=description,
+                               read_only=read_only,
+                               floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])
+
+
 PARAMETERS = {
-    'backend': ('sim', _text('camera backend; sim renders the sample on the stage from a capture '
-                             'folder', read_only=True, constraints='one of: ' + ', '.join(BACKENDS))),
+    'backend': ('sim', _text('camera backend: sim renders the sample on the stage from a capture '
+                             'folder; basler (pypylon) and aravis (GenICam: GigE Vision, USB3 '
+                             'Vision) drive a real camera', read_only=True,
+                             constraints='one of: ' + ', '.join(BACKENDS))),
     'capture_dir': ('', _text('capture folder (rig.yaml + <label>/<sample>/<pose>/) the sim '
                               'backend renders from; settable at run time (reloads)')),
     'sample': ('0', _text('sample on the stage: a name label/sample/pose (e.g. banana-fake/s2/p03) '
@@ -73,20 +92,49 @@ PARAMETERS = {
                                      description='noise seed; -1 = fresh entropy',
                                      integer_range=[IntegerRange(from_value=-1, to_value=2**31 - 1, step=1)])),
     'frame_id': ('camera', _text('frame_id of the published images')),
-    'dimmer': (0.45, ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE,
-                                         description='scale of the single-LED images before '
-                                                     'multiplexing (the authors\' 0.45)',
-                                         floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)])),
-    'default_gain_db': (15.0, ParameterDescriptor(
-        type=ParameterType.PARAMETER_DOUBLE,
-        description='gain [dB] for triggers that ask for the camera default (gain_db NaN)',
-        floating_point_range=[FloatingPointRange(from_value=0.0, to_value=48.0)])),
-    'diagnostics_period_s': (1.0, ParameterDescriptor(
-        type=ParameterType.PARAMETER_DOUBLE, description='/diagnostics period [s]', read_only=True,
-        floating_point_range=[FloatingPointRange(from_value=0.1, to_value=60.0)])),
+    'dimmer': (0.45, _double('scale of the single-LED images before multiplexing (the authors\' '
+                             '0.45)', 0.001, 10.0)),
+    'default_gain_db': (15.0, _double('gain [dB] for triggers that ask for the camera default '
+                                      '(gain_db NaN)', 0.0, 48.0)),
+    # ---- real cameras (basler, aravis)
+    'serial_number': ('', _text('camera to open: basler: serial number; aravis: device id, serial '
+                                'or IP address (opened by address: no discovery); empty = the '
+                                'first camera found')),
+    'trigger_source': ('Line1', _text('TriggerSource: Line1 = the stage\'s trigger pin wired to '
+                                      'the camera (exposure = pulse width where the camera has '
+                                      'TriggerWidth); Software = the node fires each trigger '
+                                      'when it is announced (emulators, tests)',
+                                      constraints='one of: ' + ', '.join(TRIGGER_SOURCES))),
+    'pixel_format': ('Mono10', _text('PixelFormat; published as mono16 MSB-aligned (10-bit v -> '
+                                     'v << 6), the bit depth is on /diagnostics',
+                                     constraints='one of: ' + ', '.join(PIXEL_FORMATS))),
+    'exposure_us': (30000.0, _double('exposure [us] for triggers that carry none; the camera\'s '
+                                     'value is read back and reported as exposure_us_actual on '
+                                     '/diagnostics', 1.0, 10_000_000.0)),
+    'gain_db': (15.0, _double('gain [dB] for triggers that ask for the camera default (gain_db '
+                              'NaN); read back and reported as gain_db_actual on /diagnostics',
+                              0.0, 48.0)),
+    'camera_info_url': ('', _text('camera calibration (the YAML camera_calibration writes): '
+                                  'file:///path/camera.yaml, a path or package://pkg/path; '
+                                  'empty = uncalibrated camera_info')),
+    'transport_layer': ('', _text('basler: search only this pylon transport layer (BaslerCamEmu = '
+                                  'the emulated cameras, no network discovery); empty = all')),
+    'camera_features': ('', _text('extra GenICam settings applied in order after the node\'s '
+                                  'own, when the camera opens: "Name=Value; Command; ..." (e.g. '
+                                  '"UserSetSelector=UserSet1; UserSetLoad; LineDebouncerTime=10")')),
+    'frame_timeout_s': (1.0, _double('time a trigger may wait for its frame on top of its '
+                                     'exposure [s]; then it is reported lost (grab timeout)',
+                                     0.01, 60.0)),
+    'reopen_period_s': (1.0, _double('while the camera is missing or after a fault: time between '
+                                     'attempts to open it [s]', 0.1, 60.0)),
+    'diagnostics_period_s': (1.0, _double('/diagnostics period [s]', 0.1, 60.0, read_only=True)),
 }
 BACKEND_SETTINGS = ('capture_dir', 'sample', 'noise', 'noise_file', 'seed', 'dimmer',
                     'default_gain_db')
+# real cameras: a change of these reopens the camera; exposure and gain apply at once
+CAMERA_SETTINGS = ('serial_number', 'trigger_source', 'pixel_format', 'transport_layer',
+                   'camera_features', 'frame_timeout_s', 'reopen_period_s')
+LIVE_CAMERA_SETTINGS = ('exposure_us', 'gain_db')
 
 
 def noise_calibration(noise_file: str) -> NoiseModel:
@@ -118,17 +166,39 @@ def image_message(frame: Frame, frame_id: str) -> Image:
     return msg
 
 
+def camera_info_message(header, calibration: Calibration) -> CameraInfo:
+    """``CameraInfo`` for an image with `header` (the same header: stamp and frame_id)."""
+    msg = CameraInfo(header=header, width=calibration.width, height=calibration.height,
+                     distortion_model=calibration.distortion_model)
+    msg.d = [float(v) for v in calibration.d]
+    msg.k, msg.r, msg.p = list(calibration.k), list(calibration.r), list(calibration.p)
+    return msg
+
+
+def split_features(text: str) -> list[str]:
+    """``"A=1; B=2"`` -> ``["A=1", "B=2"]`` (the camera_features parameter)."""
+    return [part.strip() for part in str(text).split(';') if part.strip()]
+
+
 class CameraNode(Node):
     def __init__(self, node_name: str = NODE_NAME, **kwargs):
         super().__init__(node_name, **kwargs)
         for name, (default, descriptor) in PARAMETERS.items():
             self.declare_parameter(name, default, descriptor)
-        self.backend = None
+        self.backend: CameraBackend | None = None
         self.error = ''
         self.published = 0
         self.dropped = 0
+        self.calibration: Calibration | None = None
+        self.calibration_error = ''
         self._image_pub = self.create_publisher(Image, IMAGE_TOPIC, IMAGE_QOS)
+        self._info_pub = self.create_publisher(CameraInfo, CAMERA_INFO_TOPIC, IMAGE_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        try:
+            self._load_calibration(self.p('camera_info_url'))
+        except (ValueError, OSError) as exc:
+            self.calibration_error = f'camera_info_url: {exc}; publishing an uncalibrated camera_info'
+            self.get_logger().error(self.calibration_error)
         self._start_backend(self._settings())
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_subscription(IlluminationState, ILLUMINATION_TOPIC, self._on_illumination,
@@ -139,21 +209,24 @@ class CameraNode(Node):
     def p(self, name: str):
         return self.get_parameter(name).value
 
+    @property
+    def real_camera(self) -> bool:
+        return self.p('backend') != 'sim'
+
     def _settings(self, changes: dict | None = None) -> dict:
-        settings = {name: self.p(name) for name in BACKEND_SETTINGS}
+        names = (CAMERA_SETTINGS + LIVE_CAMERA_SETTINGS) if self.real_camera else BACKEND_SETTINGS
+        settings = {name: self.p(name) for name in names}
         settings.update(changes or {})
         return settings
 
     # ------------------------------------------------------------------ backend
-    def _make_backend(self, s: dict) -> SimCameraBackend:
-        """A backend for the settings `s`; raises ValueError/OSError saying what is wrong.
-
-        A real camera backend (its own module implementing `CameraBackend`) is chosen here by
-        the `backend` parameter; the `sim`-only settings would then not apply to it.
-        """
+    def _make_backend(self, s: dict) -> CameraBackend:
+        """A backend for the settings `s`; raises ValueError/OSError saying what is wrong."""
         backend = self.p('backend')
         if backend not in BACKENDS:
             raise ValueError(f'unknown backend {backend!r}; this node has {", ".join(BACKENDS)}')
+        if backend != 'sim':
+            return self._make_camera_backend(backend, s)
         if not str(s['capture_dir']).strip():
             raise ValueError('no capture folder: set the capture_dir parameter to a folder with '
                              'rig.yaml (e.g. one written by `lightstage synth`)')
@@ -162,6 +235,22 @@ class CameraNode(Node):
             self._publish_frame, s['capture_dir'], sample=s['sample'], noise=s['noise'],
             dimmer=float(s['dimmer']), default_gain_db=float(s['default_gain_db']), seed=seed,
             calibration=noise_calibration(s['noise_file']))
+
+    def _make_camera_backend(self, backend: str, s: dict) -> CameraBackend:
+        if s['trigger_source'] not in TRIGGER_SOURCES:
+            raise ValueError(f'trigger_source {s["trigger_source"]!r}: use one of '
+                             f'{", ".join(TRIGGER_SOURCES)}')
+        common = dict(serial_number=s['serial_number'], pixel_format=s['pixel_format'],
+                      features=split_features(s['camera_features']),
+                      trigger_source=s['trigger_source'], exposure_us=float(s['exposure_us']),
+                      gain_db=float(s['gain_db']), frame_timeout_s=float(s['frame_timeout_s']),
+                      reopen_period_s=float(s['reopen_period_s']))
+        if backend == 'basler':
+            from .basler_backend import BaslerBackend
+            return BaslerBackend(self._publish_frame, self._on_lost,
+                                 transport_layer=s['transport_layer'], **common)
+        from .aravis_backend import AravisBackend
+        return AravisBackend(self._publish_frame, self._on_lost, **common)
 
     def _start_backend(self, s: dict) -> None:
         try:
@@ -172,6 +261,14 @@ class CameraNode(Node):
             self.get_logger().error(self.error)
             return
         self.error = ''
+        if self.real_camera:
+            opened = self.backend.wait_open(10.0)
+            text = f'{self.p("backend")} camera: {self.backend.status().message}'
+            if opened:
+                self.get_logger().info(text)
+            else:
+                self.get_logger().error(text)
+            return
         cam = self.backend.camera
         self.get_logger().info(
             f'sim camera on {s["capture_dir"]}: {len(cam.modelset)} samples, '
@@ -179,7 +276,20 @@ class CameraNode(Node):
             f'{" calibrated by " + s["noise_file"] if str(s["noise_file"]).strip() else ""}; '
             f'sample {cam.sample_name} on the stage')
 
+    def _load_calibration(self, url: str) -> None:
+        """Load camera_info_url; raises ValueError/OSError (the old calibration stays)."""
+        self.calibration = load_calibration(url)
+        self.calibration_error = ''
+
     def _on_set_parameters(self, params) -> SetParametersResult:
+        if any(p.name == 'camera_info_url' for p in params):
+            url = next(p.value for p in params if p.name == 'camera_info_url')
+            try:
+                self._load_calibration(url)
+            except (ValueError, OSError) as exc:
+                return SetParametersResult(successful=False, reason=f'camera_info_url: {exc}')
+        if self.real_camera:
+            return self._set_camera_parameters(params)
         changes = {p.name: p.value for p in params if p.name in BACKEND_SETTINGS}
         if not changes:
             return SetParametersResult(successful=True)
@@ -216,6 +326,29 @@ class CameraNode(Node):
             self.get_logger().info(f'sample {cam.sample_name} on the stage')
         return SetParametersResult(successful=True)
 
+    def _set_camera_parameters(self, params) -> SetParametersResult:
+        changes = {p.name: p.value for p in params if p.name in CAMERA_SETTINGS + LIVE_CAMERA_SETTINGS}
+        if not changes:
+            return SetParametersResult(successful=True)
+        s = self._settings(changes)
+        if self.backend is not None and not set(changes) & set(CAMERA_SETTINGS):
+            self.backend.exposure_us = float(s['exposure_us'])
+            self.backend.gain_db = float(s['gain_db'])
+            return SetParametersResult(successful=True)
+        # a real camera cannot be opened twice: close it, then open with the new settings
+        # (a setting the node refuses leaves the old camera running)
+        try:
+            if s['trigger_source'] not in TRIGGER_SOURCES or s['pixel_format'] not in PIXEL_FORMATS:
+                raise ValueError(f'trigger_source must be one of {", ".join(TRIGGER_SOURCES)} and '
+                                 f'pixel_format one of {", ".join(PIXEL_FORMATS)}')
+            parse_features(split_features(s['camera_features']))
+        except ValueError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        if self.backend is not None:
+            self.backend.close()
+        self._start_backend(s)
+        return SetParametersResult(successful=True)
+
     # ------------------------------------------------------------------ frames
     def _on_illumination(self, msg: IlluminationState) -> None:
         if self.backend is None:
@@ -231,15 +364,39 @@ class CameraNode(Node):
             self.get_logger().error(self.error)
 
     def _publish_frame(self, frame: Frame) -> None:
-        self._image_pub.publish(image_message(frame, self.p('frame_id')))
+        image = image_message(frame, self.p('frame_id'))
+        height, width = frame.image.shape
+        calibration = self.calibration
+        if calibration is not None:
+            try:
+                calibration = calibration.for_image(width, height)
+            except ValueError as exc:
+                if self.calibration_error != str(exc):
+                    self.get_logger().error(f'{exc}; publishing an uncalibrated camera_info')
+                self.calibration_error, calibration = str(exc), None
+        info = camera_info_message(image.header, calibration or Calibration.uncalibrated(width, height))
+        self._image_pub.publish(image)
+        self._info_pub.publish(info)
         self.published += 1
+
+    def _on_lost(self, lost: LostFrame) -> None:
+        """A trigger without its frame (called from the backend's grab thread): no image is
+        published for it; the reason goes to the log and, at once, to /diagnostics."""
+        self.dropped += 1
+        self.error = f'trigger {lost.trigger.sequence} not imaged: {lost.reason}'
+        self.get_logger().error(self.error)
+        self._publish_diagnostics()
 
     # ------------------------------------------------------------------ health
     def _publish_diagnostics(self) -> None:
         status = DiagnosticStatus(name=f'{self.get_name()}: camera', hardware_id=str(self.p('backend')))
-        values = {'backend': self.p('backend'), 'capture_dir': self.p('capture_dir'),
-                  'images_published': self.published, 'triggers_dropped': self.dropped,
-                  'last_error': self.error}
+        values = {'backend': self.p('backend'), 'images_published': self.published,
+                  'triggers_dropped': self.dropped, 'last_error': self.error,
+                  'camera_info': (self.calibration.source if self.calibration else 'uncalibrated')}
+        if not self.real_camera:
+            values['capture_dir'] = self.p('capture_dir')
+        if self.calibration_error:
+            values['camera_info_error'] = self.calibration_error
         if self.backend is None:
             status.level, status.message = DiagnosticStatus.ERROR, self.error
         else:
@@ -265,6 +422,7 @@ def main(argv: list[str] | None = None) -> int:
     from .spinning import init_node
     init_node(sys.argv if argv is None else argv)
     return spin_until_stopped(CameraNode())
+
 
 if __name__ == '__main__':
     sys.exit(main())

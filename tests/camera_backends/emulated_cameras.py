@@ -1,0 +1,87 @@
+"""Shared by the tests of this directory: the emulated cameras' serials and served files, and
+the ROS client of the graph tests."""
+import contextlib
+
+import numpy as np
+import pytest
+from lightstage_bringup.supervisor import Supervisor
+
+from lightstage_camera.frames import stamp_to_ns
+from suite_helpers import RosClient, fresh_domain_id, start_nodes
+
+EMULATED_SERIALS = ('0815-0000', '0815-0001')   # PYLON_CAMEMU=2, set in conftest.py
+# pylon runs a POSIX timer that signals SIGALRM to a handler it installs when a camera opens;
+# pytest-timeout's signal method restores the handler it found before the test (none) after
+# it, and pylon's next alarm then kills the run. The thread method leaves signals alone.
+PYLON_TIMEOUT = pytest.mark.timeout(300, method='thread')
+
+
+def write_served_images(folder, images) -> list:
+    """16-bit TIFFs (pylon's own writer) that the emulator serves in sorted order, cycling."""
+    from pypylon import pylon
+    folder.mkdir(parents=True, exist_ok=True)
+    for i, image in enumerate(images):
+        pim = pylon.PylonImage()
+        pim.AttachArray(np.ascontiguousarray(image, np.uint16), pylon.PixelType_Mono16)
+        pim.Save(pylon.ImageFileFormat_Tiff, str(folder / f'{i:03d}.tiff'))
+    return images
+
+
+def emulator_features(folder) -> list[str]:
+    """The emulator's image-file feature: serve the files in `folder`, no test pattern."""
+    return [f'ImageFilename={folder}', 'ImageFileMode=On', 'TestImageSelector=Off']
+
+
+class CameraGraphClient(RosClient):
+    """The test's participant: fires pattern sequences through the driver, collects the
+    camera's images, camera_info and /diagnostics."""
+
+    def __init__(self, domain_id):
+        super().__init__(domain_id)
+        from diagnostic_msgs.msg import DiagnosticArray
+        from lightstage_camera.camera_node import CAMERA_INFO_TOPIC, IMAGE_QOS, IMAGE_TOPIC
+        from sensor_msgs.msg import CameraInfo, Image
+        self.images, self.infos, self.diagnostics = [], [], []
+        self.node.create_subscription(Image, IMAGE_TOPIC, self.images.append, IMAGE_QOS)
+        self.node.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self.infos.append, IMAGE_QOS)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append, 50)
+
+    def fire(self, n, exposure_us=2000):
+        from lightstage_interfaces.msg import Pattern
+        from lightstage_interfaces.srv import ApplyPatterns
+        rng = np.random.default_rng(n)
+        patterns = [Pattern(intensities=(rng.random(32) > 0.5).astype(np.float32),
+                            exposure_us=exposure_us, gain_db=float('nan')) for _ in range(n)]
+        response = self.call(ApplyPatterns, '/lightstage/apply_patterns',
+                             ApplyPatterns.Request(patterns=patterns, trigger=True))
+        assert response.success, response.message
+        return [stamp_to_ns(s) for s in response.trigger_stamps], list(response.sequences)
+
+    def camera_errors(self):
+        return [kv.value for msg in self.diagnostics for st in msg.status
+                if st.name.startswith('camera') for kv in st.values if kv.key == 'last_error']
+
+    def wait_camera_ready(self):
+        from diagnostic_msgs.msg import DiagnosticStatus
+
+        def ready():
+            return any(st.name.startswith('camera') and st.level == DiagnosticStatus.OK
+                       for msg in self.diagnostics[-5:] for st in msg.status)
+        self.spin_until(ready, 30.0, lambda: f'the camera to be open: {self.camera_errors()[-1:]}')
+
+
+@contextlib.contextmanager
+def camera_graph(params):
+    """The driver (Python firmware simulator) and the camera node of `params` as processes,
+    and a CameraGraphClient once the camera listens to /illumination and says it is open."""
+    domain_id = fresh_domain_id()
+    client = CameraGraphClient(domain_id)
+    try:
+        with Supervisor(sigint_timeout_s=5.0) as supervisor:
+            start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)
+            client.spin_until(lambda: client.subscribed_by('/illumination', 'camera'), 10.0,
+                              'the camera to subscribe /illumination')
+            client.wait_camera_ready()
+            yield client
+    finally:
+        client.close()
