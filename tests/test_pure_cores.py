@@ -8,10 +8,9 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / 'src'
 # modules that are ROS by design besides the nodes: the graph contract's rclpy parts (QoS
-# profiles, the node main, the stage client), the recorder's rclpy glue, and a re-export of
-# the node main (SHIM(issue 13): lightstage_camera.spinning goes at merge)
+# profiles, the node main, the stage client) and the recorder's rclpy glue
 ROS_MODULES = {'lightstage_graph.qos', 'lightstage_graph.spin', 'lightstage_graph.stage_client',
-               'lightstage_recording.bag_ros', 'lightstage_camera.spinning'}
+               'lightstage_recording.bag_ros'}
 
 # package -> the project packages it may import (lightstage_interfaces aside): a tree, no cycles
 ALLOWED_IMPORTS = {

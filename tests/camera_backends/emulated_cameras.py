@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from lightstage_camera.frames import stamp_to_ns
+from lightstage_graph.stamps import stamp_to_ns
 from suite_helpers import RosClient, fresh_domain_id, start_nodes
 
 EMULATED_SERIALS = ('0815-0000', '0815-0001')   # PYLON_CAMEMU=2, set in conftest.py
@@ -34,15 +34,18 @@ def emulator_features(folder) -> list[str]:
 
 class CameraGraphClient(RosClient):
     """The test's participant: fires pattern sequences through the driver, collects the
-    camera's images, camera_info and /diagnostics."""
+    camera's images, camera_info, lost-frame notices and /diagnostics."""
 
     def __init__(self, domain_id):
         super().__init__(domain_id)
         from diagnostic_msgs.msg import DiagnosticArray
-        from lightstage_camera.camera_node import CAMERA_INFO_TOPIC, IMAGE_QOS, IMAGE_TOPIC
+        from lightstage_graph.names import CAMERA_INFO_TOPIC, FRAME_LOST_TOPIC, IMAGE_TOPIC
+        from lightstage_graph.qos import IMAGE_QOS
+        from lightstage_interfaces.msg import FrameLost
         from sensor_msgs.msg import CameraInfo, Image
-        self.images, self.infos, self.diagnostics = [], [], []
+        self.images, self.infos, self.lost, self.diagnostics = [], [], [], []
         self.node.create_subscription(Image, IMAGE_TOPIC, self.images.append, IMAGE_QOS)
+        self.node.create_subscription(FrameLost, FRAME_LOST_TOPIC, self.lost.append, IMAGE_QOS)
         self.node.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self.infos.append, IMAGE_QOS)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append, 50)
 

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from lightstage_camera.aravis_backend import AravisBackend, FrameIdCounter
 from lightstage_camera.camera_backend import Trigger
-from lightstage_camera.frames import image_from_buffer, stamp_to_ns
+from lightstage_graph.frames import image_from_buffer
+from lightstage_graph.stamps import stamp_to_ns
 
 from emulated_cameras import camera_graph
 from suite_helpers import write_params

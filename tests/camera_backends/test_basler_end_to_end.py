@@ -1,7 +1,9 @@
 """The whole method on pylon's emulated camera (issue 14): driver (Python firmware simulator),
 camera node with backend basler, acquisition and classifier nodes as processes; `lightstage
 capture` writes a valid capture folder, `lightstage calibrate` runs to the end, and the
-Classify service returns the label of the sample whose images the camera serves.
+Classify service returns the label of the sample whose images the camera serves; a frame the
+camera loses (a forced failed buffer) ends a classify or capture request with the camera's
+reason, not with the request's own timeout.
 
 The emulated camera serves files (its image-file feature); each step reopens it on a folder
 of its own (camera_features), which restarts the files in sorted order.
@@ -39,9 +41,10 @@ class Client(RosClient):
         self.node.create_subscription(IlluminationState, '/illumination', self.illumination.append,
                                       QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
 
-    def serve(self, folder):
-        """Reopen the emulated camera on the files of `folder`."""
-        (ok,) = self.set_parameters('camera', camera_features='; '.join(emulator_features(folder)))
+    def serve(self, folder, *more_features):
+        """Reopen the emulated camera on the files of `folder` (and `more_features`)."""
+        features = [*emulator_features(folder), *more_features]
+        (ok,) = self.set_parameters('camera', camera_features='; '.join(features))
         assert ok.successful, ok.reason
 
     def classify(self):
@@ -142,3 +145,32 @@ def test_classify_returns_the_label_of_the_sample_the_camera_shows(graph, stage_
     r = client.classify()
     assert r.success, r.message
     assert r.label.split('-')[0] == SAMPLE.split('-')[0], (r.label, r.scores)
+
+
+FAIL_FIRST_BUFFER = ('ForceFailedBufferCount=1', 'ForceFailedBuffer')   # the emulator's fault
+
+
+def test_a_lost_frame_ends_a_classify_request_with_the_cameras_reason(graph):
+    client, root = graph
+    rng = np.random.default_rng(9)
+    write_served_images(root / 'lost120', [(rng.integers(0, 1024, (120, 120)) << 6).astype(np.uint16)
+                                           for _ in range(3)])
+    client.serve(root / 'lost120', *FAIL_FIRST_BUFFER)
+    r = client.classify()   # timeout_s 20: only the camera's notice gives this message
+    assert not r.success
+    assert 'was lost by the camera (camera/frame_lost): failed buffer: The buffer was incompletely ' \
+           'grabbed.' in r.message, r.message
+    assert 'did not arrive' not in r.message, r.message
+
+
+def test_a_lost_frame_ends_a_capture_with_the_cameras_reason(graph, tmp_path):
+    client, root = graph
+    rng = np.random.default_rng(10)
+    write_served_images(root / 'lost_capture', [(rng.integers(0, 800, (48, 64)) << 6).astype(np.uint16)
+                                                for _ in range(4)])
+    client.serve(root / 'lost_capture', *FAIL_FIRST_BUFFER)
+    p = cli('capture', str(tmp_path / 'captured'), 'orange-real/s9/p01', '--json', '--frames', '2',
+            domain_id=client.domain_id)
+    assert p.returncode != 0
+    assert 'failed buffer: The buffer was incompletely grabbed.' in p.stdout + p.stderr, p.stdout + p.stderr
+    assert 'did not arrive' not in p.stdout + p.stderr

@@ -2,7 +2,8 @@
 and the camera node with backend basler run as processes; pattern sequences fired through
 ApplyPatterns give one mono16 image per trigger, equal to the served file, stamped with its
 trigger, each with its camera_info; a failed buffer and a trigger without a frame give their
-documented errors and no mis-paired image, and the camera goes on without a restart.
+documented errors, a notice on camera/frame_lost in place of the image and no mis-paired
+image, and the camera goes on without a restart.
 """
 import numpy as np
 import pytest
@@ -10,7 +11,8 @@ import yaml
 
 from emulated_cameras import (EMULATED_SERIALS, PYLON_TIMEOUT, camera_graph, emulator_features,
                               write_served_images)
-from lightstage_camera.frames import image_from_buffer, stamp_to_ns
+from lightstage_graph.frames import image_from_buffer
+from lightstage_graph.stamps import stamp_to_ns
 from suite_helpers import write_params
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
@@ -90,14 +92,18 @@ def test_a_failed_buffer_and_a_trigger_without_frame_give_their_errors_and_no_mi
                                                                          'ForceFailedBuffer')
     assert all(r.successful for r in results), results
     client.wait_camera_ready()
-    client.images.clear(), client.diagnostics.clear()
+    client.images.clear(), client.diagnostics.clear(), client.lost.clear()
     stamps, sequences = client.fire(3)
-    client.spin_until(lambda: len(client.images) >= 2, 30.0, 'two images')
+    client.spin_until(lambda: len(client.images) >= 2 and client.lost, 30.0, 'two images and a notice')
     client.spin_for(0.5)
     first, second, third = received(client, stamps)
     assert first is None and len(client.images) == 2
     assert any(f'trigger {sequences[0]} not imaged: failed buffer: The buffer was incompletely grabbed.'
                in e for e in client.camera_errors()), client.camera_errors()
+    # in place of the image: the notice on camera/frame_lost, stamped as the image would have been
+    (lost,) = client.lost
+    assert (stamp_to_ns(lost.header.stamp), lost.sequence) == (stamps[0], sequences[0])
+    assert lost.reason.startswith('failed buffer: The buffer was incompletely grabbed.'), lost.reason
     # the failed buffer took the first served image: triggers 2 and 3 have the 2nd and 3rd
     for msg, expected in ((second, images[1]), (third, images[2])):
         image = image_from_buffer(msg.data, msg.height, msg.width, msg.step, msg.encoding, msg.is_bigendian)
@@ -107,11 +113,15 @@ def test_a_failed_buffer_and_a_trigger_without_frame_give_their_errors_and_no_mi
     assert all(r.successful for r in client.set_parameters('camera', camera_features=features,
                                                            trigger_source='Line1'))
     client.wait_camera_ready()
-    client.images.clear(), client.diagnostics.clear()
+    client.images.clear(), client.diagnostics.clear(), client.lost.clear()
     stamps, sequences = client.fire(2)
-    client.spin_until(lambda: any(f'trigger {sequences[1]} not imaged' in e for e in client.camera_errors()),
-                      30.0, 'the second trigger to be reported lost')
+    client.spin_until(lambda: any(f'trigger {sequences[1]} not imaged' in e for e in client.camera_errors())
+                      and len(client.lost) == 2, 30.0, 'the second trigger to be reported lost')
     assert not client.images
+    assert [(stamp_to_ns(m.header.stamp), m.sequence) for m in client.lost] == list(zip(stamps, sequences))
+    reasons = [m.reason for m in client.lost]
+    assert 'grab timeout' in reasons[0], reasons
+    assert f'trigger {sequences[0]} had no frame' in reasons[1], reasons   # the camera resyncs
     errors = client.camera_errors()
     assert any(f'trigger {sequences[0]} not imaged: no frame within' in e and 'grab timeout' in e
                for e in errors), errors

@@ -11,14 +11,17 @@ OK, ERROR = DiagnosticStatus.OK, DiagnosticStatus.ERROR
 
 
 class CameraHarness:
-    """A CameraNode and a test node (publishing /illumination, listening to /image_raw and
+    """A CameraNode and a test node (publishing /illumination, listening to camera/image_raw,
+    camera/frame_lost and
     /diagnostics) in one context of their own."""
 
     def __init__(self, **params):
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from lightstage_camera.camera_node import ILLUMINATION_QOS, IMAGE_QOS, CameraNode
-        from lightstage_interfaces.msg import IlluminationState
+        from lightstage_camera.camera_node import CameraNode
+        from lightstage_graph.names import FRAME_LOST_TOPIC, ILLUMINATION_TOPIC, IMAGE_TOPIC
+        from lightstage_graph.qos import ILLUMINATION_QOS, IMAGE_QOS
+        from lightstage_interfaces.msg import FrameLost, IlluminationState
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.parameter import Parameter
@@ -28,15 +31,17 @@ class CameraHarness:
         overrides = [Parameter(k, value=v) for k, v in params.items()]
         self.camera = CameraNode(context=self.context, parameter_overrides=overrides)
         self.node = rclpy.create_node('camera_test', context=self.context)
-        self.images, self.diagnostics = [], []
-        self.pub = self.node.create_publisher(IlluminationState, '/illumination', ILLUMINATION_QOS)
-        self.node.create_subscription(Image, '/image_raw', self.images.append, IMAGE_QOS)
+        self.images, self.lost, self.diagnostics = [], [], []
+        self.pub = self.node.create_publisher(IlluminationState, ILLUMINATION_TOPIC, ILLUMINATION_QOS)
+        self.node.create_subscription(Image, IMAGE_TOPIC, self.images.append, IMAGE_QOS)
+        self.node.create_subscription(FrameLost, FRAME_LOST_TOPIC, self.lost.append, IMAGE_QOS)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.camera)
         self.executor.add_node(self.node)
         self.spin_until(lambda: self.pub.get_subscription_count() > 0
-                        and self.camera._image_pub.get_subscription_count() > 0)
+                        and self.camera._image_pub.get_subscription_count() > 0
+                        and self.camera._lost_pub.get_subscription_count() > 0)
 
     def spin_until(self, done, timeout_s=10.0):
         import time
@@ -129,8 +134,12 @@ def test_a_missing_capture_leaves_the_node_up_reporting_the_error(harness_factor
     status = h.last_status()
     assert status.level == ERROR and str(missing) in status.message
     h.trigger(1, 1_000_000_000, np.ones(32))
-    h.spin_until(lambda: h.images, timeout_s=0.5)
+    # no image, but at once the notice that this trigger's frame will not come, and why
+    assert h.spin_until(lambda: h.lost)
     assert not h.images
+    (lost,) = h.lost
+    assert (lost.header.stamp.sec, lost.header.stamp.nanosec, lost.sequence) == (1, 0, 1)
+    assert lost.reason.startswith('camera not ready') and str(missing) in lost.reason
     values = {kv.key: kv.value for kv in h.last_status().values}
     assert values['triggers_dropped'] == '1'
     # fixing the parameter brings the camera up without a restart

@@ -129,6 +129,28 @@ def test_matcher_timeout_names_the_missing_and_the_unusable_images():
     assert len(matcher) == 2  # nothing was consumed by a failed collect
 
 
+def test_a_lost_frame_notice_ends_the_collect_at_once_with_the_cameras_reason():
+    from types import SimpleNamespace
+    matcher = ImageMatcher()
+    stamps = [1_500_000_000_000_000_001, 1_500_000_000_000_000_002, 1_500_000_000_000_000_003]
+    notice = SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=1_500_000_000, nanosec=2)),
+                             sequence=8, reason='failed buffer: The buffer was incompletely grabbed.')
+
+    def camera():
+        matcher.add(stamps[0], np.zeros((2, 2), np.uint16))
+        matcher.add_lost_message(notice)   # the third image never comes
+    threading.Thread(target=camera).start()
+    # a timeout far beyond the test's own: only the notice can end this collect with this message
+    with pytest.raises(MissingImagesError) as info:
+        matcher.collect(stamps, timeout_s=600.0, sequences=[7, 8, 9])
+    message = str(info.value)
+    assert ('image 2 (trigger sequence 8, stamp 1500000000.000000002) was lost by the camera '
+            '(camera/frame_lost): failed buffer: The buffer was incompletely grabbed.') in message
+    assert 'did not arrive' not in message   # the third is on its way, not late
+    assert 'the other 1 image(s) still on their way' in message
+    assert info.value.missing == [1]
+
+
 def test_matcher_keeps_only_the_most_recent_images():
     matcher = ImageMatcher(capacity=3)
     for s in range(5):

@@ -1,16 +1,20 @@
-"""The camera node: one ``/image_raw`` frame per light-stage trigger, stamped with that trigger.
+"""The camera node: one ``camera/image_raw`` frame per light-stage trigger, stamped with that
+trigger.
 
 Subscribes ``/illumination`` (`IlluminationState`, one per trigger), hands each trigger to a
 camera backend (`camera_backend.CameraBackend`) and publishes the frame it delivers as
 ``sensor_msgs/Image`` ``mono16`` with ``header.stamp`` = the trigger stamp (acquisition
 time), so that a consumer matches images to patterns by stamp, never by arrival order.
-Every image goes with a ``sensor_msgs/CameraInfo`` (same header) on ``camera_info`` beside
-the image topic, from ``camera_info_url`` (camera_calibration's YAML) or uncalibrated.
+Every image goes with a ``sensor_msgs/CameraInfo`` (same header) on ``camera/camera_info``,
+from ``camera_info_url`` (camera_calibration's YAML) or uncalibrated.
 
 Backends ``basler`` (pypylon) and ``aravis`` (any GenICam camera) drive a real camera
 (`triggered_backend`); a trigger whose frame is lost (failed buffer, BlockID gap, no frame,
-camera unplugged) publishes no image: it is logged, counted and reported on ``/diagnostics``
-at once, and the camera is reopened after a fault without restarting the node.
+camera unplugged) publishes no image but a ``FrameLost`` on ``camera/frame_lost`` (the
+trigger's stamp and sequence, and why), so that whoever waits for that frame fails at once
+naming the cause; it is also logged, counted and reported on ``/diagnostics``, and the camera
+is reopened after a fault without restarting the node. The topics are relative, in the
+camera's namespace as ROS camera drivers put them, and remappable.
 
 Backend ``sim`` (`sim_camera.SimCameraBackend`) renders the sample "on the stage" (parameter
 ``sample``, changeable at run time) from a capture folder. A missing capture folder or an
@@ -23,111 +27,85 @@ import sys
 from dataclasses import replace
 
 import numpy as np
-import rclpy
-from builtin_interfaces.msg import Time
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from lightstage_interfaces.msg import IlluminationState
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType, SetParametersResult)
+from lightstage_graph.diagnostics import ERROR, OK, WARN, DiagnosticsPublisher, Report
+from lightstage_graph.names import (CAMERA_INFO_TOPIC, CAMERA_NODE, FRAME_LOST_TOPIC,
+                                    ILLUMINATION_TOPIC, IMAGE_TOPIC)
+from lightstage_graph.params import declare_parameters, floating, integer, string
+from lightstage_graph.qos import ILLUMINATION_QOS, IMAGE_QOS
+from lightstage_graph.spin import init_node, spin_until_stopped
+from lightstage_graph.stamps import ns_to_stamp, stamp_to_ns
+from lightstage_interfaces.msg import FrameLost, IlluminationState
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from .camera_backend import CameraBackend, Frame, LostFrame, Trigger
 from .camera_info import Calibration, load_calibration
-from .frames import stamp_to_ns
 from .noise import PAPER_CALIBRATION, NoiseModel, load_noise_file
+from .rig import DEFAULT_DIMMER
 from .sim_camera import NOISE_CHOICES, SimCameraBackend, parse_noise, resolve_sample
-from .spinning import spin_until_stopped
 from .triggered_backend import PIXEL_FORMATS, parse_features
 
-NODE_NAME = 'camera'
-IMAGE_TOPIC = '/image_raw'
-ILLUMINATION_TOPIC = '/illumination'
-CAMERA_INFO_TOPIC = IMAGE_TOPIC.rpartition('/')[0] + '/camera_info'  # beside the image topic
 BACKENDS = ('sim', 'basler', 'aravis')
 TRIGGER_SOURCES = ('Line1', 'Line2', 'Line3', 'Line4', 'Software')
 
-# Reliable, keep-last 32 (not SensorData's best-effort depth 5): the classifier needs every
-# frame of a trigger sequence and matches them by stamp, so a dropped frame is a failed
-# classification, not a skipped video frame. 32 frames cover one full 32-pattern sequence.
-IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32,
-                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
-# as the driver publishes /illumination: reliable, depth 100
-ILLUMINATION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                              reliability=ReliabilityPolicy.RELIABLE,
-                              durability=DurabilityPolicy.VOLATILE)
-
-
-def _text(description: str, *, read_only: bool = False, constraints: str = '',
-          dynamic: bool = False) -> ParameterDescriptor:
-    return ParameterDescriptor(type=ParameterType.PARAMETER_STRING, description=description,
-                               read_only=read_only, additional_constraints=constraints,
-                               dynamic_typing=dynamic)
-
-
-def _double(description: str, lo: float, hi: float, *, read_only: bool = False) -> ParameterDescriptor:
-    return ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE, description=description,
-                               read_only=read_only,
-                               floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])
-
 
 PARAMETERS = {
-    'backend': ('sim', _text('camera backend: sim renders the sample on the stage from a capture '
-                             'folder; basler (pypylon) and aravis (GenICam: GigE Vision, USB3 '
-                             'Vision) drive a real camera', read_only=True,
-                             constraints='one of: ' + ', '.join(BACKENDS))),
-    'capture_dir': ('', _text('capture folder (rig.yaml + <label>/<sample>/<pose>/) the sim '
-                              'backend renders from; settable at run time (reloads)')),
-    'sample': ('0', _text('sample on the stage: a name label/sample/pose (e.g. banana-fake/s2/p03) '
-                          'or an index; settable at run time', dynamic=True)),
-    'noise': ('auto', _text('camera noise: auto = from each trigger\'s gain_db and exposure_us '
-                            '(affine model at the paper\'s calibration, or at noise_file\'s), a '
-                            'fixed preset, or none',
-                            constraints='one of: ' + ', '.join(NOISE_CHOICES))),
-    'noise_file': ('', _text('calibrated noise file (YAML written by `lightstage calibrate`) that '
-                             'noise auto generalizes to each trigger\'s gain and exposure instead '
-                             'of the paper\'s 15 dB / 30 ms fit; empty = the paper\'s')),
-    'seed': (-1, ParameterDescriptor(type=ParameterType.PARAMETER_INTEGER,
-                                     description='noise seed; -1 = fresh entropy',
-                                     integer_range=[IntegerRange(from_value=-1, to_value=2**31 - 1, step=1)])),
-    'frame_id': ('camera', _text('frame_id of the published images')),
-    'dimmer': (0.45, _double('scale of the single-LED images before multiplexing (the authors\' '
-                             '0.45)', 0.001, 10.0)),
-    'default_gain_db': (15.0, _double('gain [dB] for triggers that ask for the camera default '
-                                      '(gain_db NaN)', 0.0, 48.0)),
+    'backend': ('sim', string('camera backend: sim renders the sample on the stage from a capture '
+                              'folder; basler (pypylon) and aravis (GenICam: GigE Vision, USB3 '
+                              'Vision) drive a real camera', read_only=True,
+                              constraints='one of: ' + ', '.join(BACKENDS))),
+    'capture_dir': ('', string('capture folder (rig.yaml + <label>/<sample>/<pose>/) the sim '
+                               'backend renders from; settable at run time (reloads)')),
+    'sample': ('0', string('sample on the stage: a name label/sample/pose (e.g. '
+                           'banana-fake/s2/p03) or an index; settable at run time',
+                           dynamic=True)),
+    'noise': ('auto', string('camera noise: auto = from each trigger\'s gain_db and exposure_us '
+                             '(affine model at the paper\'s calibration, or at noise_file\'s), a '
+                             'fixed preset, or none',
+                             constraints='one of: ' + ', '.join(NOISE_CHOICES))),
+    'noise_file': ('', string('calibrated noise file (YAML written by `lightstage calibrate`) that '
+                              'noise auto generalizes to each trigger\'s gain and exposure instead '
+                              'of the paper\'s 15 dB / 30 ms fit; empty = the paper\'s')),
+    'seed': (-1, integer('noise seed; -1 = fresh entropy', -1, 2**31 - 1)),
+    'frame_id': ('camera', string('frame_id of the published images')),
+    'dimmer': (DEFAULT_DIMMER, floating('scale of the single-LED images before multiplexing '
+                                        f'(the authors\' {DEFAULT_DIMMER})', 0.001, 10.0)),
+    'default_gain_db': (15.0, floating('gain [dB] for triggers that ask for the camera default '
+                                       '(gain_db NaN)', 0.0, 48.0)),
     # ---- real cameras (basler, aravis)
-    'serial_number': ('', _text('camera to open: basler: serial number; aravis: device id, serial '
-                                'or IP address (opened by address: no discovery); empty = the '
-                                'first camera found')),
-    'trigger_source': ('Line1', _text('TriggerSource: Line1 = the stage\'s trigger pin wired to '
-                                      'the camera (exposure = pulse width where the camera has '
-                                      'TriggerWidth); Software = the node fires each trigger '
-                                      'when it is announced (emulators, tests)',
-                                      constraints='one of: ' + ', '.join(TRIGGER_SOURCES))),
-    'pixel_format': ('Mono10', _text('PixelFormat; published as mono16 MSB-aligned (10-bit v -> '
-                                     'v << 6), the bit depth is on /diagnostics',
-                                     constraints='one of: ' + ', '.join(PIXEL_FORMATS))),
-    'exposure_us': (30000.0, _double('exposure [us] for triggers that carry none; the camera\'s '
-                                     'value is read back and reported as exposure_us_actual on '
-                                     '/diagnostics', 1.0, 10_000_000.0)),
-    'gain_db': (15.0, _double('gain [dB] for triggers that ask for the camera default (gain_db '
-                              'NaN); read back and reported as gain_db_actual on /diagnostics',
-                              0.0, 48.0)),
-    'camera_info_url': ('', _text('camera calibration (the YAML camera_calibration writes): '
-                                  'file:///path/camera.yaml, a path or package://pkg/path; '
-                                  'empty = uncalibrated camera_info')),
-    'transport_layer': ('', _text('basler: search only this pylon transport layer (BaslerCamEmu = '
-                                  'the emulated cameras, no network discovery); empty = all')),
-    'camera_features': ('', _text('extra GenICam settings applied in order after the node\'s '
-                                  'own, when the camera opens: "Name=Value; Command; ..." (e.g. '
-                                  '"UserSetSelector=UserSet1; UserSetLoad; LineDebouncerTime=10")')),
-    'frame_timeout_s': (1.0, _double('time a trigger may wait for its frame on top of its '
-                                     'exposure [s]; then it is reported lost (grab timeout)',
-                                     0.01, 60.0)),
-    'reopen_period_s': (1.0, _double('while the camera is missing or after a fault: time between '
-                                     'attempts to open it [s]', 0.1, 60.0)),
-    'diagnostics_period_s': (1.0, _double('/diagnostics period [s]', 0.1, 60.0, read_only=True)),
+    'serial_number': ('', string('camera to open: basler: serial number; aravis: device id, serial '
+                                 'or IP address (opened by address: no discovery); empty = the '
+                                 'first camera found')),
+    'trigger_source': ('Line1', string('TriggerSource: Line1 = the stage\'s trigger pin wired to '
+                                       'the camera (exposure = pulse width where the camera has '
+                                       'TriggerWidth); Software = the node fires each trigger '
+                                       'when it is announced (emulators, tests)',
+                                       constraints='one of: ' + ', '.join(TRIGGER_SOURCES))),
+    'pixel_format': ('Mono10', string('PixelFormat; published as mono16 MSB-aligned (10-bit v -> '
+                                      'v << 6), the bit depth is on /diagnostics',
+                                      constraints='one of: ' + ', '.join(PIXEL_FORMATS))),
+    'exposure_us': (30000.0, floating('exposure [us] for triggers that carry none; the camera\'s '
+                                      'value is read back and reported as exposure_us_actual on '
+                                      '/diagnostics', 1.0, 10_000_000.0)),
+    'gain_db': (15.0, floating('gain [dB] for triggers that ask for the camera default (gain_db '
+                               'NaN); read back and reported as gain_db_actual on /diagnostics',
+                               0.0, 48.0)),
+    'camera_info_url': ('', string('camera calibration (the YAML camera_calibration writes): '
+                                   'file:///path/camera.yaml, a path or package://pkg/path; '
+                                   'empty = uncalibrated camera_info')),
+    'transport_layer': ('', string('basler: search only this pylon transport layer (BaslerCamEmu = '
+                                   'the emulated cameras, no network discovery); empty = all')),
+    'camera_features': ('', string('extra GenICam settings applied in order after the node\'s '
+                                   'own, when the camera opens: "Name=Value; Command; ..." '
+                                   '(e.g. "UserSetSelector=UserSet1; UserSetLoad; '
+                                   'LineDebouncerTime=10")')),
+    'frame_timeout_s': (1.0, floating('time a trigger may wait for its frame on top of its '
+                                      'exposure [s]; then it is reported lost (grab timeout)',
+                                      0.01, 60.0)),
+    'reopen_period_s': (1.0, floating('while the camera is missing or after a fault: time between '
+                                      'attempts to open it [s]', 0.1, 60.0)),
+    'diagnostics_period_s': (1.0, floating('/diagnostics period [s]', 0.1, 60.0, read_only=True)),
 }
 BACKEND_SETTINGS = ('capture_dir', 'sample', 'noise', 'noise_file', 'seed', 'dimmer',
                     'default_gain_db')
@@ -140,10 +118,6 @@ LIVE_CAMERA_SETTINGS = ('exposure_us', 'gain_db')
 def noise_calibration(noise_file: str) -> NoiseModel:
     """The fit `noise: auto` generalizes: the noise file's, or the paper's (empty path)."""
     return load_noise_file(noise_file) if str(noise_file).strip() else PAPER_CALIBRATION
-
-
-def ns_to_stamp(ns: int) -> Time:
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
 def trigger_from_message(msg: IlluminationState) -> Trigger:
@@ -181,10 +155,9 @@ def split_features(text: str) -> list[str]:
 
 
 class CameraNode(Node):
-    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+    def __init__(self, node_name: str = CAMERA_NODE, **kwargs):
         super().__init__(node_name, **kwargs)
-        for name, (default, descriptor) in PARAMETERS.items():
-            self.declare_parameter(name, default, descriptor)
+        self.p = declare_parameters(self, PARAMETERS)
         self.backend: CameraBackend | None = None
         self.error = ''
         self.published = 0
@@ -193,7 +166,7 @@ class CameraNode(Node):
         self.calibration_error = ''
         self._image_pub = self.create_publisher(Image, IMAGE_TOPIC, IMAGE_QOS)
         self._info_pub = self.create_publisher(CameraInfo, CAMERA_INFO_TOPIC, IMAGE_QOS)
-        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._lost_pub = self.create_publisher(FrameLost, FRAME_LOST_TOPIC, IMAGE_QOS)
         try:
             self._load_calibration(self.p('camera_info_url'))
         except (ValueError, OSError) as exc:
@@ -203,11 +176,9 @@ class CameraNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_subscription(IlluminationState, ILLUMINATION_TOPIC, self._on_illumination,
                                  ILLUMINATION_QOS)
-        self.create_timer(self.p('diagnostics_period_s'), self._publish_diagnostics)
-        self._publish_diagnostics()
-
-    def p(self, name: str):
-        return self.get_parameter(name).value
+        self.diagnostics = DiagnosticsPublisher(self, 'camera', self._camera_status,
+                                                self.p('diagnostics_period_s'))
+        self.diagnostics.publish()
 
     @property
     def real_camera(self) -> bool:
@@ -351,17 +322,20 @@ class CameraNode(Node):
 
     # ------------------------------------------------------------------ frames
     def _on_illumination(self, msg: IlluminationState) -> None:
+        trigger = trigger_from_message(msg)
         if self.backend is None:
             self.dropped += 1
             self.get_logger().warning(f'trigger {msg.sequence} not imaged: {self.error}',
                                       throttle_duration_sec=5.0)
+            self._publish_lost(trigger, self.error)
             return
         try:
-            self.backend.trigger(trigger_from_message(msg))
+            self.backend.trigger(trigger)
         except ValueError as exc:
             self.dropped += 1
             self.error = f'trigger {msg.sequence} not imaged: {exc}'
             self.get_logger().error(self.error)
+            self._publish_lost(trigger, str(exc))
 
     def _publish_frame(self, frame: Frame) -> None:
         image = image_message(frame, self.p('frame_id'))
@@ -385,11 +359,18 @@ class CameraNode(Node):
         self.dropped += 1
         self.error = f'trigger {lost.trigger.sequence} not imaged: {lost.reason}'
         self.get_logger().error(self.error)
-        self._publish_diagnostics()
+        self._publish_lost(lost.trigger, lost.reason)
+        self.diagnostics.publish()
+
+    def _publish_lost(self, trigger: Trigger, reason: str) -> None:
+        """Tell whoever waits for this trigger's frame that it will not come, and why."""
+        msg = FrameLost(sequence=int(trigger.sequence), reason=str(reason))
+        msg.header.stamp = ns_to_stamp(trigger.stamp_ns)
+        msg.header.frame_id = self.p('frame_id')
+        self._lost_pub.publish(msg)
 
     # ------------------------------------------------------------------ health
-    def _publish_diagnostics(self) -> None:
-        status = DiagnosticStatus(name=f'{self.get_name()}: camera', hardware_id=str(self.p('backend')))
+    def _camera_status(self) -> Report:
         values = {'backend': self.p('backend'), 'images_published': self.published,
                   'triggers_dropped': self.dropped, 'last_error': self.error,
                   'camera_info': (self.calibration.source if self.calibration else 'uncalibrated')}
@@ -397,20 +378,16 @@ class CameraNode(Node):
             values['capture_dir'] = self.p('capture_dir')
         if self.calibration_error:
             values['camera_info_error'] = self.calibration_error
+        hardware_id = str(self.p('backend'))
         if self.backend is None:
-            status.level, status.message = DiagnosticStatus.ERROR, self.error
-        else:
-            health = self.backend.status()
-            values.update(health.values)
-            if health.ok and not self.error:
-                status.level, status.message = DiagnosticStatus.OK, health.message
-            else:
-                status.level = DiagnosticStatus.ERROR if not health.ok else DiagnosticStatus.WARN
-                status.message = health.message if not health.ok else self.error
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        msg = DiagnosticArray(status=[status])
-        msg.header.stamp = self.get_clock().now().to_msg()
-        self._diag_pub.publish(msg)
+            return Report(ERROR, self.error, values, hardware_id)
+        health = self.backend.status()
+        values.update(health.values)
+        if health.ok and not self.error:
+            return Report(OK, health.message, values, hardware_id)
+        if not health.ok:
+            return Report(ERROR, health.message, values, hardware_id)
+        return Report(WARN, self.error, values, hardware_id)
 
     def destroy_node(self):
         if self.backend is not None:
@@ -419,7 +396,6 @@ class CameraNode(Node):
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .spinning import init_node
     init_node(sys.argv if argv is None else argv)
     return spin_until_stopped(CameraNode())
 

@@ -6,9 +6,12 @@ with patterns the same way: the driver reports a trigger stamp per pattern, the 
 each image with the stamp of the trigger that caused it, and `ImageMatcher.collect` hands
 back the images whose header stamps *equal* those trigger stamps, in pattern order; never by
 arrival order. Images that arrive before the trigger stamps are known (the camera can be
-faster than the driver's reply) wait in a small buffer.
+faster than the driver's reply) wait in a small buffer. A trigger whose frame the camera lost
+(its ``FrameLost`` notice: failed buffer, grab timeout, camera removed, ...) ends the wait at
+once with the camera's reason, instead of waiting out the timeout.
 
-No rclpy here: `add_message` takes a ``sensor_msgs/Image`` duck-typed.
+No rclpy here: `add_message` / `add_lost_message` take a ``sensor_msgs/Image`` /
+``lightstage_interfaces/FrameLost`` duck-typed.
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .errors import MissingImagesError
+from .names import FRAME_LOST_TOPIC, ILLUMINATION_TOPIC, IMAGE_TOPIC
 from .stamps import format_stamp, stamp_to_ns
 
 __all__ = ["ImageMatcher", "image_from_buffer", "mono16_to_gray", "MONO16_ENCODINGS"]
@@ -66,6 +70,7 @@ class _Entry:
     image: np.ndarray | None
     error: str
     arrival_ns: int
+    lost: bool = False  # the camera said this trigger's frame will not come
 
 
 class ImageMatcher:
@@ -90,9 +95,11 @@ class ImageMatcher:
         with self._cond:
             return len(self._entries)
 
-    def add(self, stamp_ns: int, image: np.ndarray | None, error: str = "") -> None:
-        """An image (or, with `error`, the reason it was unusable) stamped `stamp_ns`."""
-        entry = _Entry(image, error, int(self.clock()))
+    def add(self, stamp_ns: int, image: np.ndarray | None, error: str = "",
+            lost: bool = False) -> None:
+        """An image (or, with `error`, the reason it was unusable; with `lost`, the camera's
+        reason it will not come) stamped `stamp_ns`."""
+        entry = _Entry(image, error, int(self.clock()), lost)
         with self._cond:
             self._entries[int(stamp_ns)] = entry
             self._entries.move_to_end(int(stamp_ns))
@@ -114,31 +121,46 @@ class ImageMatcher:
             return
         self.add(stamp, image)
 
+    def add_lost(self, stamp_ns: int, reason: str) -> None:
+        """The camera lost the frame of the trigger stamped `stamp_ns`, for `reason`: a
+        `collect` waiting for it fails at once."""
+        self.add(stamp_ns, None, error=reason, lost=True)
+
+    def add_lost_message(self, msg) -> None:
+        """A ``lightstage_interfaces/FrameLost`` notice (duck-typed), by its header stamp."""
+        self.add_lost(stamp_to_ns(msg.header.stamp), str(msg.reason))
+
     def collect(self, stamps_ns: Sequence[int], timeout_s: float,
                 sequences: Sequence[int] | None = None) -> tuple[list[np.ndarray], int]:
         """The images stamped ``stamps_ns`` in that order, and the last one's arrival time.
 
-        Waits up to `timeout_s`; raises MissingImagesError naming each image (position,
-        trigger sequence, stamp) that did not arrive or arrived unusable. Collected images
-        leave the buffer.
+        Waits up to `timeout_s`, or until the camera reports one of them lost; raises
+        MissingImagesError naming each image (position, trigger sequence, stamp) that the
+        camera lost, did not arrive or arrived unusable. Collected images leave the buffer.
         """
         stamps = [int(s) for s in stamps_ns]
         deadline = time.monotonic() + max(0.0, float(timeout_s))
         with self._cond:
             while True:
                 missing = [i for i, s in enumerate(stamps) if s not in self._entries]
+                lost = [i for i, s in enumerate(stamps)
+                        if s in self._entries and self._entries[s].lost]
                 remaining = deadline - time.monotonic()
-                if not missing or remaining <= 0:
+                if not missing or lost or remaining <= 0:
                     break
                 self._cond.wait(remaining)
             bad = [i for i, s in enumerate(stamps)
                    if s in self._entries and self._entries[s].image is None]
             if missing or bad:
-                raise self._missing_error(stamps, sequences, missing, bad, timeout_s)
+                # ended by a lost frame: the images still on their way are not late
+                late = missing if remaining <= 0 else []
+                raise self._missing_error(stamps, sequences, late, bad, timeout_s,
+                                          awaited=len(missing) - len(late))
             entries = [self._entries.pop(s) for s in stamps]
         return [e.image for e in entries], max(e.arrival_ns for e in entries)
 
-    def _missing_error(self, stamps, sequences, missing, bad, timeout_s) -> MissingImagesError:
+    def _missing_error(self, stamps, sequences, missing, bad, timeout_s,
+                       awaited: int = 0) -> MissingImagesError:
         def name(i: int) -> str:
             seq = f"trigger sequence {sequences[i]}, " if sequences is not None else ""
             return f"image {i + 1} ({seq}stamp {format_stamp(stamps[i])})"
@@ -147,8 +169,12 @@ class ImageMatcher:
         if missing:
             parts.append(f"{len(missing)} of {len(stamps)} images did not arrive within "
                          f"{float(timeout_s):g} s: {', '.join(name(i) for i in missing)}; is the "
-                         "camera node running, subscribed to /illumination and publishing "
-                         "/image_raw stamped with the trigger stamps?")
+                         f"camera node running, subscribed to {ILLUMINATION_TOPIC} and publishing "
+                         f"{IMAGE_TOPIC} stamped with the trigger stamps?")
         for i in bad:
-            parts.append(f"{name(i)} is unusable: {self._entries[stamps[i]].error}")
+            entry = self._entries[stamps[i]]
+            parts.append(f"{name(i)} was lost by the camera ({FRAME_LOST_TOPIC}): {entry.error}"
+                         if entry.lost else f"{name(i)} is unusable: {entry.error}")
+        if awaited:
+            parts.append(f"not waiting for the other {awaited} image(s) still on their way")
         return MissingImagesError("; ".join(parts), sorted(missing + bad))

@@ -15,7 +15,11 @@ PLAYER_NODE = 'player'
 
 # topics
 ILLUMINATION_TOPIC = '/illumination'   # IlluminationState, one per trigger (driver)
-IMAGE_TOPIC = '/image_raw'             # sensor_msgs/Image mono16, stamp = trigger stamp (camera)
+# The camera's topics are relative, in its namespace as ROS camera drivers put them (remappable:
+# `-r camera/image_raw:=...`); with no namespace they resolve to /camera/image_raw etc.
+IMAGE_TOPIC = 'camera/image_raw'       # sensor_msgs/Image mono16, stamp = trigger stamp (camera)
+CAMERA_INFO_TOPIC = 'camera/camera_info'  # sensor_msgs/CameraInfo, same header as each image
+FRAME_LOST_TOPIC = 'camera/frame_lost'    # FrameLost: a trigger's image that will not come, and why
 RESULT_TOPIC = '/lightstage/result'    # ClassificationResult (classifier)
 DIAGNOSTICS_TOPIC = '/diagnostics'     # DiagnosticArray (driver, camera)
 

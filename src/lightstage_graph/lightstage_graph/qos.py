@@ -1,9 +1,10 @@
 """The QoS profiles of the light stage's topics, defined once (publishers and subscribers)."""
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-# /image_raw: reliable, keep-last 32 (not SensorData's best-effort depth 5): a classification
-# needs every frame of its trigger sequence and matches them by stamp, so a dropped frame is a
-# failed classification, not a skipped video frame. 32 frames cover one 32-pattern sequence.
+# camera/image_raw (and camera_info, frame_lost): reliable, keep-last 32 (not SensorData's
+# best-effort depth 5): a classification needs every frame of its trigger sequence and matches
+# them by stamp, so a dropped frame is a failed classification, not a skipped video frame.
+# 32 frames cover one 32-pattern sequence.
 IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32,
                        reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 

@@ -1,5 +1,6 @@
 """The stage as one client: light LED patterns through the driver, one camera trigger each,
-and collect the camera frames of those triggers, matched by stamp (`frames.ImageMatcher`).
+and collect the camera frames of those triggers, matched by stamp (`frames.ImageMatcher`); a
+frame the camera reports lost (camera/frame_lost) ends the collection at once with its reason.
 
 The classifier and the acquisition node both drive the stage this way:
 
@@ -20,7 +21,7 @@ import threading
 import time
 
 import numpy as np
-from lightstage_interfaces.msg import Pattern
+from lightstage_interfaces.msg import FrameLost, Pattern
 from lightstage_interfaces.srv import ApplyPatterns
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters
@@ -29,7 +30,7 @@ from sensor_msgs.msg import Image
 
 from .errors import StageError
 from .frames import ImageMatcher
-from .names import APPLY_PATTERNS_SERVICE, CAMERA_NODE, IMAGE_TOPIC
+from .names import APPLY_PATTERNS_SERVICE, CAMERA_NODE, FRAME_LOST_TOPIC, IMAGE_TOPIC
 from .qos import IMAGE_QOS
 from .stamps import stamp_to_ns
 
@@ -43,6 +44,10 @@ class StageClient:
                                                 callback_group=callback_group)
         self._image_sub = node.create_subscription(Image, IMAGE_TOPIC, self.matcher.add_message,
                                                    IMAGE_QOS, callback_group=callback_group)
+        # the camera's notice that a trigger's frame will not come: `collect` fails at once
+        self._lost_sub = node.create_subscription(FrameLost, FRAME_LOST_TOPIC,
+                                                  self.matcher.add_lost_message, IMAGE_QOS,
+                                                  callback_group=callback_group)
         self._camera_params = node.create_client(GetParameters, f'{camera_node}/get_parameters',
                                                  callback_group=callback_group)
 
