@@ -32,7 +32,7 @@ from recording_helpers import bag_results  # noqa: E402  (the tests' bag and ROS
 from suite_helpers import GraphClient, start_nodes, write_params  # noqa: E402
 
 SAMPLES = ['banana-fake/s1/p02', 'banana-real/s0/p01', 'orange-fake/s1/p00', 'orange-real/s0/p02']
-RECORDED = ['/illumination', '/image_raw', '/lightstage/result',
+RECORDED = ['/illumination', '/camera/image_raw', '/lightstage/result',
             '/lightstage/classify/_service_event', '/lightstage/apply_patterns/_service_event']
 
 
@@ -102,7 +102,7 @@ def _check(bag: Path, answers) -> None:
         s = deserialize_message(m.data, IlluminationState)
         stamps[s.sequence] = (s.header.stamp.sec, s.header.stamp.nanosec)
     images = {(lambda h: (h.stamp.sec, h.stamp.nanosec))(deserialize_message(m.data, Image).header)
-              for m in reader.messages(['/image_raw'])}
+              for m in reader.messages(['/camera/image_raw'])}
     for r in results:
         if not all(q in stamps and stamps[q] in images for q in r.sequences):
             raise RuntimeError(f'triggers or images of {list(r.sequences)} are missing from the bag')

@@ -239,14 +239,15 @@ def test_missing_driver_camera_and_images_are_reported(stage, tmp_path):
             no_driver = 'driver\'s service /lightstage/apply_patterns is not available'
             abort_message(no_driver)
             client.start(supervisor, ['driver'], params)
-            no_camera = 'no camera is publishing /image_raw'
+            no_camera = 'no camera is publishing camera/image_raw'
             abort_message(no_camera, before=no_driver)
             client.start(supervisor, ['camera'], params)
-            message = abort_message('images did not arrive within', before=no_camera)
-            assert 'trigger sequence' in message and 'is the camera node running' in message
+            # the camera has no capture folder: it says so for each trigger (camera/frame_lost)
+            message = abort_message('lost by the camera', before=no_camera)
+            assert 'trigger sequence' in message and 'camera not ready: no capture folder' in message
             assert not out.exists()
             p = cli('capture', str(out), 'a-b/s0/p0', domain_id=domain_id)
-            assert p.returncode == 1 and 'aborted' in p.stderr and 'did not arrive' in p.stderr
+            assert p.returncode == 1 and 'aborted' in p.stderr and 'no capture folder' in p.stderr
     finally:
         client.close()
 

@@ -151,6 +151,17 @@ def test_a_lost_frame_notice_ends_the_collect_at_once_with_the_cameras_reason():
     assert info.value.missing == [1]
 
 
+def test_frames_lost_for_one_reason_are_named_together():
+    matcher = ImageMatcher()
+    for stamp in (11, 12):
+        matcher.add_lost(stamp, 'camera not ready: no capture folder')
+    with pytest.raises(MissingImagesError) as info:
+        matcher.collect([11, 12], timeout_s=600.0, sequences=[1, 2])
+    assert str(info.value) == ('image 1 (trigger sequence 1, stamp 0.000000011), image 2 (trigger '
+                               'sequence 2, stamp 0.000000012) were lost by the camera '
+                               '(camera/frame_lost): camera not ready: no capture folder')
+
+
 def test_matcher_keeps_only_the_most_recent_images():
     matcher = ImageMatcher(capacity=3)
     for s in range(5):

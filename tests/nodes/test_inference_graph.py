@@ -275,7 +275,7 @@ def test_error_paths_missing_artifact_no_driver_no_camera(stage_artifact_path, t
             # after it (Fast DDS announces every 3 s): give the call time to see the driver
             r = classify(client, max_images=4, timeout_s=6.0)
             assert not r.success
-            assert 'no camera is publishing /image_raw' in r.message
+            assert 'no camera is publishing camera/image_raw' in r.message
         finally:
             client.close()
     # 4. the CLI with no graph at all

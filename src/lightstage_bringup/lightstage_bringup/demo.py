@@ -28,13 +28,13 @@ from lightstage_bringup.launcher import DEFAULT_NODES, RECORDER
 from lightstage_camera.workers import jobs_type
 from lightstage_graph.names import (APPLY_PATTERNS_SERVICE, CAMERA_NODE, CLASSIFIER_NODE,
                                     CLASSIFY_SERVICE, IMAGE_TOPIC, ILLUMINATION_TOPIC,
-                                    RESULT_TOPIC, service_event_topic)
+                                    RESULT_TOPIC, resolved, service_event_topic)
 from lightstage_graph.ros_env import apply_ros_environment, ros_environment
 
 NOISE = 'sigma3'
 BAG = 'stage_session'  # the bag of the stage session, in OUT
 # what the recorder must have subscribed to before the first call, so that no call is cut
-RECORDED = (ILLUMINATION_TOPIC, IMAGE_TOPIC, RESULT_TOPIC, service_event_topic(CLASSIFY_SERVICE),
+RECORDED = (ILLUMINATION_TOPIC, resolved(IMAGE_TOPIC), RESULT_TOPIC, service_event_topic(CLASSIFY_SERVICE),
             service_event_topic(APPLY_PATTERNS_SERVICE))
 
 
@@ -183,14 +183,14 @@ def _write_params(out: Path, capture: Path, artifact: str, first_sample: str,
 
 def replay_commands(bag: Path, artifact: str, out: Path, domain_id: int) -> list[list[str]]:
     """The two commands (two terminals) that replay the stage session's /illumination and
-    /image_raw from `bag` into a classifier that only observes, with `artifact`: it publishes
+    /camera/image_raw from `bag` into a classifier that only observes, with `artifact`: it publishes
     the recorded labels of the calls made with that artifact again on /lightstage/result."""
     params = _params_file(out / 'replay_params.yaml', {
         'classifier': {'artifact_path': str(Path(artifact).resolve()), 'classify_observed': True}})
     domain = ['--domain-id', str(domain_id)]
     return [['lightstage', 'up', 'classifier', '--params', str(params), *domain],
-            ['lightstage', 'play', str(bag), '--topics', ILLUMINATION_TOPIC, IMAGE_TOPIC,
-             '--wait-for', ILLUMINATION_TOPIC, IMAGE_TOPIC, '--delay-s', '1', *domain]]
+            ['lightstage', 'play', str(bag), '--topics', ILLUMINATION_TOPIC, resolved(IMAGE_TOPIC),
+             '--wait-for', ILLUMINATION_TOPIC, resolved(IMAGE_TOPIC), '--delay-s', '1', *domain]]
 
 
 def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domain_id: int,

@@ -6,7 +6,7 @@ the stage into a capture folder (`acquisition.capture_model` + `acquisition.writ
 calibration target (`calibration.calibrate_noise`) and writes a noise file and a plot.
 
 Both light patterns through the driver's ``/lightstage/apply_patterns`` (``trigger: true``,
-one camera trigger per pattern) and collect the ``/image_raw`` frames whose header stamps
+one camera trigger per pattern) and collect the ``camera/image_raw`` frames whose header stamps
 equal the returned trigger stamps (`lightstage_graph.stage_client`, as the classifier
 does), in requests of at most ``frames_per_request`` frames. One goal at a time (they share the
 stage): a goal that arrives while another runs is rejected. The handlers block while they

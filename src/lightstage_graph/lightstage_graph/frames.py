@@ -171,10 +171,16 @@ class ImageMatcher:
                          f"{float(timeout_s):g} s: {', '.join(name(i) for i in missing)}; is the "
                          f"camera node running, subscribed to {ILLUMINATION_TOPIC} and publishing "
                          f"{IMAGE_TOPIC} stamped with the trigger stamps?")
+        lost_by_reason: dict[str, list[int]] = {}  # one camera fault often loses several
         for i in bad:
             entry = self._entries[stamps[i]]
-            parts.append(f"{name(i)} was lost by the camera ({FRAME_LOST_TOPIC}): {entry.error}"
-                         if entry.lost else f"{name(i)} is unusable: {entry.error}")
+            if entry.lost:
+                lost_by_reason.setdefault(entry.error, []).append(i)
+            else:
+                parts.append(f"{name(i)} is unusable: {entry.error}")
+        for reason, lost in lost_by_reason.items():
+            parts.append(f"{', '.join(name(i) for i in lost)} {'was' if len(lost) == 1 else 'were'} "
+                         f"lost by the camera ({FRAME_LOST_TOPIC}): {reason}")
         if awaited:
             parts.append(f"not waiting for the other {awaited} image(s) still on their way")
         return MissingImagesError("; ".join(parts), sorted(missing + bad))

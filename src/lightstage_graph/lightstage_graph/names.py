@@ -33,6 +33,14 @@ CAPTURE_ACTION = '/lightstage/capture_model'           # CaptureModel (acquisiti
 CALIBRATE_ACTION = '/lightstage/calibrate_noise'       # CalibrateNoise (acquisition)
 
 
+def resolved(topic: str, namespace: str = '/') -> str:
+    """The full name of `topic` for a node in `namespace` (default: none), as the recorder,
+    the player and graph queries need it: 'camera/image_raw' -> '/camera/image_raw'."""
+    if topic.startswith('/'):
+        return topic
+    return f"{namespace.rstrip('/')}/{topic}"
+
+
 def service_event_topic(service: str) -> str:
     """The topic a service's introspection publishes its calls on."""
     return f'{service}/_service_event'

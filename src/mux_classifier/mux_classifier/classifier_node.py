@@ -2,7 +2,7 @@
 
 One call: the artifact's first k LED patterns go to the driver (``/lightstage/apply_patterns``,
 one trigger each, exposure and gain of the noise setting the artifact was trained for); the
-``/image_raw`` frames whose header stamps equal the returned trigger stamps are collected
+``camera/image_raw`` frames whose header stamps equal the returned trigger stamps are collected
 in pattern order; the artifact's classifier for k images predicts; the answer also goes
 out on ``/lightstage/result``. The work itself is `inference.classify_on_stage`.
 
