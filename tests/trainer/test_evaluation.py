@@ -4,7 +4,7 @@ import pytest
 from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk
 from mux_trainer.patterns import gray_code, site_pattern_candidates
 from mux_trainer.reference import reference_candidate_scores
-from mux_trainer.rendering import render_led_patterns, render_site_patterns
+from mux_trainer.rendering import clean_led_images, clean_site_images
 
 
 def test_candidates_are_the_254_patterns_in_gray_code_order():
@@ -21,9 +21,9 @@ def test_candidates_are_the_254_patterns_in_gray_code_order():
 
 def test_incremental_render_matches_direct_render(tiny_data):
     W = site_pattern_candidates()[:, :40]
-    direct = render_site_patterns(tiny_data, W)
+    direct = clean_site_images(tiny_data, W)
     step = direct.reshape(40, 4, *direct.shape[1:])
-    clean = render_site_patterns(tiny_data, W[:, :1])
+    clean = clean_site_images(tiny_data, W[:, :1])
     for j in range(1, 40):
         for site in np.flatnonzero(W[:, j] - W[:, j - 1]):
             clean += (W[site, j] - W[site, j - 1]) * tiny_data.basis[site]
@@ -34,7 +34,7 @@ def test_led_render_is_the_sum_of_the_lit_leds(tiny_data):
     P = np.zeros((32, 2), np.float32)
     P[[0, 5], 0] = 1
     P[7, 1] = 0.5
-    imgs = render_led_patterns(tiny_data, P)
+    imgs = clean_led_images(tiny_data, P)
     np.testing.assert_allclose(imgs[0], tiny_data.basis[0, 0] + tiny_data.basis[1, 1])
     np.testing.assert_allclose(imgs[1], 0.5 * tiny_data.basis[1, 3])
 

@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["HogConfig", "hog_batch", "hog_reference"]
+__all__ = ["HogConfig", "hog_batch", "hog_batch_numpy", "hog_reference"]
 
 _BLOCK_NORMS = ("L1", "L1-sqrt", "L2", "L2-Hys")
 _EPS = 1e-5  # skimage's block-normalisation epsilon
@@ -113,8 +113,10 @@ def _check_images(images, config: HogConfig) -> np.ndarray:
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
         raise ValueError(f"hog_batch: images must be numeric, got dtype {arr.dtype}")
     # Gradients are computed in float32, like skimage does for float32 input.
-    x = np.ascontiguousarray(arr, dtype=np.float32)
-    finite = np.isfinite(x).all(axis=(1, 2))
+    return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+def _refuse_non_finite(finite: np.ndarray) -> None:
     if not finite.all():
         bad = np.flatnonzero(~finite)
         raise ValueError(
@@ -122,7 +124,6 @@ def _check_images(images, config: HogConfig) -> np.ndarray:
             "NaN or infinite gray levels (or values beyond float32 range); replace them "
             "(e.g. np.nan_to_num) before extracting features"
         )
-    return x
 
 
 class _Binner:
@@ -232,7 +233,25 @@ _BINNERS: dict[HogConfig, _Binner] = {}
 
 
 def hog_batch(images, config: HogConfig = HogConfig()) -> np.ndarray:
-    """HOG descriptors of a batch of gray images.
+    """HOG descriptors of a batch of gray images, by the compiled kernel (``hog_kernel``).
+
+    Parameters and result as :func:`hog_batch_numpy`, the pure-numpy reference it equals
+    (the same orientation bins and cell histograms; the block norms' float64 sums may
+    differ in their last bits, so a value may differ by a float32 rounding).
+    ``config.batch_size`` is the numpy path's; the kernel takes one image at a time.
+    """
+    x = _check_images(images, config)
+    if config.orientations == 1:  # no bin edge to compile a test for
+        return hog_batch_numpy(x, config)
+    from .hog_kernel import hog_compiled  # numba loads on first use, not on import
+
+    out, bad = hog_compiled(x, config)
+    _refuse_non_finite(~bad)
+    return out
+
+
+def hog_batch_numpy(images, config: HogConfig = HogConfig()) -> np.ndarray:
+    """HOG descriptors of a batch of gray images, in pure numpy (the reference).
 
     Parameters
     ----------
@@ -248,6 +267,7 @@ def hog_batch(images, config: HogConfig = HogConfig()) -> np.ndarray:
         Row i equals ``skimage.feature.hog(images[i], ..., feature_vector=True)``.
     """
     x = _check_images(images, config)
+    _refuse_non_finite(np.isfinite(x).all(axis=(1, 2)))
     key = config
     binner = _BINNERS.get(key)
     if binner is None:
