@@ -88,3 +88,19 @@ def test_bad_mode_and_shapes_fail_clearly(tiny_data):
         CandidateEvaluator(tiny_data, mode='spectral')
     with pytest.raises(ValueError, match='unknown inner classifier'):
         CandidateEvaluator(tiny_data, inner_classifier='forest')
+
+
+def test_fused_noise_is_the_numpy_noise_bit_for_bit(tiny_data):
+    from mux_trainer.rendering import add_noise, add_noise_numpy, standard_normal
+    rng = np.random.default_rng(3)
+    clean = rng.uniform(-5, 1100, (4, tiny_data.n_samples, 24 * 24)).astype(np.float32)
+    z = standard_normal(rng, clean.shape)
+    fused = add_noise(tiny_data, clean, z)
+    np.testing.assert_array_equal(fused, add_noise_numpy(tiny_data, clean, z))
+    assert fused.min() >= 0 and fused.max() <= tiny_data.max_level
+    out = np.empty_like(clean)
+    assert add_noise(tiny_data, clean, z, out=out) is out
+    np.testing.assert_array_equal(out, fused)
+    # broadcast noise (not the search's layout) goes through numpy
+    np.testing.assert_array_equal(add_noise(tiny_data, clean, z[:1]),
+                                  add_noise_numpy(tiny_data, clean, z[:1]))

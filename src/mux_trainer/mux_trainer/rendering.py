@@ -190,3 +190,19 @@ def image_features(data: SearchData, images: np.ndarray) -> np.ndarray:
     feats = hog_batch(images.reshape(m * n, H, W), data.hog_config)
     return np.ascontiguousarray(
         feats.reshape(m, n, -1).transpose(1, 0, 2).reshape(n, -1))
+
+
+def compile_kernels() -> None:
+    """Compile (or load from numba's cache) every compiled kernel of the search and the
+    classify path: HOG, noise and the exact SVM's Newton solves. scripts/bootstrap.sh calls
+    it after installing the packages, so the cache is written once, there."""
+    from .split_scoring import SquaredHingeSplitScorer
+    rng = np.random.default_rng(0)
+    config = HogConfig()
+    data = SearchData(basis=np.zeros((1, 1, 4, config.image_size ** 2), np.float32),
+                      labels=[0, 1, 0, 1], pose_index=[0, 0, 1, 1], class_names=['a', 'b'],
+                      image_shape=(config.image_size,) * 2, noise_a=1.0, noise_b=1.0)
+    clean = rng.uniform(0, 1023, (1, 4, config.image_size ** 2)).astype(np.float32)
+    X = image_features(data, add_noise(data, clean, standard_normal(rng, clean.shape)))
+    masks = [np.array([True, False, False, False]), np.array([False, True, True, False])]
+    SquaredHingeSplitScorer().split_accuracies(data.labels, masks, X=X, n_classes=2)
