@@ -8,11 +8,14 @@ per image. ``hog_batch`` computes exactly what
                         cells_per_block=(10, 10), block_norm="L2-Hys",
                         feature_vector=True)
 
-computes (to ~1e-6 per value), but for a whole batch of images at once and 6-10 times
-faster (benchmarks/bench_hog.py), because the greedy search extracts HOG from millions
-of images.
+computes (to ~1e-6 per value), but for a whole batch of images at once, because the greedy
+search extracts HOG from millions of images. ``hog_batch`` runs the compiled kernel of
+``hog_kernel`` (numba; one fused pass per image, orientation bins without ``arctan2``;
+about 25x skimage, benchmarks/bench_hog.py); ``hog_batch_numpy`` is the pure-numpy
+implementation it replaced, kept as the reference it is tested against (same bins and
+cell histograms; a value may differ by a float32 rounding of the block norm).
 
-What makes it fast (see ``benchmarks/bench_hog.py`` for the figures):
+What makes the numpy reference fast (see ``benchmarks/bench_hog.py`` for the figures):
 
 - images are processed in chunks of ``HogConfig.batch_size`` (cache-sized);
 - orientations are binned into 18 *signed* 20-degree bins straight from ``arctan2``
@@ -48,7 +51,7 @@ class HogConfig:
     block_cells: int = 10
     orientations: int = 9
     block_norm: str = "L2-Hys"
-    batch_size: int = 8  # images per internal chunk (cache-sized); affects speed only, never values
+    batch_size: int = 8  # images per chunk of hog_batch_numpy (cache-sized); speed only, never values
 
     def __post_init__(self):
         for name in ("image_size", "cell_px", "block_cells", "orientations", "batch_size"):

@@ -22,11 +22,14 @@ Portable and deterministic: no fastmath, so LLVM neither reorders the float sums
 multiply-adds; numba compiles for the CPU it runs on (SSE2, AVX2 or AVX-512 alike) and
 every one gives the same bits.
 
-Compile cost: the first call in a process that finds no cache compiles the kernel (about
-2-4 s, measured by benchmarks/bench_hog.py); ``cache=True`` keeps the machine code in
+Compile cost: the first call in a process that finds no cache compiles the kernel (5-8 s
+on the project's 2-core machine lightly loaded, 24 s at load average 6.5; measured by
+benchmarks/bench_hog.py); ``cache=True`` keeps the machine code in
 ``__pycache__`` beside this file, or, where the package folder is read-only for the user,
 in numba's per-user cache (``~/.cache/numba`` or ``$NUMBA_CACHE_DIR``), so later processes,
-joblib's worker processes included, load it in tens of milliseconds.
+joblib's worker processes included, load it (0.3-1.2 s with numba's import).
+scripts/bootstrap.sh compiles it once after installing the package
+(``mux_trainer.rendering.compile_kernels``).
 """
 from __future__ import annotations
 
@@ -35,7 +38,8 @@ import math
 import numba
 import numpy as np
 
-_EPS = 1e-5          # skimage's block-normalisation epsilon
+from .hog import _EPS  # skimage's block-normalisation epsilon
+
 _EDGE_TOL = 1e-5     # relative distance to a bin edge below which a pixel is binned exactly
 _NORM_CODES = {"L1": 0, "L1-sqrt": 1, "L2": 2, "L2-Hys": 3}
 _FINITE_MASK = np.uint32(0x7F800000)  # float32 exponent bits: all set = inf or NaN
