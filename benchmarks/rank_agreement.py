@@ -43,7 +43,7 @@ from mux_trainer.evaluation import CandidateEvaluator  # noqa: E402
 from mux_trainer.greedy import (REFINE_BATCH, REFINE_MAX, REFINE_TOP,  # noqa: E402
                                 could_still_win)
 from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
-from mux_trainer.rendering import add_noise, image_features, render_site_patterns  # noqa: E402
+from mux_trainer.rendering import add_noise, clean_site_images, image_features  # noqa: E402
 from mux_trainer.split_scoring import RidgeSplitScorer, SquaredHingeSplitScorer  # noqa: E402
 
 
@@ -57,7 +57,7 @@ def score_chunk(data, ctx, candidates, scorers):
     out = {name: np.empty(candidates.shape[1]) for name in scorers}
     with threadpool_limits(limits=1, user_api='blas'):
         for j in range(candidates.shape[1]):
-            clean = render_site_patterns(data, candidates[:, j:j + 1])
+            clean = clean_site_images(data, candidates[:, j:j + 1])
             Xc = image_features(data, add_noise(data, clean, ctx.z))
             K = ctx.K_prev + (Xc @ Xc.T).astype(np.float64)
             for name, scorer in scorers.items():

@@ -114,8 +114,16 @@ for pkg in "${PROJECT_PACKAGES[@]}"; do
       || fail "pip install ./src/$pkg"
     rm -rf "src/$pkg/build" "src/$pkg/"*.egg-info
     stamp_set "$pkg" "$h"
+    reinstalled=1
   fi
 done
+# the numba kernels (HOG, noise, exact SVM) compile once here into the installed packages'
+# caches, so that no classify request or search pays the compile (seconds) later
+if [ -n "${reinstalled:-}" ]; then
+  step "compiling the numba kernels"
+  "$VENV/bin/python" -c 'from mux_trainer.rendering import compile_kernels; compile_kernels()' \
+    >> "$LOG" 2>&1 || fail "compiling the numba kernels (mux_trainer.rendering.compile_kernels)"
+fi
 
 # 7. the venv's ROS setup file, and a path fix in the interface package's own setup file
 #    (its configure-time prefix is scikit-build-core's temporary wheel folder, gone by now)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from skimage.feature import hog as skimage_hog
 
-from mux_classifier.hog import HogConfig, hog_batch
+from mux_classifier.hog import HogConfig, hog_batch, hog_batch_numpy
 
 
 def reference(images, config=HogConfig()):
@@ -148,3 +148,83 @@ def test_mixed_tiny_and_zero_gradients_match_skimage():
     images[:, ::2] = 1e-44
     images[:, :, ::3] = 0
     np.testing.assert_allclose(hog_batch(images), reference(images), rtol=0, atol=1e-6)
+
+
+# --- the compiled kernel (hog_batch) against the pure-numpy reference (hog_batch_numpy) ---
+
+def _kernel_cases():
+    rng = np.random.default_rng(11)
+    shape = (6, 120, 120)
+    saturated = np.clip(rng.normal(900, 300, shape), 0, 1023)   # large areas clipped at 1023
+    saturated[:, 40:80, 40:80] = 1023.0
+    return {
+        "random": rng.uniform(0, 1023, shape),
+        "noisy integers": rng.poisson(30, shape).astype(np.float64),
+        "constant": np.full(shape, 517.0),
+        "saturated": saturated,
+        "tiny gray levels": rng.uniform(0, 1e-3, shape),
+        "subnormal": rng.uniform(0, 1, shape) * 1e-42,
+        "huge (float32 squares overflow)": rng.uniform(0, 1, shape) * 1e36,
+        "structured": structured_images(),
+    }
+
+
+@pytest.mark.parametrize("kind", list(_kernel_cases()))
+def test_compiled_kernel_equals_numpy_reference(kind):
+    images = _kernel_cases()[kind].astype(np.float32)
+    got = hog_batch(images)
+    ref = hog_batch_numpy(images)
+    assert got.dtype == np.float32 and got.shape == ref.shape
+    # same bins and cell histograms; the block norms' float64 sums may round differently
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(got, reference(images), rtol=0, atol=1e-6)
+
+
+def test_compiled_kernel_bins_gradients_on_bin_edges_like_the_reference():
+    # gradients at (or one float32 step from) every bin edge, and near 0 / 180 degrees:
+    # the cases where the cross-product test hands over to the exact atan2 binning
+    rng = np.random.default_rng(12)
+    angles = np.deg2rad(np.concatenate([np.arange(0, 361, 20.0), np.arange(0, 361, 20.0) + 1e-6,
+                                        np.arange(0, 361, 20.0) - 1e-6]))
+    size = 120
+    images = []
+    for k in range(4):
+        img = np.zeros((size, size), np.float64)
+        # an image of planes, each with one gradient direction, pixel blocks of 6 x 6
+        for i in range(0, size, 6):
+            for j in range(0, size, 6):
+                a = angles[rng.integers(angles.size)]
+                yy, xx = np.mgrid[i:i + 6, j:j + 6]
+                img[i:i + 6, j:j + 6] = 500 + 40 * (np.sin(a) * yy + np.cos(a) * xx) * (k + 1) / 4
+        images.append(img)
+    images = np.stack(images).astype(np.float32)
+    np.testing.assert_allclose(hog_batch(images), hog_batch_numpy(images), rtol=0, atol=1e-7)
+
+
+@pytest.mark.parametrize("config", [
+    HogConfig(image_size=16, cell_px=4, block_cells=2),                    # tiny images
+    HogConfig(image_size=9, cell_px=3, block_cells=3, orientations=4),     # 4 bins: 45/90/135 edges
+    HogConfig(image_size=70, cell_px=8, block_cells=2, orientations=7, block_norm="L1"),
+    HogConfig(image_size=40, cell_px=6, block_cells=2, block_norm="L1-sqrt"),
+    HogConfig(image_size=120, cell_px=8, block_cells=2),                   # the BoW descriptors
+    HogConfig(image_size=12, cell_px=12, block_cells=1, orientations=1),   # numpy path
+])
+def test_compiled_kernel_other_configurations(config):
+    rng = np.random.default_rng(13)
+    size = config.image_size
+    images = np.concatenate([
+        rng.uniform(0, 1023, (3, size, size)),
+        rng.integers(0, 4, (3, size, size)) * 100.0,    # exact 45 / 90 / 135 degree gradients
+    ]).astype(np.float32)
+    got = hog_batch(images, config)
+    np.testing.assert_allclose(got, hog_batch_numpy(images, config), rtol=0, atol=1e-7)
+    np.testing.assert_allclose(got, reference(images, config), rtol=0, atol=1e-6)
+
+
+def test_compiled_kernel_refuses_non_finite_like_the_reference():
+    images = np.zeros((4, 120, 120), np.float32)
+    images[2, 0, 0] = np.inf          # a corner pixel: no gradient uses it in both directions
+    images[3, 119, 60] = np.nan
+    for fn in (hog_batch, hog_batch_numpy):
+        with pytest.raises(ValueError, match=r"images \[2, 3\].*NaN"):
+            fn(images)

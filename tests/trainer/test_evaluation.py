@@ -4,7 +4,7 @@ import pytest
 from mux_trainer.candidate_patterns import gray_code, site_pattern_candidates
 from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk
 from mux_trainer.reference import reference_candidate_scores
-from mux_trainer.rendering import render_led_patterns, render_site_patterns
+from mux_trainer.rendering import clean_led_images, clean_site_images
 
 
 def test_candidates_are_the_254_patterns_in_gray_code_order():
@@ -21,9 +21,9 @@ def test_candidates_are_the_254_patterns_in_gray_code_order():
 
 def test_incremental_render_matches_direct_render(tiny_data):
     W = site_pattern_candidates()[:, :40]
-    direct = render_site_patterns(tiny_data, W)
+    direct = clean_site_images(tiny_data, W)
     step = direct.reshape(40, 4, *direct.shape[1:])
-    clean = render_site_patterns(tiny_data, W[:, :1])
+    clean = clean_site_images(tiny_data, W[:, :1])
     for j in range(1, 40):
         for site in np.flatnonzero(W[:, j] - W[:, j - 1]):
             clean += (W[site, j] - W[site, j - 1]) * tiny_data.basis[site]
@@ -34,7 +34,7 @@ def test_led_render_is_the_sum_of_the_lit_leds(tiny_data):
     P = np.zeros((32, 2), np.float32)
     P[[0, 5], 0] = 1
     P[7, 1] = 0.5
-    imgs = render_led_patterns(tiny_data, P)
+    imgs = clean_led_images(tiny_data, P)
     np.testing.assert_allclose(imgs[0], tiny_data.basis[0, 0] + tiny_data.basis[1, 1])
     np.testing.assert_allclose(imgs[1], 0.5 * tiny_data.basis[1, 3])
 
@@ -88,3 +88,19 @@ def test_bad_mode_and_shapes_fail_clearly(tiny_data):
         CandidateEvaluator(tiny_data, mode='spectral')
     with pytest.raises(ValueError, match='unknown inner classifier'):
         CandidateEvaluator(tiny_data, inner_classifier='forest')
+
+
+def test_fused_noise_is_the_numpy_noise_bit_for_bit(tiny_data):
+    from mux_trainer.rendering import add_noise, add_noise_numpy, standard_normal
+    rng = np.random.default_rng(3)
+    clean = rng.uniform(-5, 1100, (4, tiny_data.n_samples, 24 * 24)).astype(np.float32)
+    z = standard_normal(rng, clean.shape)
+    fused = add_noise(tiny_data, clean, z)
+    np.testing.assert_array_equal(fused, add_noise_numpy(tiny_data, clean, z))
+    assert fused.min() >= 0 and fused.max() <= tiny_data.max_level
+    out = np.empty_like(clean)
+    assert add_noise(tiny_data, clean, z, out=out) is out
+    np.testing.assert_array_equal(out, fused)
+    # broadcast noise (not the search's layout) goes through numpy
+    np.testing.assert_array_equal(add_noise(tiny_data, clean, z[:1]),
+                                  add_noise_numpy(tiny_data, clean, z[:1]))

@@ -202,3 +202,19 @@ def test_joint_mode_refines_among_every_pattern_the_beam_evaluated(tiny_data):
     assert record['best'] in record['refined']
     assert record['accuracy'] == record['refined_scores'].max() == sel.accuracy_by_images_[1]
     np.testing.assert_array_equal(sel.patterns_[:, 0], record['candidates'][:, record['best']])
+
+
+def test_small_search_selects_the_columns_recorded_before_the_compiled_kernels():
+    # recorded with the pure-numpy HOG, numpy noise and the LU-solved exact SVM (commit
+    # bdde634): the compiled HOG kernel, the fused noise and the Cholesky Newton solves
+    # change no screen score, no SVM score and so no column
+    from trainer_helpers import make_search_data
+    data = make_search_data(noise_b=3000.0)
+    sel = GreedyPatternSelector(n_patterns=3, n_repeats=40, seed=0).fit(data)
+    columns = [''.join(str(int(v)) for v in col) for col in sel.patterns_.T]
+    assert columns == ['01011111', '01001011', '11011101']
+    assert sel.accuracy_by_images_ == pytest.approx({1: 0.44375, 2: 0.440625, 3: 0.271875},
+                                                    rel=0, abs=1e-12)
+    assert [len(h['refined']) for h in sel.history_] == [16, 16, 16]
+    assert [h['scores'].sum() for h in sel.history_] == pytest.approx(
+        [68.571875, 73.359375, 47.946875], rel=1e-12)

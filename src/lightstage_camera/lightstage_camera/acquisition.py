@@ -368,10 +368,3 @@ def acquire_pose(grab: Grab, settings: CaptureSettings, root, label: str, sample
         raise DestinationError(rescue_message(exc, RescuedModel(root, label, sample, pose, rig,
                                                                 captured.model))) from None
 
-
-# SHIM(issue 13): remove at merge: the old names of what moved to output_files and rescue,
-# for acquisition_cli.py (write_rescued) and training.py (check_output_file,
-# save_in_rescue_dir). acquisition_node.py's DestinationError and CaptureCancelled come
-# from errors: imported above for this module's own use, they stay importable from here.
-from .output_files import check_output_file  # noqa: E402,F401
-from .rescue import save_in_rescue_dir, write_rescued  # noqa: E402,F401

@@ -8,11 +8,14 @@ per image. ``hog_batch`` computes exactly what
                         cells_per_block=(10, 10), block_norm="L2-Hys",
                         feature_vector=True)
 
-computes (to ~1e-6 per value), but for a whole batch of images at once and 6-10 times
-faster (benchmarks/bench_hog.py), because the greedy search extracts HOG from millions
-of images.
+computes (to ~1e-6 per value), but for a whole batch of images at once, because the greedy
+search extracts HOG from millions of images. ``hog_batch`` runs the compiled kernel of
+``hog_kernel`` (numba; one fused pass per image, orientation bins without ``arctan2``;
+about 25x skimage, benchmarks/bench_hog.py); ``hog_batch_numpy`` is the pure-numpy
+implementation it replaced, kept as the reference it is tested against (same bins and
+cell histograms; a value may differ by a float32 rounding of the block norm).
 
-What makes it fast (see ``benchmarks/bench_hog.py`` for the figures):
+What makes the numpy reference fast (see ``benchmarks/bench_hog.py`` for the figures):
 
 - images are processed in chunks of ``HogConfig.batch_size`` (cache-sized);
 - orientations are binned into 18 *signed* 20-degree bins straight from ``arctan2``
@@ -33,7 +36,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["HogConfig", "hog_batch", "hog_reference"]
+__all__ = ["HogConfig", "hog_batch", "hog_batch_numpy", "hog_reference"]
 
 _BLOCK_NORMS = ("L1", "L1-sqrt", "L2", "L2-Hys")
 _EPS = 1e-5  # skimage's block-normalisation epsilon
@@ -48,7 +51,7 @@ class HogConfig:
     block_cells: int = 10
     orientations: int = 9
     block_norm: str = "L2-Hys"
-    batch_size: int = 8  # images per internal chunk (cache-sized); affects speed only, never values
+    batch_size: int = 8  # images per chunk of hog_batch_numpy (cache-sized); speed only, never values
 
     def __post_init__(self):
         for name in ("image_size", "cell_px", "block_cells", "orientations", "batch_size"):
@@ -113,8 +116,10 @@ def _check_images(images, config: HogConfig) -> np.ndarray:
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
         raise ValueError(f"hog_batch: images must be numeric, got dtype {arr.dtype}")
     # Gradients are computed in float32, like skimage does for float32 input.
-    x = np.ascontiguousarray(arr, dtype=np.float32)
-    finite = np.isfinite(x).all(axis=(1, 2))
+    return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+def _refuse_non_finite(finite: np.ndarray) -> None:
     if not finite.all():
         bad = np.flatnonzero(~finite)
         raise ValueError(
@@ -122,7 +127,6 @@ def _check_images(images, config: HogConfig) -> np.ndarray:
             "NaN or infinite gray levels (or values beyond float32 range); replace them "
             "(e.g. np.nan_to_num) before extracting features"
         )
-    return x
 
 
 class _Binner:
@@ -232,7 +236,25 @@ _BINNERS: dict[HogConfig, _Binner] = {}
 
 
 def hog_batch(images, config: HogConfig = HogConfig()) -> np.ndarray:
-    """HOG descriptors of a batch of gray images.
+    """HOG descriptors of a batch of gray images, by the compiled kernel (``hog_kernel``).
+
+    Parameters and result as :func:`hog_batch_numpy`, the pure-numpy reference it equals
+    (the same orientation bins and cell histograms; the block norms' float64 sums may
+    differ in their last bits, so a value may differ by a float32 rounding).
+    ``config.batch_size`` is the numpy path's; the kernel takes one image at a time.
+    """
+    x = _check_images(images, config)
+    if config.orientations == 1:  # no bin edge to compile a test for
+        return hog_batch_numpy(x, config)
+    from .hog_kernel import hog_compiled  # numba loads on first use, not on import
+
+    out, bad = hog_compiled(x, config)
+    _refuse_non_finite(~bad)
+    return out
+
+
+def hog_batch_numpy(images, config: HogConfig = HogConfig()) -> np.ndarray:
+    """HOG descriptors of a batch of gray images, in pure numpy (the reference).
 
     Parameters
     ----------
@@ -248,6 +270,7 @@ def hog_batch(images, config: HogConfig = HogConfig()) -> np.ndarray:
         Row i equals ``skimage.feature.hog(images[i], ..., feature_vector=True)``.
     """
     x = _check_images(images, config)
+    _refuse_non_finite(np.isfinite(x).all(axis=(1, 2)))
     key = config
     binner = _BINNERS.get(key)
     if binner is None:

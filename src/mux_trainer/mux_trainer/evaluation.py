@@ -28,8 +28,8 @@ import numpy as np
 from joblib import Parallel, delayed
 from threadpoolctl import threadpool_limits
 
-from .rendering import (SearchData, add_noise, image_features, render_led_patterns,
-                        render_site_patterns, standard_normal)
+from .rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
+                        image_features, standard_normal)
 from .split_scoring import make_scorer
 from .splits import pose_splits
 
@@ -48,9 +48,9 @@ def images_per_column(mode: str, n_channels: int = 4) -> int:
 def render(data: SearchData, mode: str, patterns: np.ndarray) -> np.ndarray:
     """Noise-free images `(n_images, n, pixels)` of a pattern matrix in the given mode."""
     if mode == 'per_colour':
-        return render_site_patterns(data, patterns)
+        return clean_site_images(data, patterns)
     if mode == 'joint':
-        return render_led_patterns(data, patterns)
+        return clean_led_images(data, patterns)
     raise ValueError(f'unknown mode {mode!r}; use one of {MODES}')
 
 
@@ -107,7 +107,7 @@ def _score_chunk(data, ctx, candidates, timings):
         if ctx.mode == 'per_colour':
             w = candidates[:, j]
             if clean is None:
-                clean = render_site_patterns(data, w[:, None])
+                clean = clean_site_images(data, w[:, None])
             else:
                 diff = w - candidates[:, j - 1]
                 for site in np.flatnonzero(diff):
@@ -116,7 +116,7 @@ def _score_chunk(data, ctx, candidates, timings):
                     else:
                         clean += np.float32(diff[site]) * data.basis[site]
         else:
-            clean = render_led_patterns(data, candidates[:, j:j + 1])
+            clean = clean_led_images(data, candidates[:, j:j + 1])
         t1 = clock()
         noisy = add_noise(data, clean, ctx.z, out=noisy)
         t2 = clock()

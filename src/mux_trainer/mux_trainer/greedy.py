@@ -32,13 +32,13 @@ import time
 
 import numpy as np
 from joblib import Parallel
-from lightstage_camera.rig import DEFAULT_DIMMER
+from lightstage_camera.rig import DEFAULT_DIMMER, N_LEDS
 from sklearn.base import BaseEstimator
 
 from .data import search_data
 from .evaluation import CandidateEvaluator, images_per_column
+from .candidate_patterns import site_pattern_candidates
 from .pattern_model import PatternModelMixin
-from .patterns import N_LEDS, site_pattern_candidates
 from .rendering import SearchData
 from .split_scoring import SquaredHingeSplitScorer
 

@@ -9,19 +9,18 @@ Noise follows the affine model `variance = a * mean + b`. Noise is physically ad
 resolution before downscaling; averaging over the downscale divides the variance by the
 ModelSet's `noise_scale`, so rendering at low resolution with variance
 `noise_scale * (sigma_p^2 * mean + sigma_r^2)` is equivalent, and 30-40 x cheaper.
-Noise is drawn as float32 standard normals and scaled in place.
+Noise is drawn as float32 standard normals and added in one compiled pass (`add_noise`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+import numba
 import numpy as np
 
 from mux_classifier.hog import HogConfig, hog_batch
 
 from lightstage_camera.rig import DEFAULT_DIMMER
-
-HOG_CHUNK = 2  # images per hog_batch chunk (speed only, never values)
 
 
 @dataclass
@@ -97,7 +96,7 @@ class SearchData:
                        pose_index=self.pose_index[index])
 
 
-def render_site_patterns(data: SearchData, W: np.ndarray) -> np.ndarray:
+def clean_site_images(data: SearchData, W: np.ndarray) -> np.ndarray:
     """Per-colour site patterns `(sites, k)` -> noise-free images `(k * channels, n, pixels)`.
 
     Image order: pattern 0's R, G, B, NIR, then pattern 1's, ... (as in the artifact).
@@ -114,7 +113,7 @@ def render_site_patterns(data: SearchData, W: np.ndarray) -> np.ndarray:
     return out.reshape(-1, data.n_samples, data.basis.shape[3])
 
 
-def render_led_patterns(data: SearchData, P: np.ndarray) -> np.ndarray:
+def clean_led_images(data: SearchData, P: np.ndarray) -> np.ndarray:
     """LED patterns `(sites * channels, k)` (site-major) -> noise-free images `(k, n, pixels)`."""
     P = np.asarray(P, dtype=np.float32).reshape(data.n_sites * data.n_channels, -1)
     flat = data.basis.reshape(data.n_sites * data.n_channels, -1)
@@ -134,10 +133,41 @@ def standard_normal(rng: np.random.Generator, shape) -> np.ndarray:
 
 def add_noise(data: SearchData, clean: np.ndarray, z: np.ndarray | None,
               out: np.ndarray | None = None) -> np.ndarray:
-    """clip(clean + sqrt(a * clean + b) * z, 0, max_level), float32, without extra copies.
+    """clip(clean + sqrt(a * max(clean, 0) + b) * z, 0, max_level) in float32, in one pass
+    (compiled; the same float32 operations in the same order as `add_noise_numpy`, so the
+    same bits).
 
     z: standard normals of clean's shape (None or a noise-free setting: just clipping).
     """
+    if out is None:
+        out = np.empty_like(clean, dtype=np.float32)
+    if z is None or (data.noise_a == 0 and data.noise_b == 0):
+        np.copyto(out, clean)
+        np.clip(out, 0, data.max_level, out=out)
+        return out
+    clean32 = np.ascontiguousarray(clean, dtype=np.float32)
+    z32 = np.ascontiguousarray(z, dtype=np.float32)
+    if clean32.shape != z32.shape or out.shape != clean32.shape or out.dtype != np.float32 \
+            or not out.flags.c_contiguous:
+        return add_noise_numpy(data, clean, z, out)
+    _noisy_kernel(clean32.reshape(-1), z32.reshape(-1), np.float32(data.noise_a),
+                  np.float32(data.noise_b), np.float32(data.max_level), out.reshape(-1))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _noisy_kernel(clean, z, a, b, top, out):
+    zero = np.float32(0.0)
+    for i in range(clean.size):
+        c = clean[i]
+        v = max(c, zero) * a + b
+        v = np.sqrt(v) * z[i] + c
+        out[i] = min(max(v, zero), top)
+
+
+def add_noise_numpy(data: SearchData, clean: np.ndarray, z: np.ndarray | None,
+                    out: np.ndarray | None = None) -> np.ndarray:
+    """`add_noise` in numpy, pass by pass (the reference; any shapes that broadcast)."""
     if out is None:
         out = np.empty_like(clean, dtype=np.float32)
     if z is None or (data.noise_a == 0 and data.noise_b == 0):
@@ -157,8 +187,22 @@ def image_features(data: SearchData, images: np.ndarray) -> np.ndarray:
     """Images `(m, n, pixels)` -> per-sample concatenated HOG `(n, m * n_features)` float32."""
     m, n, _ = images.shape
     H, W = data.image_shape
-    # small HOG chunks stay in cache: 2 images per chunk used ~35 % less CPU than 16 here
-    config = replace(data.hog_config, batch_size=HOG_CHUNK)
-    feats = hog_batch(images.reshape(m * n, H, W), config)
+    feats = hog_batch(images.reshape(m * n, H, W), data.hog_config)
     return np.ascontiguousarray(
         feats.reshape(m, n, -1).transpose(1, 0, 2).reshape(n, -1))
+
+
+def compile_kernels() -> None:
+    """Compile (or load from numba's cache) every compiled kernel of the search and the
+    classify path: HOG, noise and the exact SVM's Newton solves. scripts/bootstrap.sh calls
+    it after installing the packages, so the cache is written once, there."""
+    from .split_scoring import SquaredHingeSplitScorer
+    rng = np.random.default_rng(0)
+    config = HogConfig()
+    data = SearchData(basis=np.zeros((1, 1, 4, config.image_size ** 2), np.float32),
+                      labels=[0, 1, 0, 1], pose_index=[0, 0, 1, 1], class_names=['a', 'b'],
+                      image_shape=(config.image_size,) * 2, noise_a=1.0, noise_b=1.0)
+    clean = rng.uniform(0, 1023, (1, 4, config.image_size ** 2)).astype(np.float32)
+    X = image_features(data, add_noise(data, clean, standard_normal(rng, clean.shape)))
+    masks = [np.array([True, False, False, False]), np.array([False, True, True, False])]
+    SquaredHingeSplitScorer().split_accuracies(data.labels, masks, X=X, n_classes=2)

@@ -42,7 +42,8 @@ def check_artifact_path(out_path) -> Path:
     """Refuse, before any work, an artifact path that cannot take the file: a folder, a path
     under a regular file, a folder this user cannot create files in (checked by creating
     one). Raises ValueError naming the path and what to do."""
-    from lightstage_camera.acquisition import DestinationError, check_output_file
+    from lightstage_camera.errors import DestinationError
+    from lightstage_camera.output_files import check_output_file
     try:
         return check_output_file(out_path, overwrite=True)
     except DestinationError as exc:
@@ -52,7 +53,7 @@ def check_artifact_path(out_path) -> Path:
 def _save_artifact(artifact, out: Path, summary: dict) -> None:
     """Save to `out`; if that fails after all, keep it in a rescue folder and raise
     ArtifactNotWritten saying where (the training is not lost)."""
-    from lightstage_camera.acquisition import save_in_rescue_dir
+    from lightstage_camera.rescue import save_in_rescue_dir
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         artifact.save(out)
