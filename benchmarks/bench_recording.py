@@ -192,7 +192,7 @@ def bench_size(bag: Path) -> None:
     raw = sum(by_topic.values())
     print(f'size: {bag}: {n} classifications, {images} images, file {file_size / 1e3:.0f} kB '
           f'({100 * file_size / raw:.0f} % of the {raw / 1e3:.0f} kB of messages)')
-    per_class = ['/illumination', '/image_raw', '/lightstage/result', '/lightstage/classify/_service_event',
+    per_class = ['/illumination', '/camera/image_raw', '/lightstage/result', '/lightstage/classify/_service_event',
                  '/lightstage/apply_patterns/_service_event']
     for t in per_class:
         if t in by_topic:
