@@ -29,6 +29,9 @@ CAPTURE_ACTION = '/lightstage/capture_model'           # CaptureModel (acquisiti
 CALIBRATE_ACTION = '/lightstage/calibrate_noise'       # CalibrateNoise (acquisition)
 
 
+SERVICE_EVENT_SUFFIX = '/_service_event'
+
+
 def service_event_topic(service: str) -> str:
     """The topic a service's introspection publishes its calls on."""
-    return f'{service}/_service_event'
+    return f'{service}{SERVICE_EVENT_SUFFIX}'
