@@ -36,11 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-from lightstage_bringup.ros_env import apply_ros_environment, ros_environment
+from lightstage_graph.ros_env import apply_ros_environment, ros_environment
 
 sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests' / d) for d in ('', 'recording')]
 from recording_helpers import bag_results  # noqa: E402  (the tests' bag and ROS helpers)
-from suite_helpers import RosClient, write_params  # noqa: E402
+from suite_helpers import GraphClient, write_params  # noqa: E402
 
 
 def frames(n: int, size: int, seed: int = 0) -> list[bytes]:
@@ -90,7 +90,7 @@ def bench_recorder(data: list[bytes], tmp: Path, rates: list[float], domain_id: 
     from lightstage_recording import BagReader
     from lightstage_bringup.launcher import NODE_REGISTRY, node_command
 
-    client = RosClient(domain_id, 'bench_recording_publisher')
+    client = GraphClient(domain_id, 'bench_recording_publisher')
     qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.VOLATILE)
     pub = client.node.create_publisher(Image, '/image_raw', qos)

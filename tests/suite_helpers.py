@@ -20,8 +20,6 @@ from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 from lightstage_graph.graph_client import GraphClient, parameter_msgs  # noqa: F401 (for the tests)
 from lightstage_graph.ros_env import ros_environment
 
-RosClient = GraphClient  # SHIM(issue 13): remove at merge (tests/recording, bags/, benchmarks/ import it)
-
 # two site patterns -> a per-colour artifact with classifiers for 4 and 8 images
 TRAIN_SITE_PATTERNS = np.zeros((8, 2), np.float32)
 TRAIN_SITE_PATTERNS[[0, 2, 5], 0] = 1

@@ -19,9 +19,7 @@ ALLOWED_IMPORTS = {
     'lightstage_camera': {'lightstage_graph'},
     'mux_classifier': {'lightstage_graph', 'lightstage_camera'},
     'mux_trainer': {'lightstage_graph', 'lightstage_camera', 'mux_classifier'},
-    # SHIM(issue 13): lightstage_bringup only for ros_env, through the lightstage_bringup.ros_env
-    # shim, until bag_cli, recorder_node and player_node import lightstage_graph.ros_env
-    'lightstage_recording': {'lightstage_graph', 'lightstage_bringup'},
+    'lightstage_recording': {'lightstage_graph'},
     'lightstage_bringup': {'lightstage_graph', 'lightstage_camera', 'lightstage_driver',
                            'mux_classifier', 'mux_trainer', 'lightstage_recording'},
 }

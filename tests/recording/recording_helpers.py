@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from lightstage_bringup.ros_env import ros_environment
+from lightstage_graph.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
-from suite_helpers import RosClient, fresh_domain_id, lightstage_command, start_nodes, write_params
+from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -140,7 +140,7 @@ def replay_into_observing_classifier(bag, artifact_path, tmp_path: Path, n_resul
     domain_id = fresh_domain_id()
     params = write_params(tmp_path / 'params.yaml', {
         'classifier': {'artifact_path': str(artifact_path), 'classify_observed': True}})
-    client = RosClient(domain_id)
+    client = GraphClient(domain_id)
     replayed = []
     client.node.create_subscription(ClassificationResult, '/lightstage/result', replayed.append, 10)
     out = io.StringIO()

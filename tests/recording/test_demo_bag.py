@@ -14,9 +14,9 @@ import pytest
 
 from lightstage_bringup import demo
 from lightstage_recording import BagReader
-from lightstage_bringup.ros_env import ros_environment
+from lightstage_graph.ros_env import ros_environment
 from recording_helpers import bag_results
-from suite_helpers import RosClient, fresh_domain_id, lightstage_command
+from suite_helpers import GraphClient, fresh_domain_id, lightstage_command
 
 pytestmark = pytest.mark.ros
 
@@ -52,7 +52,7 @@ def test_the_demo_leaves_its_bag_and_its_replay_command_reproduces_the_labels(
         [(row['label'], row['images_used']) for row in calls]
 
     # the printed commands, as a user runs them in two terminals
-    client = RosClient(domain_id)
+    client = GraphClient(domain_id)
     replayed = []
     client.node.create_subscription(ClassificationResult, '/lightstage/result', replayed.append, 10)
     up_argv, up_kwargs = _run_printed(commands[0], domain_id)

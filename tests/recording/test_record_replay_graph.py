@@ -3,7 +3,7 @@
 labels.
 
 Every node runs in its own process with LOCALHOST discovery in a domain id of this test's own
-(`lightstage_bringup.ros_env`); the test talks to them from an in-process client.
+(`lightstage_graph.ros_env`); the test talks to them from an in-process client.
 """
 import io
 import signal
@@ -14,10 +14,10 @@ import pytest
 from rclpy.serialization import deserialize_message
 
 from lightstage_recording import BagReader, msg_definitions
-from lightstage_bringup.ros_env import ros_environment
+from lightstage_graph.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
 from recording_helpers import bag_results, replay_into_observing_classifier
-from suite_helpers import RosClient, fresh_domain_id, lightstage_command, start_nodes, write_params
+from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
 
@@ -39,7 +39,7 @@ def session(stage_capture, stage_artifact_path, tmp_path_factory):
     })
     from lightstage_interfaces.msg import ClassificationResult
     from lightstage_interfaces.srv import Classify
-    client = RosClient(domain_id)
+    client = GraphClient(domain_id)
     live = []
     client.node.create_subscription(ClassificationResult, '/lightstage/result', live.append, 10)
     out = io.StringIO()

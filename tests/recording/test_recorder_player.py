@@ -8,9 +8,9 @@ import pytest
 
 from lightstage_recording import BagError, BagReader
 from lightstage_bringup.launcher import node_command
-from lightstage_bringup.ros_env import ros_environment
+from lightstage_graph.ros_env import ros_environment
 from recording_helpers import illumination, recover
-from suite_helpers import RosClient, fresh_domain_id, lightstage_command, write_params
+from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, write_params
 
 pytestmark = pytest.mark.ros
 
@@ -37,7 +37,7 @@ def test_killed_recorder_bag_is_readable_and_replay_keeps_the_recorded_qos(tmp_p
                    'topics': ['/stage_status', '/illumination']}})
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    client = RosClient(domain_id)
+    client = GraphClient(domain_id)
     try:
         status = client.node.create_publisher(String, '/stage_status', latched)
         states = client.node.create_publisher(IlluminationState, '/illumination', 100)
@@ -144,7 +144,7 @@ def test_record_splits_by_duration_and_keeps_the_newest_files(tmp_path):
     import yaml
     domain_id = fresh_domain_id()
     bag = tmp_path / 'rolling'
-    client = RosClient(domain_id)
+    client = GraphClient(domain_id)
     try:
         pub = client.node.create_publisher(IlluminationState, '/illumination', 100)
         recorder = subprocess.Popen(

@@ -33,6 +33,9 @@ CAPTURE_ACTION = '/lightstage/capture_model'           # CaptureModel (acquisiti
 CALIBRATE_ACTION = '/lightstage/calibrate_noise'       # CalibrateNoise (acquisition)
 
 
+SERVICE_EVENT_SUFFIX = '/_service_event'
+
+
 def resolved(topic: str, namespace: str = '/') -> str:
     """The full name of `topic` for a node in `namespace` (default: none), as the recorder,
     the player and graph queries need it: 'camera/image_raw' -> '/camera/image_raw'."""
@@ -43,4 +46,4 @@ def resolved(topic: str, namespace: str = '/') -> str:
 
 def service_event_topic(service: str) -> str:
     """The topic a service's introspection publishes its calls on."""
-    return f'{service}/_service_event'
+    return f'{service}{SERVICE_EVENT_SUFFIX}'

@@ -40,6 +40,13 @@ def boolean(description: str, *, read_only: bool = False) -> ParameterDescriptor
                                read_only=read_only)
 
 
+def string_array(description: str, *, read_only: bool = False) -> ParameterDescriptor:
+    """A list of strings; declare it with the default ``Parameter.Type.STRING_ARRAY`` for
+    one that may stay unset."""
+    return ParameterDescriptor(type=ParameterType.PARAMETER_STRING_ARRAY, description=description,
+                               read_only=read_only)
+
+
 class Parameters:
     """A node's declared parameters; ``params(name)`` is the current value."""
 

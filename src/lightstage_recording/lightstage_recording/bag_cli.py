@@ -16,7 +16,7 @@ import json
 import sys
 from pathlib import Path
 
-from lightstage_bringup.ros_env import apply_ros_environment
+from lightstage_graph.ros_env import apply_ros_environment
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 

@@ -1,11 +1,8 @@
-"""rclpy side of recording and replay: QoS conversion, message classes by type name, and the
-read-only parameter descriptors of the recorder and player nodes."""
+"""rclpy side of recording and replay: QoS conversion and message classes by type name."""
 from __future__ import annotations
 
 import importlib
 
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
 from rclpy.duration import Duration
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile,
                        ReliabilityPolicy)
@@ -79,22 +76,3 @@ def message_class(type_name: str):
     except (ImportError, AttributeError):
         raise ImportError(f'message type {type_name} is not installed in this Python '
                           f'environment; install the {package} interface package') from None
-
-
-def text_param(description: str, ptype=ParameterType.PARAMETER_STRING) -> ParameterDescriptor:
-    """A read-only parameter of type `ptype` (default string)."""
-    return ParameterDescriptor(type=ptype, description=description, read_only=True)
-
-
-def int_param(description: str, lo: int, hi: int) -> ParameterDescriptor:
-    """A read-only integer parameter in lo..hi."""
-    return ParameterDescriptor(type=ParameterType.PARAMETER_INTEGER, description=description,
-                               read_only=True,
-                               integer_range=[IntegerRange(from_value=lo, to_value=hi, step=1)])
-
-
-def float_param(description: str, lo: float, hi: float) -> ParameterDescriptor:
-    """A read-only floating-point parameter in [lo, hi]."""
-    return ParameterDescriptor(type=ParameterType.PARAMETER_DOUBLE, description=description,
-                               read_only=True,
-                               floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])

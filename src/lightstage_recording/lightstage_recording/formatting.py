@@ -4,12 +4,9 @@ from __future__ import annotations
 
 import datetime as _dt
 
+from lightstage_graph.stamps import format_stamp
+
 from .summary import BagInfo
-
-
-def format_ns(ns: int) -> str:
-    """ns since the epoch as seconds with nine decimals."""
-    return f'{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}'
 
 
 def format_size(n: int) -> str:
@@ -23,7 +20,7 @@ def format_size(n: int) -> str:
 def format_time(ns: int) -> str:
     """A log time as local date and time, with the ns since the epoch."""
     t = _dt.datetime.fromtimestamp(ns / 1e9)
-    return f'{t.strftime("%b %d %Y %H:%M:%S")}.{(ns // 1_000_000) % 1000:03d} ({format_ns(ns)})'
+    return f'{t.strftime("%b %d %Y %H:%M:%S")}.{(ns // 1_000_000) % 1000:03d} ({format_stamp(ns)})'
 
 
 def format_info(info: BagInfo, verbose: bool = False) -> str:

@@ -29,6 +29,8 @@ import sys
 from functools import lru_cache
 from pathlib import Path
 
+from lightstage_graph.names import SERVICE_EVENT_SUFFIX
+
 SEPARATOR = '=' * 80
 # rosbag2's MSG_FIELD_TYPE_REGEX: the type at the start of a field line
 _FIELD_TYPE = re.compile(r'(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+')
@@ -190,9 +192,6 @@ def type_hash(type_name: str) -> str:
             if entry.get('type_name') == full:
                 return str(entry.get('hash_string', ''))
     return ''
-
-
-SERVICE_EVENT_SUFFIX = '/_service_event'
 
 
 def is_service_event(topic: str, type_name: str) -> bool:

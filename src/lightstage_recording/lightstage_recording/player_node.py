@@ -22,55 +22,57 @@ import threading
 import time
 
 import rclpy
-from rcl_interfaces.msg import ParameterType
+from lightstage_graph.names import PLAYER_NODE
+from lightstage_graph.params import (boolean, declare_parameters, floating, integer, string,
+                                     string_array)
+from lightstage_graph.ros_env import apply_node_environment_and_say
 from rclpy.duration import Duration
 from rclpy.exceptions import InvalidParameterValueException, ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from .bag_ros import float_param, int_param, message_class, text_param, to_rclpy_qos
+from .bag_ros import message_class, to_rclpy_qos
 from .exceptions import BagError
 from .reader import BagReader
 from .recording import DEFAULT_PLAY_EXCLUDE, playback_delay_s, playback_qos, select_play_topics
-
-NODE_NAME = 'player'
-
 
 class PlayerError(Exception):
     """A bag that cannot be played as asked; the message says what to change."""
 
 
 PARAMETERS = {
-    'bag': ('', text_param('bag directory (metadata.yaml + .mcap) or .mcap file to play')),
-    'topics': (Parameter.Type.STRING_ARRAY, text_param(
+    'bag': ('', string('bag directory (metadata.yaml + .mcap) or .mcap file to play',
+                       read_only=True)),
+    'topics': (Parameter.Type.STRING_ARRAY, string_array(
         'play only these topics; unset: every recorded topic not matching exclude_regex',
-        ParameterType.PARAMETER_STRING_ARRAY)),
-    'exclude_regex': (DEFAULT_PLAY_EXCLUDE, text_param('topics left out unless named in topics')),
-    'rate': (1.0, float_param('playback speed factor (2.0: twice as fast)', 0.01, 100.0)),
-    'start_offset_s': (0.0, float_param('skip the first seconds of the bag [s]', 0.0, 1e7)),
-    'loop': (False, text_param('play the bag again and again until stopped',
-                               ParameterType.PARAMETER_BOOL)),
-    'wait_for_subscribers': (Parameter.Type.STRING_ARRAY, text_param(
-        'start only once each of these topics has a matched subscriber',
-        ParameterType.PARAMETER_STRING_ARRAY)),
-    'wait_timeout_s': (10.0, float_param('give up when a subscriber of wait_for_subscribers has '
-                                         'not matched after this long [s]', 0.0, 3600.0)),
+        read_only=True)),
+    'exclude_regex': (DEFAULT_PLAY_EXCLUDE, string('topics left out unless named in topics',
+                                                   read_only=True)),
+    'rate': (1.0, floating('playback speed factor (2.0: twice as fast)', 0.01, 100.0,
+                           read_only=True)),
+    'start_offset_s': (0.0, floating('skip the first seconds of the bag [s]', 0.0, 1e7,
+                                     read_only=True)),
+    'loop': (False, boolean('play the bag again and again until stopped', read_only=True)),
+    'wait_for_subscribers': (Parameter.Type.STRING_ARRAY, string_array(
+        'start only once each of these topics has a matched subscriber', read_only=True)),
+    'wait_timeout_s': (10.0, floating('give up when a subscriber of wait_for_subscribers has '
+                                      'not matched after this long [s]', 0.0, 3600.0,
+                                      read_only=True)),
     # a match seen from the publisher's side does not mean the subscriber has matched the
     # publisher yet; a volatile subscriber loses what arrives before it has
-    'delay_s': (0.0, float_param('wait this long before the first message, after any '
-                                 'wait_for_subscribers [s]', 0.0, 3600.0)),
-    'qos_depth': (100, int_param('keep-last depth of publishers whose recorded depth is unknown '
-                                 '[messages]', 1, 100_000)),
-    'ack_timeout_s': (5.0, float_param('at the end, wait this long for reliable subscribers to '
-                                       'acknowledge everything [s]', 0.0, 600.0)),
+    'delay_s': (0.0, floating('wait this long before the first message, after any '
+                              'wait_for_subscribers [s]', 0.0, 3600.0, read_only=True)),
+    'qos_depth': (100, integer('keep-last depth of publishers whose recorded depth is unknown '
+                               '[messages]', 1, 100_000, read_only=True)),
+    'ack_timeout_s': (5.0, floating('at the end, wait this long for reliable subscribers to '
+                                    'acknowledge everything [s]', 0.0, 600.0, read_only=True)),
 }
 
 
 class PlayerNode(Node):
-    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+    def __init__(self, node_name: str = PLAYER_NODE, **kwargs):
         super().__init__(node_name, **kwargs)
-        for name, (default, descriptor) in PARAMETERS.items():
-            self.declare_parameter(name, default, descriptor)
+        self.p = declare_parameters(self, PARAMETERS)
         if not self.p('bag'):
             raise PlayerError('no bag given; set the bag parameter (-p bag:=DIR) or use '
                               '`lightstage play DIR`')
@@ -95,12 +97,9 @@ class PlayerNode(Node):
         self.stop = threading.Event()
         self.played = 0
 
-    def p(self, name: str):
-        return self.get_parameter(name).value
-
     def _array(self, name: str) -> list[str] | None:
         try:
-            value = self.get_parameter(name).value
+            value = self.p(name)
         except ParameterUninitializedException:
             return None
         return list(value) if value else None
@@ -227,8 +226,7 @@ def _spin(executor, node: PlayerNode) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from lightstage_bringup.ros_env import apply_node_environment_and_say
-    apply_node_environment_and_say(NODE_NAME)  # however it was started (`ros2 run` too)
+    apply_node_environment_and_say(PLAYER_NODE)  # however it was started (`ros2 run` too)
     return run(sys.argv if argv is None else argv)
 
 

@@ -26,76 +26,76 @@ import time
 from pathlib import Path
 
 import rclpy
-from rcl_interfaces.msg import ParameterType
+from lightstage_graph.names import RECORDER_NODE
+from lightstage_graph.params import (boolean, declare_parameters, floating, integer, string,
+                                     string_array)
+from lightstage_graph.ros_env import apply_node_environment_and_say
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 
-from .bag_ros import (float_param, from_rclpy_qos, int_param, message_class, text_param,
-                      to_rclpy_qos)
+from .bag_ros import from_rclpy_qos, message_class, to_rclpy_qos
 from .exceptions import BagError
 from .layout import default_bag_name
 from .msg_definitions import is_service_event
 from .recording import Recording, TopicSelector, subscription_qos
 from .writer import COMPRESSIONS, MIN_SPLIT_SIZE_BYTES, BagWriter
 
-NODE_NAME = 'recorder'
-
-
 class RecorderError(Exception):
     """A recorder that cannot start; the message says what to change."""
 
 
 PARAMETERS = {
-    'output_dir': ('', text_param('bag directory to create (must not exist, or be an empty '
-                                  'directory); empty: rosbag2_YYYY_MM_DD-HH_MM_SS in the working '
-                                  'directory')),
-    'topics': (Parameter.Type.STRING_ARRAY, text_param(
+    'output_dir': ('', string('bag directory to create (must not exist, or be an empty '
+                              'directory); empty: rosbag2_YYYY_MM_DD-HH_MM_SS in the working '
+                              'directory', read_only=True)),
+    'topics': (Parameter.Type.STRING_ARRAY, string_array(
         'record only these topics (full names); unset: every topic the other parameters take',
-        ParameterType.PARAMETER_STRING_ARRAY)),
-    'include_regex': ('', text_param('record topics whose name matches this regular expression '
-                                     '(with topics: either selects)')),
-    'exclude_regex': ('', text_param('never record topics whose name matches this regular '
-                                     'expression')),
-    'record_services': (True, text_param('record service introspection events '
-                                         '(<service>/_service_event topics)',
-                                         ParameterType.PARAMETER_BOOL)),
-    'include_hidden_topics': (False, text_param('also record other hidden topics (a name part '
-                                                'starting with _, e.g. action feedback)',
-                                                ParameterType.PARAMETER_BOOL)),
-    'discovery_period_s': (0.5, float_param('how often the graph is checked for new topics [s]',
-                                            0.05, 60.0)),
-    'qos_depth': (100, int_param('keep-last depth of the recorder\'s subscriptions [messages]',
-                                 1, 100_000)),
-    'compression': ('lz4', text_param(f'chunk compression: {" | ".join(COMPRESSIONS)}')),
-    'chunk_size_bytes': (1 << 20, int_param('chunk size of the MCAP file [bytes]', 1024, 1 << 30)),
-    'flush_period_s': (1.0, float_param('the chunk in progress is handed to the OS this often [s] '
-                                        '(no fsync); a killed recorder loses at most this much',
-                                        0.05, 600.0)),
-    'max_duration_s': (0.0, float_param('stop and close the bag after this long [s]; 0: until '
-                                        'SIGINT / SIGTERM', 0.0, 1e7)),
+        read_only=True)),
+    'include_regex': ('', string('record topics whose name matches this regular expression '
+                                 '(with topics: either selects)', read_only=True)),
+    'exclude_regex': ('', string('never record topics whose name matches this regular '
+                                 'expression', read_only=True)),
+    'record_services': (True, boolean('record service introspection events '
+                                      '(<service>/_service_event topics)', read_only=True)),
+    'include_hidden_topics': (False, boolean('also record other hidden topics (a name part '
+                                             'starting with _, e.g. action feedback)',
+                                             read_only=True)),
+    'discovery_period_s': (0.5, floating('how often the graph is checked for new topics [s]',
+                                         0.05, 60.0, read_only=True)),
+    'qos_depth': (100, integer('keep-last depth of the recorder\'s subscriptions [messages]',
+                               1, 100_000, read_only=True)),
+    'compression': ('lz4', string(f'chunk compression: {" | ".join(COMPRESSIONS)}',
+                                  read_only=True)),
+    'chunk_size_bytes': (1 << 20, integer('chunk size of the MCAP file [bytes]', 1024, 1 << 30,
+                                          read_only=True)),
+    'flush_period_s': (1.0, floating('the chunk in progress is handed to the OS this often [s] '
+                                     '(no fsync); a killed recorder loses at most this much',
+                                     0.05, 600.0, read_only=True)),
+    'max_duration_s': (0.0, floating('stop and close the bag after this long [s]; 0: until '
+                                     'SIGINT / SIGTERM', 0.0, 1e7, read_only=True)),
     # splitting, as ros2 bag record's --max-bag-size / --max-bag-duration: a recorder left on
     # for days then writes NAME_0.mcap, NAME_1.mcap, ... and with max_bag_files keeps the newest
-    'max_bag_size_bytes': (0, int_param('start the next file of the bag before this one reaches '
-                                        'this size [bytes] (rosbag2\'s max_bag_size); 0: no limit, '
-                                        f'else at least {MIN_SPLIT_SIZE_BYTES}', 0, 1 << 62)),
-    'max_bag_duration_s': (0.0, float_param('start the next file of the bag once this one spans '
-                                            'this long [s] (rosbag2\'s max_bag_duration); 0: no '
-                                            'limit', 0.0, 1e9)),
-    'max_bag_files': (0, int_param('keep only the newest this many files of the bag, deleting the '
-                                   'oldest as a new one starts (metadata.yaml and the log say so); '
-                                   '0: keep every file', 0, 1_000_000)),
+    'max_bag_size_bytes': (0, integer('start the next file of the bag before this one reaches '
+                                      'this size [bytes] (rosbag2\'s max_bag_size); 0: no limit, '
+                                      f'else at least {MIN_SPLIT_SIZE_BYTES}', 0, 1 << 62,
+                                      read_only=True)),
+    'max_bag_duration_s': (0.0, floating('start the next file of the bag once this one spans '
+                                         'this long [s] (rosbag2\'s max_bag_duration); 0: no '
+                                         'limit', 0.0, 1e9, read_only=True)),
+    'max_bag_files': (0, integer('keep only the newest this many files of the bag, deleting the '
+                                 'oldest as a new one starts (metadata.yaml and the log say so); '
+                                 '0: keep every file', 0, 1_000_000, read_only=True)),
 }
 
 
 class RecorderNode(Node):
-    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+    def __init__(self, node_name: str = RECORDER_NODE, **kwargs):
         super().__init__(node_name, **kwargs)
-        for name, (default, descriptor) in PARAMETERS.items():
-            self.declare_parameter(name, default, descriptor)
+        self.p = declare_parameters(self, PARAMETERS)
         try:
-            topics = self.get_parameter('topics').value
+            topics = self.p('topics')
         except ParameterUninitializedException:
             topics = None
         try:
@@ -129,9 +129,6 @@ class RecorderNode(Node):
         if self.p('max_duration_s') > 0:
             self.create_timer(self.p('max_duration_s'), self._time_up)
         self._discover()
-
-    def p(self, name: str):
-        return self.get_parameter(name).value
 
     # ------------------------------------------------------------------ topics
     def _discover(self) -> None:
@@ -275,8 +272,7 @@ def run(args: list[str] | None = None, parameter_overrides: list[Parameter] | No
 
 
 def main(argv: list[str] | None = None) -> int:
-    from lightstage_bringup.ros_env import apply_node_environment_and_say
-    apply_node_environment_and_say(NODE_NAME)  # however it was started (`ros2 run` too)
+    apply_node_environment_and_say(RECORDER_NODE)  # however it was started (`ros2 run` too)
     return run(sys.argv if argv is None else argv)
 
 

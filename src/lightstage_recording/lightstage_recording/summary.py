@@ -4,6 +4,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from lightstage_graph.names import SERVICE_EVENT_SUFFIX
+
 from . import msg_definitions
 
 
@@ -25,7 +27,7 @@ class TopicInfo:
 
     @property
     def service_name(self) -> str:
-        return self.name[:-len(msg_definitions.SERVICE_EVENT_SUFFIX)] if self.is_service_event else ''
+        return self.name[:-len(SERVICE_EVENT_SUFFIX)] if self.is_service_event else ''
 
     @property
     def service_type(self) -> str:
