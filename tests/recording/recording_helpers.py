@@ -130,7 +130,7 @@ def mcap_ros2_decode(path, topics):
 # ----------------------------------------------------------------------------- replay
 def replay_into_observing_classifier(bag, artifact_path, tmp_path: Path, n_results: int,
                                      *play_args: str):
-    """Play the bag's /illumination and /image_raw (`lightstage play ... PLAY_ARGS`, started
+    """Play the bag's /illumination and /camera/image_raw (`lightstage play ... PLAY_ARGS`, started
     once the classifier subscribes to both) into a classifier node that only observes
     (classify_observed), in a domain of its own, and wait for `n_results` of its results.
 
@@ -150,8 +150,8 @@ def replay_into_observing_classifier(bag, artifact_path, tmp_path: Path, n_resul
             client.spin_until(lambda: client.node.count_publishers('/lightstage/result') > 0, 10.0,
                               'the classifier\'s result publisher')
             p = subprocess.run(lightstage_command('play', str(bag),
-                                                  '--topics', '/illumination', '/image_raw',
-                                                  '--wait-for', '/illumination', '/image_raw',
+                                                  '--topics', '/illumination', '/camera/image_raw',
+                                                  '--wait-for', '/illumination', '/camera/image_raw',
                                                   '--delay-s', '1', *play_args,
                                                   '--domain-id', str(domain_id)),
                                env=ros_environment(domain_id), capture_output=True, text=True,

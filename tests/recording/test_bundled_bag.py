@@ -20,7 +20,7 @@ def test_the_bundled_bag_is_complete_and_small():
     assert info.complete and not info.problems
     assert sum(f.stat().st_size for f in BAG.iterdir()) + ARTIFACT.stat().st_size < 3 * 2 ** 20
     counts = {t.name: t.count for t in info.topics.values()}
-    assert counts['/illumination'] == counts['/image_raw'] == 24
+    assert counts['/illumination'] == counts['/camera/image_raw'] == 24
     assert counts['/lightstage/result'] == 4
     assert counts['/lightstage/classify/_service_event'] == 8
     assert [r.label for r in _results()] == ['banana-fake', 'banana-real', 'orange-fake', 'orange-real']
@@ -51,7 +51,7 @@ def test_independent_readers_decode_the_recorded_messages():
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     from sensor_msgs.msg import Image
-    rclpy_types = {'/illumination': IlluminationState, '/image_raw': Image,
+    rclpy_types = {'/illumination': IlluminationState, '/camera/image_raw': Image,
                    '/lightstage/classify/_service_event': Classify.Event,
                    '/lightstage/apply_patterns/_service_event': ApplyPatterns.Event}
     store = get_typestore(Stores.EMPTY)
@@ -71,7 +71,7 @@ def test_independent_readers_decode_the_recorded_messages():
                 assert (ours.sequence, ours.request_id, ours.header.stamp.nanosec) == \
                     (ref.sequence, ref.request_id, ref.header.stamp.nanosec)
                 assert list(ours.intensities) == list(ref.intensities)
-            elif c.topic == '/image_raw':
+            elif c.topic == '/camera/image_raw':
                 assert (ours.width, ours.encoding, bytes(ours.data)) == (ref.width, ref.encoding, bytes(ref.data))
             elif c.topic == '/lightstage/classify/_service_event':
                 assert ours.info.event_type == ref.info.event_type
@@ -80,9 +80,9 @@ def test_independent_readers_decode_the_recorded_messages():
             else:
                 assert [len(r.patterns) for r in ours.request] == [len(r.patterns) for r in ref.request]
                 assert [list(r.sequences) for r in ours.response] == [list(r.sequences) for r in ref.response]
-    assert seen == {'/illumination': 24, '/image_raw': 24, '/lightstage/classify/_service_event': 8,
+    assert seen == {'/illumination': 24, '/camera/image_raw': 24, '/lightstage/classify/_service_event': 8,
                     '/lightstage/apply_patterns/_service_event': 8}
-    topics = ['/illumination', '/image_raw', '/lightstage/result']
+    topics = ['/illumination', '/camera/image_raw', '/lightstage/result']
     decoded = mcap_ros2_decode(BAG / 'sim_session_0.mcap', topics)
     assert len(decoded) == 24 + 24 + 4
     assert [d.label for t, _, d in decoded if t == '/lightstage/result'] == [r.label for r in _results()]

@@ -1,5 +1,5 @@
 """End to end: record a graph that classifies on the simulated stage, then replay the bag's
-/illumination and /image_raw into a fresh classifier that only observes, and get the same
+/illumination and /camera/image_raw into a fresh classifier that only observes, and get the same
 labels.
 
 Every node runs in its own process with LOCALHOST discovery in a domain id of this test's own
@@ -22,7 +22,7 @@ from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, star
 pytestmark = pytest.mark.ros
 
 SAMPLES = ['banana-fake/s0/p01', 'orange-real/s1/p02', 'banana-real/s1/p00', 'orange-fake/s0/p00']
-RECORDED = ['/illumination', '/image_raw', '/lightstage/result',
+RECORDED = ['/illumination', '/camera/image_raw', '/lightstage/result',
             '/lightstage/classify/_service_event', '/lightstage/apply_patterns/_service_event']
 
 
@@ -87,14 +87,14 @@ def test_sigterm_closes_a_complete_bag_and_reports_it(session):
     from lightstage_interfaces.msg import IlluminationState
     from sensor_msgs.msg import Image
     bag, report = session['bag'], session['report']
-    assert 'recorded ' in report and str(bag) in report and '/image_raw: ' in report, report
+    assert 'recorded ' in report and str(bag) in report and '/camera/image_raw: ' in report, report
     info = BagReader(bag).info(verify=True)
     assert info.complete and not info.problems and info.has_metadata_yaml
     counts = {t.name: t.count for t in info.topics.values()}
     calls = len(SAMPLES) + 1  # with the warm-up, which may be partly missing
     n_images = sum(a.images_used for a in session['answers'])
     assert n_images <= counts['/illumination'] <= n_images + 4
-    assert n_images <= counts['/image_raw'] <= n_images + 4
+    assert n_images <= counts['/camera/image_raw'] <= n_images + 4
     # one result per call: the observing mode did not classify the node's own calls again
     assert len(SAMPLES) <= counts['/lightstage/result'] <= calls
     # request received + response sent per call, for both services
@@ -104,7 +104,7 @@ def test_sigterm_closes_a_complete_bag_and_reports_it(session):
     reader = BagReader(bag)
     triggers = {t.sequence: _stamp(t) for t in (deserialize_message(m.data, IlluminationState)
                                                for m in reader.messages(['/illumination']))}
-    images = {_stamp(deserialize_message(m.data, Image)) for m in reader.messages(['/image_raw'])}
+    images = {_stamp(deserialize_message(m.data, Image)) for m in reader.messages(['/camera/image_raw'])}
     for r in _counted(bag):
         assert all(s in triggers and triggers[s] in images for s in r.sequences), r.sequences
     for t in info.topics.values():
@@ -147,7 +147,7 @@ def test_replay_into_an_observing_classifier_reproduces_the_labels(session, stag
                 for m in reader.messages(['/illumination'])]
     counted_stamps = {_stamp(t) for t in triggers if t.sequence in counted}
     log_times = {True: [], False: []}  # counted or not -> log times
-    for m in reader.messages(['/illumination', '/image_raw']):
+    for m in reader.messages(['/illumination', '/camera/image_raw']):
         kind = IlluminationState if m.topic == '/illumination' else Image
         log_times[_stamp(deserialize_message(m.data, kind)) in counted_stamps].append(m.log_time_ns)
     first_ns = min(log_times[True])

@@ -142,6 +142,10 @@ def play_parser() -> argparse.ArgumentParser:
                    help='wait S seconds before the first message (after --wait-for); lets a '
                         'subscriber that was just matched finish matching the player, so its '
                         'first messages are not lost')
+    p.add_argument('--remap', action='append', default=[], metavar='FROM:=TO',
+                   help='publish the bag\'s topic FROM on TO (a ROS remapping rule; repeatable), '
+                        'e.g. /image_raw:=/camera/image_raw for a bag recorded before the camera '
+                        'topics moved; --topics and --wait-for name the bag\'s topics')
     p.add_argument('--domain-id', type=int, default=None,
                    help='ROS_DOMAIN_ID (default: $ROS_DOMAIN_ID or 0)')
     return p
@@ -152,7 +156,9 @@ def play_main(argv: list[str] | None = None) -> int:
     prog = 'lightstage play'
     checks = [(0.01 <= args.rate <= 100, '--rate must be in 0.01..100'),
               (args.start_offset_s >= 0, '--start-offset-s must be >= 0'),
-              (args.wait_timeout_s >= 0, '--wait-timeout-s must be >= 0')]
+              (args.wait_timeout_s >= 0, '--wait-timeout-s must be >= 0'),
+              *((':=' in r and all(r.split(':=', 1)), f'--remap {r!r}: write FROM:=TO, e.g. '
+                 '/image_raw:=/camera/image_raw') for r in args.remap)]
     rc = _usage_error(args, prog, checks)
     if rc is not None:
         return rc
@@ -161,7 +167,9 @@ def play_main(argv: list[str] | None = None) -> int:
               'rate': float(args.rate), 'start_offset_s': float(args.start_offset_s),
               'loop': bool(args.loop), 'wait_for_subscribers': args.wait_for,
               'wait_timeout_s': float(args.wait_timeout_s), 'delay_s': float(args.delay_s)}
-    return player_node.run(args=['lightstage-play'], parameter_overrides=_params(values))
+    remap = [a for rule in args.remap for a in ('-r', rule)]
+    return player_node.run(args=['lightstage-play', *(['--ros-args', *remap] if remap else [])],
+                           parameter_overrides=_params(values))
 
 
 # ----------------------------------------------------------------------------- bag

@@ -1,7 +1,7 @@
 """The player node: a bag's messages back into the graph, as recorded.
 
     ros2 run lightstage_recording player --ros-args -p bag:=bags/sim_classify
-    lightstage play bags/sim_classify --topics /illumination /image_raw --wait-for /image_raw
+    lightstage play bags/sim_classify --topics /illumination /camera/image_raw --wait-for /camera/image_raw
 
 Every message is published as the recorded CDR bytes (`Publisher.publish(bytes)`, nothing is
 deserialized) on a publisher with the recorded QoS (`recording.playback_qos`), at the
