@@ -7,7 +7,7 @@ import pytest
 from lightstage_bringup.supervisor import Supervisor
 
 from lightstage_graph.stamps import stamp_to_ns
-from suite_helpers import RosClient, fresh_domain_id, start_nodes
+from suite_helpers import GraphClient, fresh_domain_id, start_nodes
 
 EMULATED_SERIALS = ('0815-0000', '0815-0001')   # PYLON_CAMEMU=2, set in conftest.py
 # pylon runs a POSIX timer that signals SIGALRM to a handler it installs when a camera opens;
@@ -32,7 +32,7 @@ def emulator_features(folder) -> list[str]:
     return [f'ImageFilename={folder}', 'ImageFileMode=On', 'TestImageSelector=Off']
 
 
-class CameraGraphClient(RosClient):
+class CameraGraphClient(GraphClient):
     """The test's participant: fires pattern sequences through the driver, collects the
     camera's images, camera_info, lost-frame notices and /diagnostics."""
 

@@ -20,7 +20,7 @@ from emulated_cameras import (EMULATED_SERIALS, PYLON_TIMEOUT, emulator_features
 from lightstage_camera.capture_format import load_capture
 from lightstage_camera.noise import load_noise_file
 from lightstage_camera.sim_camera import SimCamera, encode_mono16
-from suite_helpers import RosClient, fresh_domain_id, lightstage_command, start_nodes, write_params
+from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
 
@@ -32,7 +32,7 @@ def cli(*args, domain_id: int):
                           capture_output=True, text=True, timeout=300)
 
 
-class Client(RosClient):
+class Client(GraphClient):
     def __init__(self, domain_id):
         super().__init__(domain_id)
         from lightstage_interfaces.msg import IlluminationState
