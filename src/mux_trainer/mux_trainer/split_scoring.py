@@ -219,18 +219,61 @@ def _dot(u, v, k):
 
 
 @numba.njit(cache=True, nogil=True)
+def _delete_row(L, rows, r, k, v):
+    """Remove position r from the lower factor L[:k, :k] (L L' = A over rows[:k]): the rows
+    below move up without column r, and the trailing block absorbs the removed column as a
+    rank-one update, (k - r)^2 work instead of refactoring it."""
+    n2 = k - r - 1
+    for i in range(n2):
+        v[i] = L[r + 1 + i, r]
+    for p in range(r + 1, k):
+        rows[p - 1] = rows[p]
+        Lp, Lq = L[p], L[p - 1]
+        for j in range(r):
+            Lq[j] = Lp[j]
+        for j in range(r + 1, p + 1):
+            Lq[j - 1] = Lp[j]
+    for j in range(n2):
+        jj = r + j
+        Ljj = L[jj, jj]
+        rr = math.sqrt(Ljj * Ljj + v[j] * v[j])
+        cos = rr / Ljj
+        sin = v[j] / Ljj
+        L[jj, jj] = rr
+        for i in range(j + 1, n2):
+            ii = r + i
+            L[ii, jj] = (L[ii, jj] + sin * v[i]) / cos
+            v[i] = cos * v[i] - sin * L[ii, jj]
+
+
+@numba.njit(cache=True, nogil=True)
 def _restricted_solve(Kt, y, viol, order, lam, rows, k, L, z, target):
     """Newton target for the violators `viol` (m,): target_V solves (Kt_VV + lam I) x = y_V,
     0 elsewhere. `rows[:k]` and the lower factor `L[:k, :k]` (L L' = Kt_VV + lam I over those
-    rows, in that order) and `z[:k]` (L z = y) are those of the previous call: the leading rows
-    still in V are kept, the rest of V is appended in `order`. Returns the new k."""
+    rows, in that order) and `z[:k]` (L z = y) are those of the previous call: the rows that
+    left V are deleted (rank-one updates; or, when that would cost more, the factor is cut at
+    the first of them), the rest of V is appended in `order`. Returns the new k."""
     m = y.size
-    keep = 0
-    while keep < k and viol[rows[keep]]:
-        keep += 1
-    k = keep
+    n_new = 0
+    for i in range(m):
+        n_new += viol[i]
+    first_left = k
+    delete_cost = 0
+    for p in range(k - 1, -1, -1):
+        if not viol[rows[p]]:
+            first_left = p
+            delete_cost += 3 * (k - p) * (k - p)
+    if first_left < k:
+        if 6 * delete_cost < n_new ** 3 - first_left ** 3:
+            for p in range(k - 1, first_left - 1, -1):
+                if not viol[rows[p]]:
+                    _delete_row(L, rows, p, k, target)
+                    k -= 1
+        else:
+            k = first_left
+    changed = min(first_left, k)
     kept = np.zeros(m, dtype=np.bool_)
-    for p in range(keep):
+    for p in range(k):
         kept[rows[p]] = True
     for oi in range(m):                       # append V's other samples in `order`
         i = order[oi]
@@ -241,8 +284,9 @@ def _restricted_solve(Kt, y, viol, order, lam, rows, k, L, z, target):
         for p in range(k):                    # L[k, p] = (A[i, rows[p]] - L[k,:p].L[p,:p]) / L[p, p]
             Li[p] = (Kt[i, rows[p]] - _dot(Li, L[p], p)) / L[p, p]
         Li[k] = math.sqrt(Kt[i, i] + lam - _dot(Li, Li, k))
-        z[k] = (y[i] - _dot(Li, z, k)) / Li[k]
         k += 1
+    for p in range(changed, k):               # L z = y_V from the first changed row
+        z[p] = (y[rows[p]] - _dot(L[p], z, p)) / L[p, p]
     x = target                                 # L' x = z, column by column (contiguous rows)
     w = np.empty(k)
     w[:] = z[:k]
