@@ -21,8 +21,11 @@ The features of [1] are timed three ways on the same noisy images of one candida
 compiled kernel (`hog_batch`, the search's), the pure-numpy reference (`hog_batch_numpy`,
 the search's extractor before the kernel) and skimage (on --skimage-images images, scaled).
 
+With --old-svm REV, [1] also times the exact SVM of git revision REV (e.g. e656e38, before
+the Newton loop moved into one compiled kernel) on the same candidates, interleaved.
+
 Usage (what docs/SEARCH.md reports; [3] adds ~20 min, so it is skipped here):
-    .venv/bin/python benchmarks/bench_search.py --jobs 2 --skip-check [--capture DIR]
+    .venv/bin/python benchmarks/bench_search.py --jobs 2 --skip-check [--capture DIR] [--old-svm REV]
 Without --capture the synthetic dataset (the same as `make demo`'s) is generated once into
 .cache/bench_synth (`lightstage synth`, about 2-3 minutes on 2 cores). Timings on a machine
 shared with other work are inflated: the load average is printed at the start and the end.
@@ -76,6 +79,22 @@ def fmt_breakdown(t: dict, n: int, scale_classifier: float = 1.0) -> str:
     return ', '.join(f'{k} {v:8.1f} ms' for k, v in parts.items())
 
 
+def revision_module(rev: str, path: str):
+    """The module at `path` as of git revision `rev` of this repository (for timing an old
+    implementation next to the current one)."""
+    import importlib.util
+    import subprocess
+    import tempfile
+    text = subprocess.run(['git', '-C', str(ROOT), 'show', f'{rev}:{path}'], check=True,
+                          capture_output=True, text=True).stdout
+    file = Path(tempfile.mkdtemp()) / f'{Path(path).stem}_{rev}.py'
+    file.write_text(text)
+    spec = importlib.util.spec_from_file_location(file.stem, file)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def sites_subset(data: SearchData, n_sites: int) -> SearchData:
     return dataclasses.replace(data, basis=data.basis[:n_sites])
 
@@ -92,6 +111,8 @@ def main(argv=None) -> int:
     p.add_argument('--check-sites', type=int, default=6)
     p.add_argument('--check-splits', type=int, default=20)
     p.add_argument('--check-columns', type=int, default=2)
+    p.add_argument('--old-svm', metavar='REV',
+                   help='also time the exact SVM of git revision REV on the same candidates')
     p.add_argument('--skip-full', action='store_true', help='skip the full default search')
     p.add_argument('--skip-check', action='store_true', help='skip the reduced-problem check')
     p.add_argument('--skimage-images', type=int, default=40,
@@ -168,6 +189,30 @@ def main(argv=None) -> int:
     print(f'  exact SVM  : {1e3 * svm_total:9.1f} ms   per refined candidate '
           f'({fmt_breakdown(t_svm, n_svm)}: LinearSVC\'s problem solved exactly for all '
           f'{PAPER_SPLITS} splits); the race refines 16 to 64 of 254 per column (counts in [2])')
+    if args.old_svm:
+        # the same candidates scored by the exact SVM of another revision, interleaved with
+        # this one's so that both see the same load
+        old = revision_module(args.old_svm, 'src/mux_trainer/mux_trainer/split_scoring.py')
+        scorers = {'this': SquaredHingeSplitScorer(), args.old_svm: old.SquaredHingeSplitScorer()}
+        for scorer in scorers.values():   # compile (or load) the kernels outside the timing
+            score_candidate_chunk(data, dataclasses.replace(ctx, scorer=scorer,
+                                                            test_masks=ctx.test_masks[:2]),
+                                  W[:, :1])
+        cpu = dict.fromkeys(scorers, 0.0)
+        same = True
+        for j in range(n_svm):
+            acc = {}
+            for name, scorer in scorers.items():
+                t = {}
+                acc[name] = score_candidate_chunk(
+                    data, dataclasses.replace(ctx, scorer=scorer), W[:, j:j + 1], timings=t)
+                cpu[name] += t['classifier']
+            same &= np.array_equal(*acc.values())
+        print(f'  exact SVM classifier, this revision vs {args.old_svm} on the same {n_svm} '
+              f'candidates (interleaved): ' + ' vs '.join(
+                  f'{1e3 * v / n_svm:.1f} ms' for v in cpu.values())
+              + f' per candidate ({cpu[args.old_svm] / cpu["this"]:.2f}x); identical split '
+              f'accuracies: {same}')
 
     # 1b. straightforward reference on a few candidates, classifier on fewer splits
     t_ref: dict = {}

@@ -114,3 +114,42 @@ def test_squared_hinge_warns_and_keeps_the_last_iterate_when_out_of_steps():
     with pytest.warns(ConvergenceWarning, match='not converged after 1 Newton steps'):
         acc = SquaredHingeSplitScorer(max_iter=1).split_accuracies(y, masks[:4], X=X)
     assert acc.shape == (4,)
+
+
+def _recorded_problem(seed):
+    """10 classes x 20 poses, 300 features: the search's shape (200 samples, 400 splits of
+    25 % of the poses), at accuracies like the search's."""
+    rng = np.random.default_rng(seed)
+    y = np.repeat(np.arange(10), 20)
+    X = rng.normal(size=(y.size, 300))
+    X[:, :10] += 5.0 * np.eye(10)[y]
+    return X, y, pose_splits(np.tile(np.arange(20), 10), 40, 0.25, rng=seed)
+
+
+# recorded from the implementation before the Newton loop moved into one compiled kernel
+# (per-step batched numpy with a fresh Cholesky solve per step): correct test predictions
+# (of 50) of the first 40 splits, and the decision values of the first three test samples of
+# split 0 (classifier trained on its 150 training samples from the ridge start)
+RECORDED_SQUARED_HINGE = {
+    11: ([45, 47, 45, 46, 44, 42, 42, 46, 38, 47, 40, 40, 47, 44, 45, 46, 44, 43, 43, 43, 46, 44, 43, 44, 43, 46, 46, 49, 46, 45, 43, 43, 46, 45, 42, 45, 44, 48, 44, 44],
+         [[0.8589894594, -0.9837841337, -0.4943647122, -0.3904344944, -0.7344430662, -0.2746928785, -0.6872013141, -0.8940414711, -0.1293784143, -0.459547764], [0.243458966, -1.1991018095, -1.4370163012, -0.7385771038, -0.9727167087, -1.3005683802, -1.4727416027, -1.2348418946, -1.6169098468, -0.9548143013], [1.0896510431, 0.4076824904, -1.0540778855, 0.4094635899, -0.4539257613, 0.2857327939, 0.1174274848, 0.1814088273, -0.6242826085, 0.1443233706]]),
+    12: ([48, 46, 48, 41, 47, 44, 44, 41, 46, 47, 48, 43, 47, 48, 46, 43, 44, 46, 44, 42, 47, 45, 45, 46, 45, 43, 46, 43, 42, 45, 44, 42, 45, 44, 45, 45, 46, 48, 45, 44],
+         [[0.8569652167, -1.5813601605, -1.1396767189, 0.1907321311, -0.5831643015, -0.7014564918, -0.6310414189, -0.8465893287, -0.5718001127, -0.6091120528], [0.1311098433, -0.366077412, -1.0689706332, -1.0192973185, -0.9944135565, -0.5775776662, -1.5340455567, -0.7651635019, -0.6308425354, -0.7782939848], [1.1795498932, -0.5670029198, -0.6647440435, -0.6759257645, 0.2834430795, -0.4405364193, -0.7792009353, -0.095033562, 0.2636670949, -0.1153582947]]),
+}
+
+
+@pytest.mark.parametrize('seed', sorted(RECORDED_SQUARED_HINGE))
+def test_squared_hinge_gives_the_recorded_accuracies_and_decision_values(seed):
+    X, y, masks = _recorded_problem(seed)
+    correct, decision = RECORDED_SQUARED_HINGE[seed]
+    K = X @ X.T
+    acc = SquaredHingeSplitScorer().split_accuracies(y, masks, K=K)
+    np.testing.assert_array_equal(np.round(acc * 50).astype(int), correct)
+    m = masks[0]
+    train, test = np.flatnonzero(~m), np.flatnonzero(m)[:3]
+    Kb = K + 1.0
+    Y = -np.ones((1, train.size, 10))
+    Y[0, np.arange(train.size), y[train]] = 1
+    a = SquaredHingeSplitScorer().fit_kernels(Kb[np.ix_(train, train)][None], Y)[0]
+    # the same optimum by another path: rounding (~1e-12 here) times the conditioning
+    np.testing.assert_allclose(Kb[np.ix_(test, train)] @ a, decision, rtol=0, atol=1e-8)

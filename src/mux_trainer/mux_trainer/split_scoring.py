@@ -103,31 +103,34 @@ class SquaredHingeSplitScorer:
     violators (y_i (Kt a)_i < 1) and N the rest, the Newton target solves
     `(Kt_VV + lam I) a_V = y_V`, a_N = 0, and an exact line search toward it keeps the
     objective decreasing. It stops when a full step leaves the violators unchanged (the
-    optimum; usually 4-6 steps) or the gradient vanishes. The start is the ridge solution
-    (every sample a violator). Each (split, class) target costs one solve over the smaller of
-    V and N: directly over V, or over N through the split's ridge inverse
-    `H = (Kt + lam I)^-1` as `a = H r` with r = y on V and `H_NN r_N = -(H r)_N` on N.
-    Problems are batched by the size of that solve.
+    optimum) or the gradient vanishes. Whatever the path, the result is the restricted solution
+    of the final violator set, so the path only decides the cost.
+
+    The whole Newton loop of one (split, class) problem runs in one compiled kernel
+    (`_newton_kernel`, numba). The Cholesky factor of `Kt_VV + lam I` is kept between steps:
+    V is factored in a fixed order of the samples (most violating first, from the SVM trained
+    on all samples), so the samples that enter or leave V between steps, which sit near the
+    margin, are mostly at the end of the factor; the leading rows up to the first sample that
+    left are kept (a leading block's factor is the leading part of the factor) and only the
+    rest is appended, row by row. Each split starts from the violators of the SVM trained on
+    all samples (most splits keep most of them).
 
     A class absent from a split's training set gets all -1 targets (it can still win the
     argmax, as with ridge; LinearSVC would never predict it). Pose splits keep every class.
 
     C : as LinearSVC's. tol : gradient tolerance relative to the conditioning bound
     `1 + |Kt|_inf / lam`. max_iter : Newton steps before a ConvergenceWarning (the current
-    solution is then used, as LinearSVC does). split_block : splits solved together (memory
-    is ~5 x split_block x m^2 floats for m training samples).
+    solution is then used, as LinearSVC does).
     """
 
     needs_features = False
 
-    def __init__(self, C: float = 1.0, tol: float = 1e-12, max_iter: int = 50,
-                 split_block: int = 100):
+    def __init__(self, C: float = 1.0, tol: float = 1e-12, max_iter: int = 50):
         if C <= 0:
             raise ValueError(f'C must be > 0, got {C}')
         self.C = C
         self.tol = tol
         self.max_iter = max_iter
-        self.split_block = split_block
 
     def split_accuracies(self, labels: np.ndarray, test_masks: list[np.ndarray], *,
                          K: np.ndarray | None = None, X: np.ndarray | None = None,
@@ -140,214 +143,291 @@ class SquaredHingeSplitScorer:
         labels = np.asarray(labels)
         n_classes = int(labels.max()) + 1 if n_classes is None else n_classes
         Y = _pm_one_targets(labels, n_classes)
-        Kb = np.asarray(K, dtype=np.float64) + 1.0  # bias feature of value 1 (intercept_scaling)
+        Kb = np.ascontiguousarray(np.asarray(K, dtype=np.float64) + 1.0)  # bias feature of value 1
         n = labels.size
-        lam = 1.0 / (2.0 * self.C)
-        G = np.linalg.inv(Kb + lam * np.eye(n))
-        # warm start: each split's problem begins at the solution for the margin violators
-        # of the SVM trained on all samples (most splits keep most of them), so it usually
-        # needs one or two Newton steps instead of four to six from the ridge solution
-        a_all = self.fit_kernels(Kb[None], Y[None], H=G[None])[0]
-        start = Y * (Kb @ a_all) < 1
+        # warm start and factor order: the SVM trained on all samples; each split starts at
+        # its violators, and the samples enter the factor most violating first
+        a_all = self._fit(Kb, np.arange(n)[None], Y, np.ones(Y.shape, dtype=bool),
+                          np.zeros(Y.shape))[0]
+        margin = Y * (Kb @ a_all)
+        start = margin < 1
         acc = np.empty(len(test_masks))
         sizes = np.array([int(np.sum(m)) for m in test_masks])
-        for size, T_all in _group_by_size(test_masks).items():
-            group_acc = []
-            for b in range(0, T_all.shape[0], self.split_block):
-                T = T_all[b:b + self.split_block]
-                keep = np.ones((T.shape[0], n), dtype=bool)
-                keep[np.arange(T.shape[0])[:, None], T] = False
-                train = np.nonzero(keep)[1].reshape(T.shape[0], n - size)
-                # each split's (Kt + lam I)^-1 from the inverse over all samples: the inverse of
-                # a principal block is G_TT - G_TS G_SS^-1 G_ST (a small solve over the test set)
-                G_TS = G[train[:, :, None], T[:, None, :]]
-                H = G[train[:, :, None], train[:, None, :]] - G_TS @ np.linalg.solve(
-                    G[T[:, :, None], T[:, None, :]], G_TS.transpose(0, 2, 1))
-                a = self.fit_kernels(Kb[train[:, :, None], train[:, None, :]], Y[train], H=H,
-                                     start=start[train])
-                scores = Kb[T[:, :, None], train[:, None, :]] @ a   # (splits, test, classes)
-                group_acc.append(np.mean(np.argmax(scores, axis=2) == labels[T], axis=1))
-            acc[sizes == size] = np.concatenate(group_acc)
+        for size in np.unique(sizes):
+            where = np.flatnonzero(sizes == size)
+            masks = np.stack([np.asarray(test_masks[i], dtype=bool) for i in where])
+            T = np.nonzero(masks)[1].reshape(where.size, size)
+            train = np.nonzero(~masks)[1].reshape(where.size, n - size)
+            a = self._fit(Kb, train, Y, start, margin)
+            scores = Kb[T[:, :, None], train[:, None, :]] @ a   # (splits, test, classes)
+            acc[where] = np.mean(np.argmax(scores, axis=2) == labels[T], axis=1)
         return acc
 
-    def fit_kernels(self, Kt: np.ndarray, Y: np.ndarray, H: np.ndarray | None = None,
+    def fit_kernels(self, Kt: np.ndarray, Y: np.ndarray,
                     start: np.ndarray | None = None) -> np.ndarray:
-        """Coefficients a (S, m, c) for training kernels Kt (S, m, m), +-1 targets Y (S, m, c);
-        H: (Kt + lam I)^-1 if already known. start: None to start from the ridge solution
-        (every sample a violator), or a guess (S, m, c) of the margin violators at the
-        optimum to start from their restricted ridge solution (any start converges to the
-        same optimum; a good guess saves Newton steps)."""
-        lam = 1.0 / (2.0 * self.C)
-        m = Kt.shape[1]
-        if H is None:
-            H = np.linalg.inv(Kt + lam * np.eye(m))
-        if start is None:
-            solved_for = np.ones(Y.shape, dtype=bool)      # violators of the last full step
-            a = H @ Y                                      # ridge: every sample a violator
+        """Coefficients a (S, m, c) for training kernels Kt (S, m, m) and +-1 targets
+        Y (S, m, c). start: None to start from the ridge solution (every sample a violator),
+        or a guess (S, m, c) of the margin violators at the optimum (any start converges to
+        the same optimum; a good guess saves Newton steps)."""
+        S, m, c = Y.shape
+        start = np.ones(Y.shape, dtype=bool) if start is None else np.asarray(start, dtype=bool)
+        return np.concatenate([
+            self._fit(np.ascontiguousarray(Kt[s], dtype=np.float64), np.arange(m)[None],
+                      np.asarray(Y[s], dtype=np.float64), start[s], np.zeros((m, c)))
+            for s in range(S)])
+
+    def _fit(self, K, train, Y, start, priority) -> np.ndarray:
+        """Coefficients (S, m, c) of the problems on the training sets `train` (S, m) of the
+        kernel K (n, n, bias included), targets Y (n, c), starting at the violators `start`
+        (n, c) and factoring samples in increasing `priority` (n, c)."""
+        coef = np.zeros(train.shape + (Y.shape[1],))
+        unconverged = _newton_kernel(
+            K, np.ascontiguousarray(train, dtype=np.int64), np.ascontiguousarray(Y, dtype=np.float64),
+            np.ascontiguousarray(start, dtype=np.bool_),
+            np.ascontiguousarray(priority, dtype=np.float64), 1.0 / (2.0 * self.C),
+            float(self.tol), int(self.max_iter), coef)
+        if unconverged:
+            import warnings
+            from sklearn.exceptions import ConvergenceWarning
+            warnings.warn(f'squared-hinge SVM: {unconverged} of {coef.shape[0] * coef.shape[2]} '
+                          f'problems not converged after {self.max_iter} Newton steps; using '
+                          'the last iterate (raise max_iter, or lower C)', ConvergenceWarning,
+                          stacklevel=3)
+        return coef
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
+def _dot(u, v, k):
+    """sum u[i] v[i] for i < k, in eight interleaved partial sums (a fixed order: the same bits
+    on every CPU, without one long chain of dependent additions)."""
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
+    i = 0
+    while i + 8 <= k:
+        s0 += u[i] * v[i]
+        s1 += u[i + 1] * v[i + 1]
+        s2 += u[i + 2] * v[i + 2]
+        s3 += u[i + 3] * v[i + 3]
+        s4 += u[i + 4] * v[i + 4]
+        s5 += u[i + 5] * v[i + 5]
+        s6 += u[i + 6] * v[i + 6]
+        s7 += u[i + 7] * v[i + 7]
+        i += 8
+    while i < k:
+        s0 += u[i] * v[i]
+        i += 1
+    return ((s0 + s4) + (s1 + s5)) + ((s2 + s6) + (s3 + s7))
+
+
+@numba.njit(cache=True, nogil=True)
+def _delete_row(L, rows, r, k, v):
+    """Remove position r from the lower factor L[:k, :k] (L L' = A over rows[:k]): the rows
+    below move up without column r, and the trailing block absorbs the removed column as a
+    rank-one update, (k - r)^2 work instead of refactoring it."""
+    n2 = k - r - 1
+    for i in range(n2):
+        v[i] = L[r + 1 + i, r]
+    for p in range(r + 1, k):
+        rows[p - 1] = rows[p]
+        Lp, Lq = L[p], L[p - 1]
+        for j in range(r):
+            Lq[j] = Lp[j]
+        for j in range(r + 1, p + 1):
+            Lq[j - 1] = Lp[j]
+    for j in range(n2):
+        jj = r + j
+        Ljj = L[jj, jj]
+        rr = math.sqrt(Ljj * Ljj + v[j] * v[j])
+        cos = rr / Ljj
+        sin = v[j] / Ljj
+        L[jj, jj] = rr
+        for i in range(j + 1, n2):
+            ii = r + i
+            L[ii, jj] = (L[ii, jj] + sin * v[i]) / cos
+            v[i] = cos * v[i] - sin * L[ii, jj]
+
+
+@numba.njit(cache=True, nogil=True)
+def _restricted_solve(Kt, y, viol, order, lam, rows, k, L, z, target):
+    """Newton target for the violators `viol` (m,): target_V solves (Kt_VV + lam I) x = y_V,
+    0 elsewhere. `rows[:k]` and the lower factor `L[:k, :k]` (L L' = Kt_VV + lam I over those
+    rows, in that order) and `z[:k]` (L z = y) are those of the previous call: the rows that
+    left V are deleted (rank-one updates; or, when that would cost more, the factor is cut at
+    the first of them), the rest of V is appended in `order`. Returns the new k."""
+    m = y.size
+    n_new = 0
+    for i in range(m):
+        n_new += viol[i]
+    first_left = k
+    delete_cost = 0
+    for p in range(k - 1, -1, -1):
+        if not viol[rows[p]]:
+            first_left = p
+            delete_cost += 3 * (k - p) * (k - p)
+    if first_left < k:
+        if 6 * delete_cost < n_new ** 3 - first_left ** 3:
+            for p in range(k - 1, first_left - 1, -1):
+                if not viol[rows[p]]:
+                    _delete_row(L, rows, p, k, target)
+                    k -= 1
         else:
-            solved_for = np.asarray(start, dtype=bool)
-            a = self._newton_targets(Kt, H, Y, solved_for,
-                                     np.ones((Y.shape[0], Y.shape[2]), dtype=bool), lam)
-        out = Kt @ a
-        tol = self.tol * (1.0 + np.abs(Kt).sum(axis=2).max(axis=1) / lam)[:, None]   # (S, 1)
-        stalled = np.zeros((Y.shape[0], Y.shape[2]), dtype=bool)
-        for _ in range(self.max_iter):
-            viol = Y * out < 1
-            grad = lam * a + np.where(viol, out - Y, 0.0)
-            todo = ((np.abs(grad).max(axis=1) > tol)
-                    & ~np.all(viol == solved_for, axis=1) & ~stalled)      # (S, c)
-            if not todo.any():
-                return a
-            target = self._newton_targets(Kt, H, Y, viol, todo, lam)
-            d = np.where(todo[:, None, :], target - a, 0.0)
-            Kd = Kt @ d
-            t = self._line_search(a, d, out, Kd, Y, lam)
-            # a Newton direction that does not descend means rounding dominates (an
-            # ill-conditioned kernel at a large C): the iterate is as good as it gets
-            stalled |= todo & (t == 0)
-            t = t[:, None, :]
-            a += t * d
-            out += t * Kd
-            solved_for = np.where(t == 1.0, viol, ~viol)   # after a partial step: none known
-        import warnings
-        from sklearn.exceptions import ConvergenceWarning
-        warnings.warn(f'squared-hinge SVM: {int(todo.sum())} of {todo.size} problems not '
-                      f'converged after {self.max_iter} Newton steps; using the last iterate '
-                      '(raise max_iter, or lower C)', ConvergenceWarning, stacklevel=3)
-        return a
-
-    @staticmethod
-    def _newton_targets(Kt, H, Y, viol, todo, lam) -> np.ndarray:
-        """Each todo problem's restricted ridge solution (a_V solves (Kt_VV + lam I) a_V =
-        y_V, a_N = 0), computed over the smaller of V and N (compiled: `_targets_kernel`)."""
-        target = np.zeros(Y.shape)
-        _targets_kernel(np.ascontiguousarray(Kt, dtype=np.float64),
-                        np.ascontiguousarray(H, dtype=np.float64),
-                        np.ascontiguousarray(Y, dtype=np.float64),
-                        np.ascontiguousarray(viol, dtype=np.bool_),
-                        np.ascontiguousarray(todo, dtype=np.bool_), float(lam), target)
-        return target
-
-    @staticmethod
-    def _line_search(a, d, out, Kd, Y, lam, bisections: int = 30) -> np.ndarray:
-        """The step t in (0, 1] minimising the objective along d, per problem (S, c).
-
-        The objective is convex and piecewise quadratic in t, so its slope is increasing: a
-        full step is taken where the slope is still <= 0 at t = 1, the rest are bisected; 0
-        where d does not descend at all.
-        """
-        def rows(x):                                       # (S, m, c) -> (S * c, m)
-            return x.transpose(0, 2, 1).reshape(-1, x.shape[1])
-
-        a1 = np.sum(a * Kd, axis=1).ravel()               # a'Kd, per problem
-        a2 = np.sum(d * Kd, axis=1).ravel()               # d'Kd
-        margin, yq = rows(1.0 - Y * out), rows(Y * Kd)
-
-        def slope(t, p):                                   # half the objective's slope at t
-            return lam * (a1[p] + t * a2[p]) - np.sum(
-                np.maximum(margin[p] - t[:, None] * yq[p], 0.0) * yq[p], axis=1)
-
-        t = np.ones(a1.size)
-        p = np.flatnonzero(slope(t, slice(None)) > 0)
-        if p.size:
-            lo, hi = np.zeros(p.size), np.ones(p.size)
-            for _ in range(bisections):
-                mid = 0.5 * (lo + hi)
-                up = slope(mid, p) > 0
-                hi = np.where(up, mid, hi)
-                lo = np.where(up, lo, mid)
-            ascent = slope(np.zeros(p.size), p) >= 0         # not a descent direction: t = 0
-            t[p] = np.where(ascent, 0.0, 0.5 * (lo + hi))
-        return t.reshape(a.shape[0], a.shape[2])
+            k = first_left
+    changed = min(first_left, k)
+    kept = np.zeros(m, dtype=np.bool_)
+    for p in range(k):
+        kept[rows[p]] = True
+    for oi in range(m):                       # append V's other samples in `order`
+        i = order[oi]
+        if not viol[i] or kept[i]:
+            continue
+        rows[k] = i
+        Li = L[k]
+        for p in range(k):                    # L[k, p] = (A[i, rows[p]] - L[k,:p].L[p,:p]) / L[p, p]
+            Li[p] = (Kt[i, rows[p]] - _dot(Li, L[p], p)) / L[p, p]
+        Li[k] = math.sqrt(Kt[i, i] + lam - _dot(Li, Li, k))
+        k += 1
+    for p in range(changed, k):               # L z = y_V from the first changed row
+        z[p] = (y[rows[p]] - _dot(L[p], z, p)) / L[p, p]
+    x = target                                 # L' x = z, column by column (contiguous rows)
+    w = np.empty(k)
+    w[:] = z[:k]
+    for i in range(m):
+        x[i] = 0.0
+    for p in range(k - 1, -1, -1):
+        xp = w[p] / L[p, p]
+        x[rows[p]] = xp
+        Lp = L[p]
+        for j in range(p):
+            w[j] -= xp * Lp[j]
+    return k
 
 
 @numba.njit(cache=True, nogil=True)
-def _cholesky_solve(A, b, k):
-    """Solve A x = b for the symmetric positive definite A[:k, :k] (upper triangle used,
-    overwritten by its Cholesky factor U, A = U'U); b[:k] becomes x. Row-oriented updates
-    (contiguous, vectorizable without reordering any sum: the same bits on every CPU)."""
-    for j in range(k):
-        d = math.sqrt(A[j, j])
-        for i in range(j, k):
-            A[j, i] /= d
-        for p in range(j + 1, k):
-            f = A[j, p]
-            for i in range(p, k):
-                A[p, i] -= f * A[j, i]
-    for j in range(k):                       # U' z = b
-        b[j] /= A[j, j]
-        z = b[j]
-        for i in range(j + 1, k):
-            b[i] -= A[j, i] * z
-    for j in range(k - 1, -1, -1):           # U x = z
-        acc = b[j]
-        for i in range(j + 1, k):
-            acc -= A[j, i] * b[i]
-        b[j] = acc / A[j, j]
-
-
-@numba.njit(cache=True, nogil=True)
-def _targets_kernel(Kt, H, Y, viol, todo, lam, target):
-    """`SquaredHingeSplitScorer._newton_targets` for every todo (split, class) problem, one at
-    a time: gather the smaller of the violator / non-violator blocks, solve it by Cholesky.
-    Over N: r = y on V, 0 on N; r_N = -H_NN^-1 (H r)_N; target = H r (H symmetric, so H r is
-    a sum of rows of H). Over V: target_V = (Kt_VV + lam I)^-1 y_V, target_N = 0."""
-    S, m, c = Y.shape
-    A = np.empty((m, m))
-    idx = np.empty(m, dtype=np.int64)
-    rhs = np.empty(m)
-    r = np.empty(m)
-    acc = np.empty(m)
+def _newton_kernel(K, train, Y, start, priority, lam, tol_rel, max_iter, coef):
+    """`SquaredHingeSplitScorer._fit`: the finite Newton method for every (split, class)
+    problem, one at a time, each step's restricted solve by `_restricted_solve` (the factor
+    kept between steps) and an exact line search by bisection of the objective's slope.
+    Returns the number of problems not converged within max_iter steps."""
+    S, m = train.shape
+    c = Y.shape[1]
+    Kt = np.empty((m, m))
+    L = np.empty((m, m))
+    z = np.empty(m)
+    rows = np.empty(m, dtype=np.int64)
+    y = np.empty(m)
+    key = np.empty(m)
+    viol = np.empty(m, dtype=np.bool_)
+    solved_for = np.empty(m, dtype=np.bool_)
+    a = np.empty(m)
+    out = np.empty(m)
+    target = np.empty(m)
+    d = np.empty(m)
+    Kd = np.empty(m)
+    margin = np.empty(m)
+    yq = np.empty(m)
+    unconverged = 0
     for s in range(S):
-        Hs = H[s]
+        tr = train[s]
+        norm = 0.0
+        for i in range(m):
+            row_sum = 0.0
+            for j in range(m):
+                Kt[i, j] = K[tr[i], tr[j]]
+                row_sum += abs(Kt[i, j])
+            norm = max(norm, row_sum)
+        tol = tol_rel * (1.0 + norm / lam)
         for q in range(c):
-            if not todo[s, q]:
-                continue
-            n_viol = 0
             for i in range(m):
-                n_viol += viol[s, i, q]
-            k = 0
-            if n_viol >= m - n_viol:
+                y[i] = Y[tr[i], q]
+                key[i] = priority[tr[i], q]
+                viol[i] = start[tr[i], q]
+            order = np.argsort(key, kind='mergesort')
+            k = _restricted_solve(Kt, y, viol, order, lam, rows, 0, L, z, target)
+            a[:] = target
+            _matvec_support(Kt, a, out)
+            solved_for[:] = viol
+            converged = False
+            for _ in range(max_iter):
+                big_grad = False
+                same = True
                 for i in range(m):
-                    if viol[s, i, q]:
-                        r[i] = Y[s, i, q]
-                    else:
-                        r[i] = 0.0
-                        idx[k] = i
-                        k += 1
-                acc[:] = 0.0
-                for j in range(m):
-                    if r[j] != 0.0:
-                        rj = r[j]
-                        for i in range(m):
-                            acc[i] += rj * Hs[j, i]
-                if k:
-                    for a in range(k):
-                        rhs[a] = -acc[idx[a]]
-                        for b in range(a, k):
-                            A[a, b] = Hs[idx[a], idx[b]]
-                    _cholesky_solve(A, rhs, k)
-                    for a in range(k):
-                        ra = rhs[a]
-                        row = idx[a]
-                        for i in range(m):
-                            acc[i] += ra * Hs[row, i]
+                    viol[i] = y[i] * out[i] < 1.0
+                    g = lam * a[i] + (out[i] - y[i] if viol[i] else 0.0)
+                    if abs(g) > tol:
+                        big_grad = True
+                    if viol[i] != solved_for[i]:
+                        same = False
+                if not big_grad or same:
+                    converged = True
+                    break
+                k = _restricted_solve(Kt, y, viol, order, lam, rows, k, L, z, target)
                 for i in range(m):
-                    target[s, i, q] = acc[i]
-            else:
+                    d[i] = target[i] - a[i]
+                _matvec_support(Kt, d, Kd)
+                t = _line_search(a, d, out, Kd, y, lam, margin, yq)
+                if t == 0.0:
+                    # a Newton direction that does not descend means rounding dominates (an
+                    # ill-conditioned kernel at a large C): the iterate is as good as it gets
+                    converged = True
+                    break
                 for i in range(m):
-                    target[s, i, q] = 0.0
-                    if viol[s, i, q]:
-                        idx[k] = i
-                        k += 1
-                for a in range(k):
-                    rhs[a] = Y[s, idx[a], q]
-                    for b in range(a, k):
-                        A[a, b] = Kt[s, idx[a], idx[b]]
-                    A[a, a] += lam
-                _cholesky_solve(A, rhs, k)
-                for a in range(k):
-                    target[s, idx[a], q] = rhs[a]
+                    a[i] += t * d[i]
+                    out[i] += t * Kd[i]
+                    # after a partial step the violators of the iterate are not known
+                    solved_for[i] = viol[i] if t == 1.0 else not viol[i]
+            if not converged:
+                unconverged += 1
+            for i in range(m):
+                coef[s, i, q] = a[i]
+    return unconverged
+
+
+@numba.njit(cache=True, nogil=True)
+def _matvec_support(Kt, v, out):
+    """out = Kt v (Kt symmetric), over the nonzeros of v only, row by row (contiguous)."""
+    m = v.size
+    out[:] = 0.0
+    for j in range(m):
+        vj = v[j]
+        if vj != 0.0:
+            Kj = Kt[j]
+            for i in range(m):
+                out[i] += vj * Kj[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def _line_search(a, d, out, Kd, y, lam, margin, yq, bisections=30):
+    """The step t in (0, 1] minimising the objective along d: it is convex and piecewise
+    quadratic in t, so its slope is increasing; a full step where the slope is still <= 0 at
+    t = 1, else bisection; 0 where d does not descend at all."""
+    m = a.size
+    a1 = _dot(a, Kd, m)                       # a'Kd
+    a2 = _dot(d, Kd, m)                       # d'Kd
+    for i in range(m):
+        margin[i] = 1.0 - y[i] * out[i]
+        yq[i] = y[i] * Kd[i]
+    if _slope(1.0, a1, a2, margin, yq, lam) <= 0.0:
+        return 1.0
+    if _slope(0.0, a1, a2, margin, yq, lam) >= 0.0:
+        return 0.0
+    lo, hi = 0.0, 1.0
+    for _ in range(bisections):
+        mid = 0.5 * (lo + hi)
+        if _slope(mid, a1, a2, margin, yq, lam) > 0.0:
+            hi = mid
+        else:
+            lo = mid
+    return 0.5 * (lo + hi)
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
+def _slope(t, a1, a2, margin, yq, lam):
+    """Half the objective's slope at step t."""
+    s = 0.0
+    for i in range(margin.size):
+        r = margin[i] - t * yq[i]
+        if r > 0.0:
+            s += r * yq[i]
+    return lam * (a1 + t * a2) - s
 
 
 class LinearSvcSplitScorer:
