@@ -18,52 +18,18 @@ distributed = pytest.importorskip('distributed')
 from mux_trainer.cli import train_main  # noqa: E402
 from mux_trainer.cluster import ClusterUnavailable, DaskCluster, dask_cluster  # noqa: E402
 
-DASK = [sys.executable, '-m', 'dask']  # this venv's (a copied venv's scripts may name another)
+from dask_helpers import start_cluster, start_scheduler  # noqa: E402
+
 LIGHTSTAGE = str(Path(sys.executable).parent / 'lightstage')
-START_TIMEOUT_S = 120  # a process start on a loaded 2-core machine; not a timed assertion
 # small search on the suite's stage capture (4 classes, 120 px): 2 columns, both kept
 SEARCH = ['--repeats', '4', '--max-images', '2', '--fixed-count', '--refine-top', '2',
           '--seed', '3', '--json', '--quiet']
 
 
-def _start(request, args, log):
-    proc = subprocess.Popen(args, stdout=log.open('wb'), stderr=subprocess.STDOUT,
-                            start_new_session=True)
-
-    def stop():
-        if proc.poll() is None:
-            proc.kill()
-        proc.wait(timeout=30)
-    request.addfinalizer(stop)
-    return proc
-
-
-def _scheduler(request, tmp_path):
-    """A `dask scheduler` on 127.0.0.1, a free port; returns (address, process)."""
-    file = tmp_path / 'scheduler.json'
-    proc = _start(request, [*DASK, 'scheduler', '--host', '127.0.0.1', '--port', '0',
-                            '--no-dashboard', '--scheduler-file', str(file)],
-                  tmp_path / 'scheduler.log')
-    deadline = time.monotonic() + START_TIMEOUT_S
-    while True:
-        assert proc.poll() is None, (tmp_path / 'scheduler.log').read_text()
-        try:
-            return json.loads(file.read_text())['address'], proc
-        except (OSError, ValueError, KeyError):  # not written yet, or half written
-            assert time.monotonic() < deadline, 'dask scheduler did not start'
-            time.sleep(0.1)
-
-
 @pytest.fixture
 def cluster(request, tmp_path):
     """A scheduler and two workers `a` and `b`: (address, {name: worker process})."""
-    address, _ = _scheduler(request, tmp_path)
-    workers = {name: _start(request, [*DASK, 'worker', address, '--host', '127.0.0.1',
-                                      '--nthreads', '1', '--no-dashboard', '--no-nanny',
-                                      '--name', name], tmp_path / f'worker-{name}.log')
-               for name in ('a', 'b')}
-    with distributed.Client(address, timeout=START_TIMEOUT_S, set_as_default=False) as client:
-        client.wait_for_workers(2, timeout=START_TIMEOUT_S)
+    address, workers, _ = start_cluster(request, tmp_path)
     return address, workers
 
 
@@ -159,7 +125,7 @@ def test_an_unreachable_scheduler_from_the_command_line(stage_capture, tmp_path)
 def test_a_scheduler_that_goes_away_is_named(request, tmp_path, tiny_data):
     from mux_trainer.candidate_patterns import site_pattern_candidates
     from mux_trainer.evaluation import CandidateEvaluator
-    address, scheduler = _scheduler(request, tmp_path)  # no workers: tasks would wait forever
+    address, scheduler = start_scheduler(request, tmp_path)  # no workers: tasks would wait forever
     ev = CandidateEvaluator(tiny_data, n_repeats=4, seed=1, chunk_size=10)
     ctx = ev.prepare_column(None)
     with pytest.raises(ClusterUnavailable, match=address.replace('.', r'\.')):
@@ -188,3 +154,17 @@ def test_bytes_broadcast_count_the_shared_state_once_per_worker(cluster, tiny_da
         who_has = remote.client.who_has(futures)
         assert all(len(holders) == 2 for holders in who_has.values())
     np.testing.assert_array_equal(scores, local)
+
+
+def test_eval_on_a_cluster_gives_the_local_result(cluster, stage_capture, capsys):
+    from mux_trainer.cli import eval_main
+    address, _ = cluster
+    options = [str(stage_capture), '--methods', 'naive,greedy', '--repeats', '4',
+               '--max-images', '2', '--renders', '1', '--seed', '3', '--json', '--quiet']
+
+    def evaluate(extra):
+        assert eval_main([*options, *extra]) == 0
+        doc = json.loads(capsys.readouterr().out)
+        return {name: (m['patterns'], m['search_accuracy_by_images'], m['accuracy_by_images'])
+                for name, m in doc['methods'].items()}
+    assert evaluate(['--dask-scheduler', address]) == evaluate(['--jobs', '1'])
