@@ -144,7 +144,10 @@ def test_bytes_broadcast_count_the_shared_state_once_per_worker(cluster, tiny_da
     ev = CandidateEvaluator(tiny_data, n_repeats=4, seed=1, chunk_size=10)
     W = site_pattern_candidates()[:, :40]
     local = ev.score(ev.prepare_column(W[:, [5]]), W)
+    with distributed.Client(address, set_as_default=False) as other:
+        memory_manager_was_running = other.amm.running()
     with dask_cluster(address) as remote:
+        assert not remote.client.amm.running()  # it would drop the broadcast copies
         ctx = ev.prepare_column(W[:, [5]])
         scores = ev.score(ctx, W)  # 4 tasks
         ev.score(ctx, W[:, :3], chunk_size=1)  # 3 more: the context is not sent again
@@ -153,6 +156,8 @@ def test_bytes_broadcast_count_the_shared_state_once_per_worker(cluster, tiny_da
         futures = [future for _, future in remote._shared.values()]
         who_has = remote.client.who_has(futures)
         assert all(len(holders) == 2 for holders in who_has.values())
+    with distributed.Client(address, set_as_default=False) as other:
+        assert other.amm.running() == memory_manager_was_running  # restored
     np.testing.assert_array_equal(scores, local)
 
 

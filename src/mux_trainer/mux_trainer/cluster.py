@@ -12,7 +12,9 @@ broadcast to every worker once (`Client.scatter(..., broadcast=True)`), and each
 their futures plus its chunk of candidate columns (a few hundred bytes). Results are keyed
 by task (gathered in the order submitted), so which worker ran a task, or whether it ran
 twice because its first worker was lost, changes nothing: a lost worker costs only its
-unfinished tasks, which the scheduler gives to the others. A scheduler that cannot be
+unfinished tasks, which the scheduler gives to the others. While connected, the scheduler's
+active memory manager is paused (it would drop the broadcast copies between tasks; see
+`DaskCluster.__init__`) and restarted on close. A scheduler that cannot be
 reached, that goes away, or that has no worker left for `timeout_s` raises
 `ClusterUnavailable` (a ConnectionError) naming the address: an error, not a hang.
 """
@@ -84,11 +86,24 @@ class DaskCluster:
                 f'({type(exc).__name__}: {exc}); check that `dask scheduler` runs there and '
                 f'that the address (tcp://HOST:PORT) is right, or train locally without '
                 f'--dask-scheduler / {DASK_SCHEDULER_ENV}') from None
+        # Dask's active memory manager drops the replicas that no waiting task needs (every
+        # 2 s): between the screen and each refinement batch it would take the broadcast data
+        # off all workers but one, and they would fetch it again. Paused while connected.
+        try:
+            self._memory_manager_paused = bool(self.client.amm.running())
+            if self._memory_manager_paused:
+                self.client.amm.stop()
+        except (OSError, TimeoutError) as exc:
+            self.client.close()
+            raise self._lost(f'{type(exc).__name__}: {exc}') from None
         self._shared = {}  # slot -> (object, its future on the workers)
         self.bytes_broadcast = 0  # pickled bytes of the shared objects, times their workers
+        self.tasks_submitted = 0
 
     def close(self) -> None:
         try:
+            if self._memory_manager_paused and self.client.status == 'running':
+                self.client.amm.start()
             self.client.close(timeout=self.timeout_s)
         except Exception:  # noqa: BLE001 - closing a connection to a dead scheduler
             pass
@@ -143,6 +158,7 @@ class DaskCluster:
                        for item in items]
         except (OSError, TimeoutError) as exc:
             raise self._lost(f'{type(exc).__name__}: {exc}') from None
+        self.tasks_submitted += len(futures)
         results = []
         alone_since = None
         for future in futures:  # in task order: the result does not depend on arrival
@@ -186,3 +202,27 @@ def shared_bytes(obj) -> int:
     buffers = []
     head = pickle.dumps(obj, protocol=5, buffer_callback=buffers.append)
     return len(head) + sum(memoryview(b).nbytes for b in buffers)
+
+
+def array_nbytes(obj) -> int:
+    """Bytes of the numpy arrays among `obj`'s attributes (also in lists): its size for
+    the scheduler's memory accounting, which would otherwise see a few hundred bytes."""
+    import numpy as np
+    total = 0
+    for value in vars(obj).values():
+        for item in (value if isinstance(value, (list, tuple)) else (value,)):
+            if isinstance(item, np.ndarray):
+                total += item.nbytes
+    return total
+
+
+def register_sizes(*types) -> None:
+    """Teach Dask's `sizeof` (run where the objects are held: the workers) the size of these
+    array holders (`array_nbytes`); nothing without Dask."""
+    try:
+        from dask.sizeof import sizeof
+    except ImportError:  # pragma: no cover - dask is a pinned requirement
+        return
+    for cls in types:
+        sizeof.register(cls)(array_nbytes)
+

@@ -29,7 +29,7 @@ import numpy as np
 from joblib import Parallel, delayed
 from threadpoolctl import threadpool_limits
 
-from .cluster import active_cluster
+from .cluster import active_cluster, register_sizes
 from .rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
                         image_features, standard_normal)
 from .split_scoring import make_scorer
@@ -73,6 +73,9 @@ class ColumnContext:
     test_masks: list
     scorer: object
     n_classes: int
+
+
+register_sizes(SearchData, ColumnContext)  # what a Dask worker holds, for its scheduler
 
 
 def _score_features(data: SearchData, ctx: ColumnContext, Xc: np.ndarray) -> np.ndarray:
