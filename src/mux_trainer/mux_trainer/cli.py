@@ -5,6 +5,7 @@ With --json only the JSON document goes to stdout; progress and logs go to stder
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -12,6 +13,7 @@ from pathlib import Path
 from lightstage_camera.rig import DEFAULT_DIMMER
 from lightstage_camera.workers import jobs_type, usable_cores
 
+from .cluster import DASK_SCHEDULER_ENV, DEFAULT_TIMEOUT_S, scheduler_from_env
 from .data import NOISE_HELP, resolve_noise
 from .greedy import REFINE_TOP
 from .report import DEFAULT_METHODS, METHODS
@@ -39,6 +41,13 @@ def _common(p: argparse.ArgumentParser, capture_optional: bool = False) -> None:
                    help='joblib workers for candidate evaluation (default: the cores this process '
                         f'may use, {usable_cores()} here; -1 = all of them). The results do not '
                         'depend on it')
+    p.add_argument('--dask-scheduler', metavar='ADDRESS', default=scheduler_from_env(),
+                   help='evaluate the candidates on this existing Dask cluster (e.g. '
+                        'tcp://HOST:8786, as `dask scheduler` prints) instead of --jobs local '
+                        f'processes; the same results. Default: ${DASK_SCHEDULER_ENV}, else local')
+    p.add_argument('--dask-timeout', type=float, default=DEFAULT_TIMEOUT_S, metavar='SECONDS',
+                   help='give up on a Dask scheduler that cannot be reached, or that has no '
+                        f'connection or no workers, for this long (default: {DEFAULT_TIMEOUT_S:g})')
     p.add_argument('--json', action='store_true', help='print the results as one JSON document')
     p.add_argument('--quiet', action='store_true', help='no progress on stderr')
     g = p.add_argument_group('features (defaults: the paper\'s HOG, 900 values per image)')
@@ -52,6 +61,23 @@ def _positive(args, *names):
         if getattr(args, name) < 1:
             raise SystemExit(f'lightstage: --{name.replace("_", "-")} must be >= 1, '
                              f'got {getattr(args, name)}')
+
+
+def _on_cluster(prog: str, args):
+    """The Dask cluster of --dask-scheduler for the block (nothing without it); a scheduler
+    that cannot be reached or is lost ends the command with a message naming it."""
+    from .cluster import ClusterUnavailable, dask_cluster
+    if args.dask_timeout <= 0:
+        raise SystemExit(f'{prog}: --dask-timeout must be > 0 s, got {args.dask_timeout}')
+
+    @contextlib.contextmanager
+    def block():
+        try:
+            with dask_cluster(args.dask_scheduler, args.dask_timeout):
+                yield
+        except ClusterUnavailable as exc:
+            raise SystemExit(f'{prog}: {exc}') from None
+    return block()
 
 
 def _load(capture_dir: str, hog_config):
@@ -102,19 +128,20 @@ def train_main(argv: list[str] | None = None) -> int:
         check_artifact_path(args.out)
     except ValueError as exc:
         raise SystemExit(f'lightstage train: {exc}') from None
-    modelset = _load(args.capture_dir, hog_config)
     not_written = None
-    try:
-        doc = train_modelset(
-            modelset, args.out, capture=args.capture_dir, method=args.method, mode=args.mode, noise=args.noise,
-            max_images=args.max_images, repeats=args.repeats, seed=args.seed, n_jobs=args.jobs,
-            hog_config=hog_config, fixed_count=args.fixed_count,
-            inner_classifier=args.inner_classifier, final_classifier=args.classifier,
-            beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet)
-    except ValueError as exc:
-        raise SystemExit(f'lightstage train: {exc}') from None
-    except ArtifactNotWritten as exc:  # the result is printed all the same
-        not_written, doc = exc, exc.summary
+    with _on_cluster('lightstage train', args):
+        modelset = _load(args.capture_dir, hog_config)
+        try:
+            doc = train_modelset(
+                modelset, args.out, capture=args.capture_dir, method=args.method, mode=args.mode,
+                noise=args.noise, max_images=args.max_images, repeats=args.repeats, seed=args.seed,
+                n_jobs=args.jobs, hog_config=hog_config, fixed_count=args.fixed_count,
+                inner_classifier=args.inner_classifier, final_classifier=args.classifier,
+                beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet)
+        except ValueError as exc:
+            raise SystemExit(f'lightstage train: {exc}') from None
+        except ArtifactNotWritten as exc:  # the result is printed all the same
+            not_written, doc = exc, exc.summary
     out, seconds = doc['artifact'], doc['train_seconds']
     if args.json:
         print(json.dumps(doc))
@@ -184,15 +211,17 @@ def eval_main(argv: list[str] | None = None) -> int:
             check_output_dir(args.out)
         except ValueError as exc:
             raise SystemExit(f'lightstage eval: {exc}') from None
-    modelset = _load(args.capture_dir, hog_config)
-    try:
-        results = run_evaluation(modelset, noises, methods, n_repeats=args.repeats,
-                                 max_images=args.max_images, holdout_fraction=args.holdout,
-                                 n_renders=args.renders, seed=args.seed, n_jobs=args.jobs,
-                                 hog_config=hog_config, beam_width=args.beam_width,
-                                 joint_max_images=args.joint_max_images, quiet=args.quiet, progress=not args.quiet)
-    except ValueError as exc:
-        raise SystemExit(f'lightstage eval: {exc}') from None
+    with _on_cluster('lightstage eval', args):
+        modelset = _load(args.capture_dir, hog_config)
+        try:
+            results = run_evaluation(modelset, noises, methods, n_repeats=args.repeats,
+                                     max_images=args.max_images, holdout_fraction=args.holdout,
+                                     n_renders=args.renders, seed=args.seed, n_jobs=args.jobs,
+                                     hog_config=hog_config, beam_width=args.beam_width,
+                                     joint_max_images=args.joint_max_images, quiet=args.quiet,
+                                     progress=not args.quiet)
+        except ValueError as exc:
+            raise SystemExit(f'lightstage eval: {exc}') from None
     results['capture'] = str(Path(args.capture_dir).resolve())
     results['settings'] = {'repeats': args.repeats, 'max_images': args.max_images,
                            'joint_max_images': args.joint_max_images or args.max_images,

@@ -14,7 +14,8 @@ Random numbers (common random numbers within a column):
   between them) and the images are still re-rendered with new noise at every column.
 
 Speed: candidates are scored in chunks dispatched with joblib (any backend, e.g.
-`joblib.parallel_backend("dask")`); within a chunk they are visited in Gray-code order so
+`joblib.parallel_backend("dask")`), or, inside `cluster.dask_cluster(address)`, on that Dask
+cluster with the data and the column's context broadcast to each worker once; within a chunk they are visited in Gray-code order so
 each render is the previous one plus or minus one site image; the earlier columns enter only
 through the kernel `K_prev = X_prev X_prev^T`, computed once per column.
 """
@@ -28,6 +29,7 @@ import numpy as np
 from joblib import Parallel, delayed
 from threadpoolctl import threadpool_limits
 
+from .cluster import active_cluster, register_sizes
 from .rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
                         image_features, standard_normal)
 from .split_scoring import make_scorer
@@ -73,6 +75,9 @@ class ColumnContext:
     n_classes: int
 
 
+register_sizes(SearchData, ColumnContext)  # what a Dask worker holds, for its scheduler
+
+
 def _score_features(data: SearchData, ctx: ColumnContext, Xc: np.ndarray) -> np.ndarray:
     if ctx.scorer.needs_features:
         X = Xc if ctx.X_prev is None else np.hstack([ctx.X_prev, Xc])
@@ -94,6 +99,15 @@ def score_candidate_chunk(data: SearchData, ctx: ColumnContext, candidates: np.n
     # 2-core machine was measured 5x slower here; parallelism comes from joblib workers
     with threadpool_limits(limits=1, user_api='blas'):
         return _score_chunk(data, ctx, np.asarray(candidates, dtype=np.float32), timings)
+
+
+def score_chunk_with(data: SearchData, ctx: ColumnContext, candidates: np.ndarray,
+                     scorer=None) -> np.ndarray:
+    """`score_candidate_chunk` with another split scorer than the context's (a cluster task:
+    the context is broadcast once per column, the scorer travels with the task)."""
+    if scorer is not None:
+        ctx = dataclasses.replace(ctx, scorer=scorer)
+    return score_candidate_chunk(data, ctx, candidates)
 
 
 def _score_chunk(data, ctx, candidates, timings):
@@ -212,16 +226,20 @@ class CandidateEvaluator:
         instead of the evaluator's (fixed by the caller, so results do not depend on n_jobs).
         """
         candidates = np.asarray(candidates, dtype=np.float32)
-        if scorer is not None:
-            if scorer.needs_features and ctx.X_prev is None and ctx.column > 0:
-                raise ValueError(f'{type(scorer).__name__} needs features; this column context '
-                                 'holds only the kernel of the earlier columns')
-            ctx = dataclasses.replace(ctx, scorer=scorer)
+        if scorer is not None and scorer.needs_features and ctx.X_prev is None and ctx.column > 0:
+            raise ValueError(f'{type(scorer).__name__} needs features; this column context '
+                             'holds only the kernel of the earlier columns')
         size = self.chunk_size if chunk_size is None else int(chunk_size)
         chunks = [candidates[:, b:b + size] for b in range(0, candidates.shape[1], size)]
-        if parallel is None:
-            parallel = Parallel(n_jobs=self.n_jobs)
-        parts = parallel(delayed(score_candidate_chunk)(self.data, ctx, chunk) for chunk in chunks)
+        cluster = active_cluster()
+        if cluster is not None:  # the same tasks on a Dask cluster (cluster.py); --jobs unused
+            parts = cluster.map(score_chunk_with, {'search data': self.data, 'column context': ctx},
+                                chunks, scorer=scorer)
+        else:
+            if parallel is None:
+                parallel = Parallel(n_jobs=self.n_jobs)
+            parts = parallel(delayed(score_chunk_with)(self.data, ctx, chunk, scorer)
+                             for chunk in chunks)
         return np.vstack(parts) if parts else np.empty((0, len(self.test_masks)))
 
     def features(self, columns: np.ndarray, column_noise_of: int | None = None) -> np.ndarray:

@@ -3,7 +3,9 @@
 One goal at a time (a second is rejected while one runs: the search uses every core it is
 given). Feedback is sent when each pattern column starts and when it is chosen; a cancel
 request stops the search at the next column boundary. Empty/zero goal fields take the
-paper's defaults (greedy, per-colour, Sigma3, 8 columns, 400 splits).
+paper's defaults (greedy, per-colour, Sigma3, 8 columns, 400 splits). With the
+`dask_scheduler` parameter set, the candidates are evaluated on that Dask cluster; a
+scheduler that cannot be reached or is lost aborts the goal with the reason.
 """
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ import time
 
 from lightstage_camera.workers import usable_cores
 from lightstage_graph.names import TRAINER_NODE, TRAIN_ACTION
-from lightstage_graph.params import declare_parameters, integer
+from lightstage_graph.params import declare_parameters, floating, integer, string
 from lightstage_graph.spin import init_node, spin_until_stopped
 from lightstage_interfaces.action import Train
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -21,6 +23,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 
+from .cluster import DEFAULT_TIMEOUT_S
 from .greedy import REFINE_TOP
 from .training import train_from_capture
 
@@ -52,6 +55,12 @@ class TrainerNode(Node):
             'refine_top': (REFINE_TOP, integer(
                 'greedy: candidates per column re-scored with the exact linear SVM after the '
                 'ridge screen (0 = the screen picks)', 0, SITE_CANDIDATES)),
+            'dask_scheduler': ('', string(
+                'address of an existing Dask scheduler to evaluate the candidates on, e.g. '
+                'tcp://HOST:8786 (empty = locally, with n_jobs processes); same results')),
+            'dask_timeout_s': (DEFAULT_TIMEOUT_S, floating(
+                'a goal aborts when the Dask scheduler cannot be reached, or has no connection '
+                'or no workers, for this long', 1.0, 3600.0)),
         })
         self._busy = threading.Lock()
         self._server = ActionServer(self, Train, TRAIN_ACTION, execute_callback=self._execute,
@@ -76,6 +85,8 @@ class TrainerNode(Node):
         t0 = time.perf_counter()
         with self._busy:
             options = goal_options(goal, int(self.p('n_jobs')), int(self.p('refine_top')))
+            cluster = dict(dask_scheduler=str(self.p('dask_scheduler')).strip(),
+                           dask_timeout_s=float(self.p('dask_timeout_s')))
             total = SITE_CANDIDATES if options['mode'] == 'per_colour' else 0
             best = [0.0]
 
@@ -92,16 +103,18 @@ class TrainerNode(Node):
                            + (f'accuracy {event["accuracy"]:.3f}' if done else 'searching'))))
 
             goal_handle.publish_feedback(Train.Feedback(stage='loading models'))
-            self.get_logger().info(f'training {options} on {goal.capture_dir}')
+            where = f' on the Dask cluster {cluster["dask_scheduler"]}' if cluster['dask_scheduler'] else ''
+            self.get_logger().info(f'training {options} on {goal.capture_dir}{where}')
             try:
                 summary = train_from_capture(goal.capture_dir, goal.output_path,
-                                             callback=on_event, **options)
+                                             callback=on_event, **options, **cluster)
             except _Cancelled:
                 goal_handle.canceled()
                 result.message = 'canceled at a column boundary; no artifact written'
                 result.elapsed_s = time.perf_counter() - t0
                 return result
-            except (ValueError, OSError) as exc:  # bad options, unreadable capture, unwritable output
+            except (ValueError, OSError) as exc:  # bad options, unreadable capture, unwritable
+                # output, a Dask scheduler unreachable or lost (cluster.ClusterUnavailable)
                 goal_handle.abort()
                 result.message = f'training failed: {exc}'
                 result.elapsed_s = time.perf_counter() - t0

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from lightstage_camera.workers import check_jobs
 
+from .cluster import DEFAULT_TIMEOUT_S, dask_cluster
 from .data import resolve_noise
 
 METHODS = ('greedy', 'snr_optimal', 'naive')
@@ -118,8 +119,13 @@ def load_training_set(capture_dir, image_size: int = 120):
     return modelset
 
 
-def train_from_capture(capture_dir, out_path, *, image_size: int = 120, **options) -> dict:
-    """Load a capture folder and `train_modelset` on it (options are checked before the load)."""
+def train_from_capture(capture_dir, out_path, *, image_size: int = 120, dask_scheduler: str = '',
+                       dask_timeout_s: float = DEFAULT_TIMEOUT_S, **options) -> dict:
+    """Load a capture folder and `train_modelset` on it (options are checked before the load).
+
+    dask_scheduler: the address of an existing Dask scheduler to search on ('' = locally);
+    cannot reach it / lost it -> `cluster.ClusterUnavailable` (a ConnectionError) naming it.
+    """
     hog_config = options.get('hog_config')
     if hog_config is not None:
         image_size = hog_config.image_size
@@ -128,8 +134,9 @@ def train_from_capture(capture_dir, out_path, *, image_size: int = 120, **option
                   options.get('repeats', 400))
     check_jobs(options.get('n_jobs', 1))
     check_artifact_path(out_path)
-    modelset = load_training_set(capture_dir, image_size)
-    return train_modelset(modelset, out_path, capture=capture_dir, **options)
+    with dask_cluster(dask_scheduler, dask_timeout_s):  # connect first: fail before the load
+        modelset = load_training_set(capture_dir, image_size)
+        return train_modelset(modelset, out_path, capture=capture_dir, **options)
 
 
 def train_modelset(modelset, out_path, *, capture=None, **options) -> dict:
