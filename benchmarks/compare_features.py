@@ -34,7 +34,7 @@ from sklearn.svm import LinearSVC
 from lightstage_camera.noise import preset
 from lightstage_camera.rig import Rig
 from lightstage_camera.synth import plan, render_job
-from mux_classifier.features import EXTRACTORS, extractor
+from mux_classifier.features import EXTRACTORS, extractor, features_for_split
 from mux_trainer.rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
                                    standard_normal)
 from mux_trainer.snr_optimal import s_matrix_for_sites
@@ -90,11 +90,10 @@ def pose_splits(pose_index: np.ndarray, n_splits: int, seed: int):
 
 def score(name: str, stacks, labels, train, test) -> tuple[float, float]:
     """Held-out accuracy and the extractor's transform seconds per image."""
-    ex = extractor(name, image_size=IMAGE_SIZE).fit(stacks[train])
+    X_train, _, ex = features_for_split(name, stacks, train, test, image_size=IMAGE_SIZE)
     start = time.perf_counter()
     X_test = ex.transform(stacks[test])
     per_image = (time.perf_counter() - start) / (len(test) * stacks.shape[1])
-    X_train = ex.transform(stacks[train])
     svm = LinearSVC(C=1.0, max_iter=20000, random_state=0).fit(X_train, labels[train])
     return float(np.mean(svm.predict(X_test) == labels[test])), per_image
 

@@ -20,7 +20,7 @@ import numpy as np
 from .hog import HogConfig, hog_batch
 
 __all__ = ["stack_features", "check_stacks", "EXTRACTORS", "DEFAULT_EXTRACTOR", "extractor",
-           "StackFeatureExtractor"]
+           "StackFeatureExtractor", "features_for_split"]
 
 
 def check_stacks(stacks, config: HogConfig = HogConfig(), n_images: int | None = None) -> np.ndarray:
@@ -240,3 +240,11 @@ def extractor(name: str = DEFAULT_EXTRACTOR, **params) -> StackFeatureExtractor:
         raise ValueError(f"unknown feature extractor {name!r}; choose from "
                          f"{', '.join(EXTRACTORS)}")
     return EXTRACTORS[name](**params)
+
+
+def features_for_split(name: str, stacks, train, test, **params):
+    """Features of one train/test split: a new extractor fit on ``stacks[train]`` alone, then
+    (X_train, X_test, fitted extractor). The held-out stacks never reach ``fit``."""
+    arr = np.asarray(stacks)
+    ex = extractor(name, **params).fit(arr[train])
+    return ex.transform(arr[train]), ex.transform(arr[test]), ex
