@@ -114,3 +114,15 @@ def test_mask_moments_find_centre_and_axis():
     np.testing.assert_allclose(centroid[1], [59.5, 74.5])
     assert np.isclose(np.cos(angle[0]) ** 2, 1.0) and np.isclose(np.sin(angle[1]) ** 2, 1.0)
     np.testing.assert_array_equal(area, [700, 800])
+
+
+@pytest.mark.parametrize("name", [n for n in EXTRACTORS if n != "bow"])
+def test_restore_from_learned_arrays_transforms_identically(name):
+    stacks = _objects(n=6, k=2)
+    fitted = extractor(name).fit(stacks[:4])
+    state = {k: np.array(v).tolist() for k, v in fitted.learned_state().items()}  # as JSON
+    restored = extractor(name).restore(state)
+    np.testing.assert_array_equal(restored.transform(stacks), fitted.transform(stacks))
+    if state:
+        with pytest.raises(ValueError, match="mean and scale"):
+            extractor(name).restore({"mean": state["mean"][:-1], "scale": state["scale"]})

@@ -114,6 +114,26 @@ class StackFeatureExtractor:
         return {k: v for k, v in (("mean", getattr(self, "mean_", None)),
                                   ("scale", getattr(self, "scale_", None))) if v is not None}
 
+    def restore(self, state: dict) -> "StackFeatureExtractor":
+        """A fitted extractor from `learned_state()` arrays (loading an artifact; no pickle)."""
+        if self.standardise:
+            d = self.features_per_image
+            missing = {"mean", "scale"} - set(state)
+            if missing:
+                raise ValueError(f"feature extractor {self.name!r} needs learned arrays "
+                                 f"{sorted(missing)} to be restored")
+            self.mean_ = np.asarray(state["mean"], dtype=np.float64).reshape(-1)
+            self.scale_ = np.asarray(state["scale"], dtype=np.float64).reshape(-1)
+            if self.mean_.size != d or self.scale_.size != d or not (self.scale_ > 0).all():
+                raise ValueError(f"feature extractor {self.name!r}: mean and scale must hold "
+                                 f"{d} values (scale > 0), got {self.mean_.size} and "
+                                 f"{self.scale_.size}")
+        elif state:
+            raise ValueError(f"feature extractor {self.name!r} learns nothing; got arrays "
+                             f"{sorted(state)}")
+        self.fitted_ = True
+        return self
+
 
 class HogGridExtractor(StackFeatureExtractor):
     """The paper's HOG grid (`stack_features`): 900 values per 120 px image; nothing learnt."""
@@ -225,6 +245,10 @@ class BagOfWordsExtractor(StackFeatureExtractor):
 
     def learned_state(self) -> dict:
         return {"codebook": self.bow_.codebook_} if hasattr(self, "bow_") else {}
+
+    def restore(self, state: dict):
+        raise ValueError("the bag-of-words extractor cannot be restored from arrays yet "
+                         "(its transform needs the fitted k-means); refit it")
 
 
 EXTRACTORS: dict[str, type[StackFeatureExtractor]] = {
