@@ -14,13 +14,14 @@ under a few FIXED illuminations with fresh Sigma3 noise (`mux_trainer.rendering`
 - single_2: two opposite single sites per colour (grazing-ish light), 8 images.
 
 For each of `--splits` random pose splits (25 % of the pose indices held out, the same for
-every class) every extractor is fit on the training stacks only, then a LinearSVC (C=1) is
+every class; `--holdout instances`: leave one physical sample out instead) every extractor is fit on the training stacks only, then a LinearSVC (C=1) is
 trained on the training features and scored on the held-out ones. Prints mean accuracy
 (and its standard error over splits) per feature x illumination x placement, and each
 extractor's transform time in ms per 800 images of 120 x 120.
 
     .venv/bin/python benchmarks/compare_features.py [--types coin,note,green_apple,banana]
         [--samples 2] [--poses 8] [--splits 5] [--features hog_grid,pooled_hog_stats,...]
+        [--holdout poses|instances]
 """
 from __future__ import annotations
 
@@ -52,7 +53,8 @@ def dataset(types, samples: int, poses: int, placement: str, seed: int, n_jobs: 
     names = sorted({job.class_name for job in jobs})
     labels = np.array([names.index(job.class_name) for job in jobs])
     pose_index = np.array([job.instance * poses + job.pose for job in jobs])
-    return np.stack(models), labels, pose_index, names
+    instance = np.array([job.instance for job in jobs])
+    return np.stack(models), labels, pose_index, instance, names
 
 
 def illuminations(n_sites: int, seed: int) -> dict:
@@ -88,6 +90,12 @@ def pose_splits(pose_index: np.ndarray, n_splits: int, seed: int):
         yield np.flatnonzero(~test), np.flatnonzero(test)
 
 
+def instance_splits(instance: np.ndarray):
+    """Leave one physical instance (sample index, the same for every class) out."""
+    for held_out in np.unique(instance):
+        yield np.flatnonzero(instance != held_out), np.flatnonzero(instance == held_out)
+
+
 def score(name: str, stacks, labels, train, test) -> tuple[float, float]:
     """Held-out accuracy and the extractor's transform seconds per image."""
     X_train, _, ex = features_for_split(name, stacks, train, test, image_size=IMAGE_SIZE)
@@ -110,6 +118,10 @@ def main(argv=None) -> int:
     parser.add_argument("--noise", default="sigma3")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--holdout", choices=("poses", "instances"), default="poses",
+                        help="poses: --splits random splits of held-out pose indices (the "
+                             "paper's protocol; test objects were seen in other poses); "
+                             "instances: leave one physical sample out (unseen objects)")
     args = parser.parse_args(argv)
     types = tuple(t for t in args.types.split(",") if t)
     features = [f for f in args.features.split(",") if f]
@@ -122,7 +134,7 @@ def main(argv=None) -> int:
     speed: dict = {f: [] for f in features}
     for placement in args.placements.split(","):
         start = time.perf_counter()
-        models, labels, pose_index, names = dataset(types, args.samples, args.poses, placement,
+        models, labels, pose_index, instance, names = dataset(types, args.samples, args.poses, placement,
                                                     args.seed, args.jobs)
         print(f"# {placement}: {len(names)} classes x {args.samples * args.poses} poses "
               f"rendered in {time.perf_counter() - start:.0f} s", flush=True)
@@ -132,7 +144,9 @@ def main(argv=None) -> int:
             noise_b=0.0 if model is None else model.sigma_r2 * DOWNSCALE_NOISE)
         rng = np.random.default_rng(args.seed + 1)
         for light, (kind, patterns) in lights.items():
-            for split, (train, test) in enumerate(pose_splits(pose_index, args.splits, args.seed)):
+            splits = (instance_splits(instance) if args.holdout == "instances"
+                      else pose_splits(pose_index, args.splits, args.seed))
+            for train, test in splits:
                 stacks = render_stacks(data, kind, patterns, rng)  # fresh noise per split
                 for f in features:
                     acc, per_image = score(f, stacks, labels, train, test)
