@@ -14,7 +14,8 @@ under a few FIXED illuminations with fresh Sigma3 noise (`mux_trainer.rendering`
 - single_2: two opposite single sites per colour (grazing-ish light), 8 images.
 
 For each of `--splits` random pose splits (25 % of the pose indices held out, the same for
-every class; `--holdout instances`: leave one physical sample out instead) every extractor is fit on the training stacks only, then a LinearSVC (C=1) is
+every class; `--holdout instances`: leave one physical sample out instead) every extractor
+is fit on the training stacks only, then a LinearSVC (C=1) is
 trained on the training features and scored on the held-out ones. Prints mean accuracy
 (and its standard error over splits) per feature x illumination x placement, and each
 extractor's transform time in ms per 800 images of 120 x 120.
@@ -134,8 +135,8 @@ def main(argv=None) -> int:
     speed: dict = {f: [] for f in features}
     for placement in args.placements.split(","):
         start = time.perf_counter()
-        models, labels, pose_index, instance, names = dataset(types, args.samples, args.poses, placement,
-                                                    args.seed, args.jobs)
+        models, labels, pose_index, instance, names = dataset(
+            types, args.samples, args.poses, placement, args.seed, args.jobs)
         print(f"# {placement}: {len(names)} classes x {args.samples * args.poses} poses "
               f"rendered in {time.perf_counter() - start:.0f} s", flush=True)
         data = SearchData.from_models(

@@ -593,7 +593,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if not args.quiet:
         print(f"wrote {out} ({len(types) * 2} classes x {args.samples} samples x {args.poses} "
-              f"poses, {args.placement} placement, {_dir_size(out) / 1e6:.0f} MB) in {time.perf_counter() - start:.1f} s")
+              f"poses, {args.placement} placement, {_dir_size(out) / 1e6:.0f} MB) in "
+              f"{time.perf_counter() - start:.1f} s")
     return 0
 
 
