@@ -33,11 +33,15 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from . import flat_objects
 from .capture_format import write_pose
+from .flat_objects import FLAT_TYPES
 from .rig import DEFAULT_DIMMER, Rig
 from .workers import jobs_type
 
-OBJECT_TYPES = ("green_apple", "red_apple", "grape", "banana", "orange")
+OBJECT_TYPES = ("green_apple", "red_apple", "grape", "banana", "orange")  # the default set
+ALL_OBJECT_TYPES = OBJECT_TYPES + FLAT_TYPES
+PLACEMENTS = ("canonical", "free")
 VARIANTS = ("fake", "real")
 DEFAULT_SIZE = 240
 DEFAULT_SAMPLES = 4
@@ -67,6 +71,12 @@ class Material:
     sss_radius_mm: tuple[float, float, float, float]
     relief_mm: float  # micro-relief depth
     relief_scale_mm: float
+    # flat objects (flat_objects.py): depth of the embossed motif; how strongly a printed
+    # copy reproduces the motif's diffuse shading (1 = as an EMBOSS_REFERENCE_MM relief);
+    # how much the printed design darkens each colour
+    emboss_mm: float = 0.0
+    print_contrast: float = 0.0
+    ink_contrast: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
 def _m(**kw) -> Material:
@@ -127,6 +137,29 @@ MATERIALS: dict[str, dict[str, Material]] = {
                    pigment_scale_mm=4.0, specular=0.05, shininess=40,
                    sss=(0.12, 0.12, 0.10, 0.12), sss_radius_mm=(0.8, 0.8, 0.6, 0.8),
                    relief_mm=0.12, relief_scale_mm=3.0),
+    },
+    # Flat objects: "real" and "fake" share every optical property except the one the
+    # light must reveal. Coin: embossed brass vs a flat print of it on glossy card.
+    # Note: inks transparent in NIR (real) vs inks that also absorb NIR (copy).
+    "coin": {
+        "real": _m(albedo=(0.70, 0.55, 0.30, 0.78), pigment_contrast=(0.05, 0.05, 0.05, 0.05),
+                   pigment_scale_mm=2.0, specular=0.08, shininess=40,
+                   sss=(0.0, 0.0, 0.0, 0.0), sss_radius_mm=(0.5, 0.5, 0.5, 0.5),
+                   relief_mm=0.02, relief_scale_mm=1.0, emboss_mm=0.5),
+        "fake": _m(albedo=(0.70, 0.55, 0.30, 0.78), pigment_contrast=(0.05, 0.05, 0.05, 0.05),
+                   pigment_scale_mm=2.0, specular=0.08, shininess=40,
+                   sss=(0.0, 0.0, 0.0, 0.0), sss_radius_mm=(0.5, 0.5, 0.5, 0.5),
+                   relief_mm=0.02, relief_scale_mm=1.0, print_contrast=1.0),
+    },
+    "note": {
+        "real": _m(albedo=(0.80, 0.80, 0.76, 0.86), pigment_contrast=(0.04, 0.04, 0.04, 0.04),
+                   pigment_scale_mm=1.5, specular=0.02, shininess=10,
+                   sss=(0.2, 0.2, 0.2, 0.2), sss_radius_mm=(0.5, 0.5, 0.5, 0.5),
+                   relief_mm=0.01, relief_scale_mm=1.0, ink_contrast=(0.50, 0.50, 0.50, 0.0)),
+        "fake": _m(albedo=(0.80, 0.80, 0.76, 0.86), pigment_contrast=(0.04, 0.04, 0.04, 0.04),
+                   pigment_scale_mm=1.5, specular=0.02, shininess=10,
+                   sss=(0.2, 0.2, 0.2, 0.2), sss_radius_mm=(0.5, 0.5, 0.5, 0.5),
+                   relief_mm=0.01, relief_scale_mm=1.0, ink_contrast=(0.45, 0.45, 0.45, 0.40)),
     },
 }
 
@@ -282,12 +315,28 @@ def _masked_blur(image, mask_f, sigma_px, mask_blur_cache: dict):
     return ndimage.gaussian_filter(image * mask_f, sigma_px) / mask_blur_cache[key]
 
 
+def _print_factor(material: Material, motif, px: float, channel: int):
+    """Albedo factor of a flat object's print: its ink design, and for a printed copy of an
+    embossed motif the motif's shading under diffuse light (an all-LED ring light sees a
+    surface tilted by n roughly as n_z times a flat one)."""
+    factor = 1.0 - material.ink_contrast[channel] * motif
+    if material.print_contrast:
+        nz = _normals(flat_objects.EMBOSS_REFERENCE_MM * motif, px)[2]
+        factor = factor * (1.0 - material.print_contrast * (1.0 - nz))
+    return factor
+
+
 def render_pose(kind: str, material: Material, shape_params: dict, pose: dict, rig: Rig,
                 rng: np.random.Generator, model_noise: float = 0.0) -> np.ndarray:
     """The 32 single-LED images ``(4, sites, H, W)`` of one pose, in gray levels."""
     size = rig.image_size[0]
     x, y, px = _grid(size, rig.field_of_view_mm)
-    z_obj, mask = _shape(kind, x, y, shape_params, pose)
+    flat = kind in FLAT_TYPES
+    if flat:
+        z_obj, mask, motif = flat_objects.shape(kind, x, y, shape_params, pose)
+        z_obj = z_obj + material.emboss_mm * motif
+    else:
+        z_obj, mask = _shape(kind, x, y, shape_params, pose)
     mask_f = mask.astype(np.float64)
     # micro-relief: pores are dimples (negative), ridges for the banana come from the shape
     relief = _smooth_noise(rng, x.shape, material.relief_scale_mm / px)
@@ -305,6 +354,8 @@ def render_pose(kind: str, material: Material, shape_params: dict, pose: dict, r
     for c in range(4):
         obj = material.albedo[c] * tint[c] * np.clip(1 + material.pigment_contrast[c] * mottle,
                                                      0.05, None)
+        if flat:
+            obj = obj * _print_factor(material, motif, px, c)
         albedo[c] = mask_f * obj + (1 - mask_f) * FLOOR_ALBEDO[c]
     shininess = 1.0 / (1.0 / material.shininess + 1.0 / DIFFUSER_SHININESS)
     spec_norm = (shininess + 8.0) / 8.0
@@ -355,26 +406,43 @@ class SampleJob:
 
 def _instance_params(kind: str, seed: tuple) -> dict:
     rng = np.random.default_rng(np.random.SeedSequence(seed))
-    params = _instance_shape(kind, rng)
+    params = (flat_objects.instance_params(kind, rng) if kind in FLAT_TYPES
+              else _instance_shape(kind, rng))
     overall = rng.uniform(0.9, 1.1)  # overall albedo varies between instances...
     params["tint"] = tuple(overall * rng.uniform(0.95, 1.05, 4))  # ...and a little per colour
     return params
 
 
-def _pose_params(seed: tuple) -> dict:
-    # objects are placed roughly the same way up on the stage: +-35 deg about a canonical
-    # orientation, +-8 mm off centre, tilted up to ~30 deg
+FREE_SHIFT_MM = 25.0  # free placement: centre anywhere within +-25 mm of the stage centre
+FREE_SCALE = (0.9, 1.1)  # free placement: apparent size change (distance, object size)
+
+
+def _pose_params(seed: tuple, placement: str = "canonical") -> dict:
     rng = np.random.default_rng(np.random.SeedSequence(seed))
-    return {"cx": rng.uniform(-8, 8), "cy": rng.uniform(-8, 8),
-            "rotation": rng.uniform(-0.6, 0.6), "tilt": rng.uniform(0, 0.5)}
+    if placement == "canonical":
+        # objects are placed roughly the same way up on the stage: +-35 deg about a
+        # canonical orientation, +-8 mm off centre, tilted up to ~30 deg
+        return {"cx": rng.uniform(-8, 8), "cy": rng.uniform(-8, 8),
+                "rotation": rng.uniform(-0.6, 0.6), "tilt": rng.uniform(0, 0.5)}
+    if placement == "free":
+        # placed any way: any in-plane rotation, anywhere near the centre, a little larger
+        # or smaller
+        return {"cx": rng.uniform(-FREE_SHIFT_MM, FREE_SHIFT_MM),
+                "cy": rng.uniform(-FREE_SHIFT_MM, FREE_SHIFT_MM),
+                "rotation": rng.uniform(-math.pi, math.pi), "tilt": rng.uniform(0, 0.5),
+                "scale": rng.uniform(*FREE_SCALE)}
+    raise ValueError(f"unknown placement {placement!r}; choose from {', '.join(PLACEMENTS)}")
 
 
-def render_job(job: SampleJob, rig: Rig, strength: float, model_noise: float) -> np.ndarray:
+def render_job(job: SampleJob, rig: Rig, strength: float, model_noise: float,
+               placement: str = "canonical") -> np.ndarray:
     materials = MATERIALS[job.kind]
     material = materials["real"] if job.variant == "real" else blend_materials(
         materials["real"], materials["fake"], strength)
     shape = _instance_params(job.kind, job.seed[:-1])
-    pose = _pose_params(job.seed + (1,))
+    pose = _pose_params(job.seed + (1,), placement)
+    if "scale" in pose:
+        shape = {**shape, "scale": shape["scale"] * pose["scale"]}
     rng = np.random.default_rng(np.random.SeedSequence(job.seed + (2,)))
     return render_pose(job.kind, material, shape, pose, rig, rng, model_noise)
 
@@ -384,19 +452,19 @@ def plan(object_types, n_samples_per_class: int, n_poses: int, seed: int) -> lis
     for t_index, kind in enumerate(object_types):
         if kind not in MATERIALS:
             raise ValueError(f"unknown object type {kind!r}; choose from "
-                             f"{', '.join(OBJECT_TYPES)}")
+                             f"{', '.join(ALL_OBJECT_TYPES)}")
         for v_index, variant in enumerate(VARIANTS):
             for inst in range(n_samples_per_class):
                 for pose in range(n_poses):
+                    seed_key = (int(seed), ALL_OBJECT_TYPES.index(kind), v_index, inst, pose)
                     jobs.append(SampleJob(f"{kind}-{variant}", kind, variant, inst, pose,
-                                          (int(seed), OBJECT_TYPES.index(kind), v_index, inst,
-                                           pose)))
+                                          seed_key))
     return jobs
 
 
 def _write_job(out_dir: Path, job: SampleJob, rig: Rig, strength: float, model_noise: float,
-               compress_level: int) -> None:
-    model = render_job(job, rig, strength, model_noise)
+               compress_level: int, placement: str = "canonical") -> None:
+    model = render_job(job, rig, strength, model_noise, placement)
     write_pose(out_dir / job.class_name / f"s{job.instance}" / f"p{job.pose:02d}", model,
                rig.bit_depth, compress_level)
 
@@ -405,12 +473,14 @@ def generate(out_dir, image_size: int = DEFAULT_SIZE, n_samples_per_class: int =
              n_poses: int = DEFAULT_POSES, seed: int = DEFAULT_SEED,
              object_types=OBJECT_TYPES, n_jobs: int = 2, strength: float = 1.0,
              model_noise: float = 0.1, compress_level: int = 2, progress=None,
-             overwrite: bool = False) -> Path:
+             overwrite: bool = False, placement: str = "canonical") -> Path:
     """Write the synthetic dataset as a capture folder; returns its path.
 
     Every class gets `n_samples_per_class` instances x `n_poses` poses (20 pose indices per
     class by default). `strength` scales the real/fake material differences (1 = tabled).
     `model_noise` is the residual noise (std, gray levels) of the averaged model captures.
+    `placement`: "canonical" (+-35 deg about one orientation, +-8 mm off centre; the
+    default) or "free" (any in-plane rotation, +-25 mm, scale 0.9..1.1).
     Deterministic for a seed, whatever `n_jobs`. A non-empty `out_dir` is refused unless
     `overwrite` (files of the same names are then replaced; other folders are left alone
     and would be loaded as extra classes, so prefer a fresh folder).
@@ -421,6 +491,8 @@ def generate(out_dir, image_size: int = DEFAULT_SIZE, n_samples_per_class: int =
         raise ValueError(f"image_size must be >= 16 pixels, got {image_size}")
     if n_samples_per_class < 1 or n_poses < 1:
         raise ValueError("need at least one sample and one pose per class")
+    if placement not in PLACEMENTS:
+        raise ValueError(f"unknown placement {placement!r}; choose from {', '.join(PLACEMENTS)}")
     object_types = tuple(object_types)
     out_dir = Path(out_dir)
     if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
@@ -434,7 +506,8 @@ def generate(out_dir, image_size: int = DEFAULT_SIZE, n_samples_per_class: int =
     rig.save_yaml(out_dir / "rig.yaml")
     jobs = plan(object_types, n_samples_per_class, n_poses, seed)
     runner = Parallel(n_jobs=n_jobs, return_as="generator", batch_size=4)
-    tasks = (delayed(_write_job)(out_dir, job, rig, strength, model_noise, compress_level)
+    tasks = (delayed(_write_job)(out_dir, job, rig, strength, model_noise, compress_level,
+                                 placement)
              for job in jobs)
     for done, _ in enumerate(runner(tasks), start=1):
         if progress is not None:
@@ -449,8 +522,12 @@ def _dir_size(path: Path) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="lightstage synth",
-        description="Write the synthetic light-stage dataset (real and fake fruit, "
-                    "relightable models) as a capture folder.")
+        description="Write the synthetic light-stage dataset (relightable models of real "
+                    "and fake objects) as a capture folder. Object types: the five fruit "
+                    "(default) and flat objects whose classes differ only under particular "
+                    "light: coin (embossed brass token vs a flat print of it: alike under "
+                    "all LEDs, apart under grazing light) and note (paper note whose inks are "
+                    "NIR-transparent vs a copy whose inks absorb NIR).")
     parser.add_argument("out_dir", help="folder to write (created if missing)")
     parser.add_argument("--size", type=int, default=DEFAULT_SIZE,
                         help=f"image side in pixels (default {DEFAULT_SIZE})")
@@ -460,7 +537,13 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"samples (instances) per class (default {DEFAULT_SAMPLES})")
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
     parser.add_argument("--types", default=",".join(OBJECT_TYPES),
-                        help="comma-separated object types (default: all five)")
+                        help="comma-separated object types, from "
+                             f"{', '.join(ALL_OBJECT_TYPES)} (default: the five fruit)")
+    parser.add_argument("--placement", choices=PLACEMENTS, default="canonical",
+                        help="how objects lie on the stage: canonical (roughly the same way "
+                             "up: +-35 deg, +-8 mm off centre; the default) or free (any "
+                             f"in-plane rotation, +-{FREE_SHIFT_MM:g} mm off centre, scale "
+                             f"{FREE_SCALE[0]:g}..{FREE_SCALE[1]:g})")
     parser.add_argument("--strength", type=float, default=1.0,
                         help="scale of the real/fake differences (default 1)")
     parser.add_argument("--jobs", type=jobs_type, default=2, help="parallel processes (default 2)")
@@ -490,9 +573,10 @@ def main(argv: list[str] | None = None) -> int:
                   f"{args.size}x{max(4, args.size * 3 // 4)} px)")
         return 0
     types = [t.strip() for t in args.types.split(",") if t.strip()]
-    unknown = [t for t in types if t not in OBJECT_TYPES]
+    unknown = [t for t in types if t not in ALL_OBJECT_TYPES]
     if unknown:
-        parser.error(f"unknown object type(s) {unknown}; choose from {', '.join(OBJECT_TYPES)}")
+        parser.error(f"unknown object type(s) {unknown}; choose from "
+                     f"{', '.join(ALL_OBJECT_TYPES)}")
     start = time.perf_counter()
 
     def progress(done, total):
@@ -503,13 +587,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         out = generate(args.out_dir, args.size, args.samples, args.poses, args.seed, types,
                        n_jobs=args.jobs, strength=args.strength, progress=progress,
-                       overwrite=args.force)
+                       overwrite=args.force, placement=args.placement)
     except ValueError as exc:
         print(f"lightstage synth: {exc}", file=sys.stderr)
         return 2
     if not args.quiet:
         print(f"wrote {out} ({len(types) * 2} classes x {args.samples} samples x {args.poses} "
-              f"poses, {_dir_size(out) / 1e6:.0f} MB) in {time.perf_counter() - start:.1f} s")
+              f"poses, {args.placement} placement, {_dir_size(out) / 1e6:.0f} MB) in "
+              f"{time.perf_counter() - start:.1f} s")
     return 0
 
 

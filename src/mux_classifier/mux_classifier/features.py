@@ -1,4 +1,11 @@
-"""A sample's feature vector: the HOG descriptors of its images, concatenated in image order.
+"""A sample's feature vector: the features of its images, concatenated in image order.
+
+The paper's feature is the HOG grid (`stack_features`, below). Other extractors are chosen
+by name (`extractor(name)`, `EXTRACTORS`); every one keeps the layout described here (a
+fixed number of values per image, image j's in columns j*d .. (j+1)*d - 1) and has a
+scikit-learn style ``fit(stacks)`` / ``transform(stacks)``: whatever it learns (a codebook,
+standardisation statistics) comes from the stacks given to ``fit`` only, so fit on
+training poses and transform held-out ones.
 
 A *stack* is the k images of one sample taken under k illumination patterns, shape
 (k, H, W); a batch of stacks is (n, k, H, W). Image j's 900 HOG values occupy columns
@@ -12,7 +19,8 @@ import numpy as np
 
 from .hog import HogConfig, hog_batch
 
-__all__ = ["stack_features", "check_stacks"]
+__all__ = ["stack_features", "check_stacks", "EXTRACTORS", "DEFAULT_EXTRACTOR", "extractor",
+           "StackFeatureExtractor", "features_for_split"]
 
 
 def check_stacks(stacks, config: HogConfig = HogConfig(), n_images: int | None = None) -> np.ndarray:
@@ -49,3 +57,218 @@ def stack_features(stacks, config: HogConfig = HogConfig()) -> np.ndarray:
         return np.zeros((0, k * config.n_features), dtype=np.float32)
     flat = hog_batch(arr.reshape(n * k, *arr.shape[2:]), config)
     return flat.reshape(n, k * config.n_features)
+
+
+# ---- feature extractors by name ------------------------------------------------------------
+class StackFeatureExtractor:
+    """Base of the named extractors: stacks (n, k, H, W) -> float32 (n, k * features_per_image).
+
+    Subclasses implement ``_raw(stacks)``; with ``standardise`` each of the per-image values
+    is z-scored with a mean and scale learnt in ``fit`` over all training images (the same
+    for every image position, so any k can be transformed and a prefix of the columns is the
+    features of the first images).
+    """
+
+    name = ""
+    standardise = False
+
+    def __init__(self, image_size: int = 120):
+        self.image_size = int(image_size)
+
+    @property
+    def features_per_image(self) -> int:
+        raise NotImplementedError
+
+    def _raw(self, stacks: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _check(self, stacks) -> np.ndarray:
+        return check_stacks(stacks, HogConfig(image_size=self.image_size))
+
+    def fit(self, stacks, y=None):
+        """Learn from training stacks only (nothing for a stateless extractor); returns self."""
+        arr = self._check(stacks)
+        if self.standardise:
+            per_image = self._raw(arr).reshape(-1, self.features_per_image).astype(np.float64)
+            self.mean_ = per_image.mean(axis=0)
+            self.scale_ = per_image.std(axis=0) + 1e-6 * (np.abs(self.mean_) + 1.0)
+        self.fitted_ = True
+        return self
+
+    def transform(self, stacks) -> np.ndarray:
+        arr = self._check(stacks)
+        if not getattr(self, "fitted_", False):
+            raise ValueError(f"feature extractor {self.name!r} is not fitted; call fit(training "
+                             "stacks) first")
+        n, k = arr.shape[:2]
+        X = self._raw(arr)
+        if self.standardise:
+            X = ((X.reshape(n, k, -1) - self.mean_) / self.scale_).reshape(n, -1)
+        return np.ascontiguousarray(X, dtype=np.float32)
+
+    def fit_transform(self, stacks, y=None) -> np.ndarray:
+        return self.fit(stacks).transform(stacks)
+
+    def learned_state(self) -> dict:
+        """The arrays learnt in fit (for the artifact and for leak tests)."""
+        return {k: v for k, v in (("mean", getattr(self, "mean_", None)),
+                                  ("scale", getattr(self, "scale_", None))) if v is not None}
+
+    def restore(self, state: dict) -> "StackFeatureExtractor":
+        """A fitted extractor from `learned_state()` arrays (loading an artifact; no pickle)."""
+        if self.standardise:
+            d = self.features_per_image
+            missing = {"mean", "scale"} - set(state)
+            if missing:
+                raise ValueError(f"feature extractor {self.name!r} needs learned arrays "
+                                 f"{sorted(missing)} to be restored")
+            self.mean_ = np.asarray(state["mean"], dtype=np.float64).reshape(-1)
+            self.scale_ = np.asarray(state["scale"], dtype=np.float64).reshape(-1)
+            if self.mean_.size != d or self.scale_.size != d or not (self.scale_ > 0).all():
+                raise ValueError(f"feature extractor {self.name!r}: mean and scale must hold "
+                                 f"{d} values (scale > 0), got {self.mean_.size} and "
+                                 f"{self.scale_.size}")
+        elif state:
+            raise ValueError(f"feature extractor {self.name!r} learns nothing; got arrays "
+                             f"{sorted(state)}")
+        self.fitted_ = True
+        return self
+
+
+class HogGridExtractor(StackFeatureExtractor):
+    """The paper's HOG grid (`stack_features`): 900 values per 120 px image; nothing learnt."""
+
+    name = "hog_grid"
+
+    def __init__(self, image_size: int = 120, config: HogConfig | None = None):
+        super().__init__(image_size)
+        self.config = HogConfig(image_size=self.image_size) if config is None else config
+
+    @property
+    def features_per_image(self) -> int:
+        return self.config.n_features
+
+    def _check(self, stacks):
+        return check_stacks(stacks, self.config)
+
+    def _raw(self, stacks):
+        return stack_features(stacks, self.config)
+
+
+class PoseNormalisedHogExtractor(HogGridExtractor):
+    """Centre the object on its principal axis, then the HOG grid (`pose_normalise`)."""
+
+    name = "pose_hog"
+
+    def _raw(self, stacks):
+        from .pose_normalise import pose_normalised_hog
+        return pose_normalised_hog(stacks, self.config)
+
+
+class PooledHogExtractor(StackFeatureExtractor):
+    """Dense local HOG pooled over the object (`pooled_hog`), standardised: 72 per image."""
+
+    name = "pooled_hog"
+    standardise = True
+
+    @property
+    def features_per_image(self) -> int:
+        return 72
+
+    def _raw(self, stacks):
+        from .pooled_hog import pooled_hog
+        return pooled_hog(stacks, self.image_size)
+
+
+class IntensityStatsExtractor(StackFeatureExtractor):
+    """Object reflectance statistics per image (`intensity_stats`), standardised: 9 per image."""
+
+    name = "intensity_stats"
+    standardise = True
+
+    @property
+    def features_per_image(self) -> int:
+        from .intensity_stats import N_STATS
+        return N_STATS
+
+    def _raw(self, stacks):
+        from .intensity_stats import intensity_stats
+        return intensity_stats(stacks)
+
+
+class PooledHogStatsExtractor(StackFeatureExtractor):
+    """Pooled local HOG and reflectance statistics side by side, per image: 81 per image."""
+
+    name = "pooled_hog_stats"
+    standardise = True
+
+    def __init__(self, image_size: int = 120):
+        super().__init__(image_size)
+        self._parts = (PooledHogExtractor(image_size), IntensityStatsExtractor(image_size))
+
+    @property
+    def features_per_image(self) -> int:
+        return sum(p.features_per_image for p in self._parts)
+
+    def _raw(self, stacks):
+        n, k = stacks.shape[:2]
+        return np.concatenate([p._raw(stacks).reshape(n, k, -1) for p in self._parts],
+                              axis=2).reshape(n, -1)
+
+
+class BagOfWordsExtractor(StackFeatureExtractor):
+    """Dense-HOG bag of visual words per image (`bow.BagOfVisualWords`, hellinger norm);
+    the codebook is learnt in fit."""
+
+    name = "bow"
+
+    def __init__(self, image_size: int = 120, n_words: int = 200, random_state: int = 0):
+        super().__init__(image_size)
+        self.n_words = n_words
+        self.random_state = random_state
+
+    @property
+    def features_per_image(self) -> int:
+        return self.n_words
+
+    def fit(self, stacks, y=None):
+        from .bow import BagOfVisualWords
+        arr = self._check(stacks)
+        self.bow_ = BagOfVisualWords(n_words=self.n_words, norm="hellinger",
+                                     image_size=self.image_size,
+                                     random_state=self.random_state).fit(arr)
+        self.fitted_ = True
+        return self
+
+    def _raw(self, stacks):
+        return self.bow_.transform(stacks)
+
+    def learned_state(self) -> dict:
+        return {"codebook": self.bow_.codebook_} if hasattr(self, "bow_") else {}
+
+    def restore(self, state: dict):
+        raise ValueError("the bag-of-words extractor cannot be restored from arrays yet "
+                         "(its transform needs the fitted k-means); refit it")
+
+
+EXTRACTORS: dict[str, type[StackFeatureExtractor]] = {
+    cls.name: cls for cls in (HogGridExtractor, PoseNormalisedHogExtractor, PooledHogExtractor,
+                              IntensityStatsExtractor, PooledHogStatsExtractor,
+                              BagOfWordsExtractor)}
+DEFAULT_EXTRACTOR = "hog_grid"
+
+
+def extractor(name: str = DEFAULT_EXTRACTOR, **params) -> StackFeatureExtractor:
+    """A new, unfitted feature extractor by name (see `EXTRACTORS`)."""
+    if name not in EXTRACTORS:
+        raise ValueError(f"unknown feature extractor {name!r}; choose from "
+                         f"{', '.join(EXTRACTORS)}")
+    return EXTRACTORS[name](**params)
+
+
+def features_for_split(name: str, stacks, train, test, **params):
+    """Features of one train/test split: a new extractor fit on ``stacks[train]`` alone, then
+    (X_train, X_test, fitted extractor). The held-out stacks never reach ``fit``."""
+    arr = np.asarray(stacks)
+    ex = extractor(name, **params).fit(arr[train])
+    return ex.transform(arr[train]), ex.transform(arr[test]), ex

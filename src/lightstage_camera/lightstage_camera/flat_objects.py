@@ -1,0 +1,89 @@
+"""Flat and low-relief objects for the synthetic stage: coins and banknote-like prints.
+
+Their classes differ only under particular light, not in outline:
+
+- ``coin``: a brass token with an embossed motif (real) against a flat printed copy of the
+  same token (fake) whose print reproduces the motif's shading under diffuse light. With
+  every LED on the two look alike; a grazing site casts shading and shadows that turn with
+  the light on the embossed one and stay put on the print.
+- ``note``: a paper note printed with a design; the real note's inks are transparent in
+  NIR (the NIR image shows plain paper, brighter), the copy's inks absorb NIR too. Visible
+  images look alike.
+
+Each instance has its own motif/design (a smoothed random field on the object's own grid),
+so a classifier must learn relief vs print or NIR ink, not a particular design. Geometry
+follows the pose (centre, in-plane rotation, scale); materials are in `synth.MATERIALS`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import ndimage
+
+FLAT_TYPES = ("coin", "note")
+COIN_RADIUS_MM = 26.0
+COIN_THICKNESS_MM = 2.0
+NOTE_SIZE_MM = (96.0, 48.0)  # length, width
+NOTE_THICKNESS_MM = 0.2
+MOTIF_GRID = 64  # object-frame samples per side of a motif/design field
+EMBOSS_REFERENCE_MM = 0.5  # relief depth whose diffuse shading a printed copy reproduces
+
+
+def _motif_field(rng, scale_px: float, threshold: float) -> np.ndarray:
+    """Plateaus (0..1) of a smoothed random field on the object's own grid."""
+    field = ndimage.gaussian_filter(rng.standard_normal((MOTIF_GRID, MOTIF_GRID)), scale_px,
+                                    mode="wrap")
+    field /= field.std() + 1e-12
+    plateaus = (field > threshold).astype(np.float64)
+    return ndimage.gaussian_filter(plateaus, 0.8)  # soft edges: ~1 mm slopes on a coin
+
+
+def instance_params(kind: str, rng) -> dict:
+    """Shape parameters of one instance (its own motif or design)."""
+    params = {"scale": rng.uniform(0.95, 1.05)}
+    if kind == "coin":
+        params["motif"] = _motif_field(rng, 3.5, 0.3)
+    elif kind == "note":
+        params["design"] = _motif_field(rng, 2.5, 0.0)
+    else:
+        raise ValueError(f"unknown flat object type {kind!r}; choose from {', '.join(FLAT_TYPES)}")
+    return params
+
+
+def _object_frame(x, y, pose: dict):
+    """Image coordinates (mm) -> the object's own frame (mm, unscaled)."""
+    c, s = math.cos(pose["rotation"]), math.sin(pose["rotation"])
+    dx, dy = x - pose["cx"], y - pose["cy"]
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+def _sample(field: np.ndarray, u, v, half_extent_mm: tuple[float, float]) -> np.ndarray:
+    """A field on the object grid (covering +-half_extent) sampled at object coords u, v."""
+    rows = (0.5 - v / (2 * half_extent_mm[1])) * (MOTIF_GRID - 1)
+    cols = (u / (2 * half_extent_mm[0]) + 0.5) * (MOTIF_GRID - 1)
+    return ndimage.map_coordinates(field, [rows, cols], order=1, mode="nearest")
+
+
+def shape(kind: str, x, y, shape_params: dict, pose: dict):
+    """Height field (mm), object mask, and the motif (0..1; the coin's relief pattern or the
+    note's ink design) in image coordinates, for one pose."""
+    scale = shape_params["scale"]
+    u, v = _object_frame(x, y, pose)
+    u, v = u / scale, v / scale
+    if kind == "coin":
+        r = COIN_RADIUS_MM
+        rho = np.hypot(u, v)
+        mask = rho < r
+        rim = ((rho > 0.86 * r) & mask).astype(np.float64)
+        motif = np.maximum(_sample(shape_params["motif"], u, v, (r, r)) * (rho < 0.8 * r),
+                           ndimage.gaussian_filter(rim, 0.8))
+        z = np.where(mask, COIN_THICKNESS_MM, 0.0)
+        return z, mask, motif * mask
+    if kind == "note":
+        half = (NOTE_SIZE_MM[0] / 2, NOTE_SIZE_MM[1] / 2)
+        mask = (np.abs(u) < half[0]) & (np.abs(v) < half[1])
+        design = _sample(shape_params["design"], u, v, half)
+        z = np.where(mask, NOTE_THICKNESS_MM, 0.0)
+        return z, mask, design * mask
+    raise ValueError(f"unknown flat object type {kind!r}; choose from {', '.join(FLAT_TYPES)}")
