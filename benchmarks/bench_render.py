@@ -4,7 +4,7 @@ Full-resolution path (what the paper's code does): render I = L @ w at full reso
 add camera noise per full-resolution pixel, clip, block-mean downscale to 120 x 120.
 Fast path: downscale the models once (ModelSet.downscaled), then render at 120 x 120 and
 add noise whose variance is scaled by the downscale's factor (noise_scale). Both produce
-the same statistics away from saturation (tests/camera/test_lowres.py).
+the same statistics away from saturation (tests/lightstage_camera/test_lowres.py).
 
     PYTHONPATH=src/lightstage_camera .venv/bin/python benchmarks/bench_render.py [--size 240]
 """

@@ -30,7 +30,7 @@ fi
 if [ -z "$why" ]; then
   echo "[run_tests] pytest runs in a private network namespace: loopback only, no packet can leave the machine"
   # tests/conftest.py reports the interfaces it sees in pytest's header; "private" tells the
-  # test that checks nothing can leave (tests/ros/test_ros_environment.py) that it should
+  # test that checks nothing can leave (tests/lightstage_graph/test_ros_environment.py) that it should
   export LIGHTSTAGE_TEST_NETNS=private
   "${UNSHARE[@]}" sh -c 'ip link set lo up && exec "$@"' sh "${PYTEST[@]}"
   rc=$?

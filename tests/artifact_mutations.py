@@ -1,5 +1,5 @@
 """Hypothesis strategies for malformed trained-classifier files, shared by the loader's fuzz
-test (tests/classifier) and the classifier node's (tests/nodes).
+test (tests/mux_classifier) and the classifier node's (tests/mux_classifier/test_inference_graph.py).
 
 `mutated_artifacts(original)` draws the bytes of a file derived from a valid artifact: the
 whole file's bytes mutated, or its zip members replaced, mutated, dropped or added, or one

@@ -1,9 +1,11 @@
-"""Shared by the test directories that run ROS graphs (tests/nodes, tests/recording,
-tests/acquisition, tests/ros): domain ids, parameter files, node processes (the in-process
+"""Shared by the test directories that run ROS graphs (each package's folder under tests/,
+which mirrors src/): domain ids, parameter files, node processes (the in-process
 rclpy client is `lightstage_graph.graph_client.GraphClient`); and the site patterns of the suite's small trained artifact (tests/conftest.py).
 
 Imported as `suite_helpers`: pytest puts tests/ on sys.path when it loads tests/conftest.py
 (the default "prepend" import mode), as it puts each test directory there for its own helpers.
+Helpers shared by more than one package's tests live here beside it (ros_helpers,
+proc_sockets, dask_helpers, artifact_mutations).
 """
 from __future__ import annotations
 
@@ -19,6 +21,8 @@ from lightstage_bringup.launcher import NODE_REGISTRY, node_command
 from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 from lightstage_graph.graph_client import GraphClient, parameter_msgs  # noqa: F401 (for the tests)
 from lightstage_graph.ros_env import ros_environment
+
+REPO = Path(__file__).resolve().parents[1]  # the repository: tests/ mirror its src/ packages
 
 # two site patterns -> a per-colour artifact with classifiers for 4 and 8 images
 TRAIN_SITE_PATTERNS = np.zeros((8, 2), np.float32)

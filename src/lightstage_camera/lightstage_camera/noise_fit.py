@@ -252,7 +252,7 @@ def fit_uncertainty(char: NoiseCharacteristic, fit: NoiseModel) -> tuple[float, 
     The fit is weighted least squares with the bins' variances (`bin_standard_errors`)
     under a Huber loss, so its covariance is (X' W X)^-1 times Huber's factor
     E[psi^2] / E[psi']^2 of the standardized residuals (1.00 on clean data, more when bins
-    stray). tests/acquisition/test_calibration_coverage.py checks over many simulated
+    stray). tests/lightstage_camera/acquisition/test_calibration_coverage.py checks over many simulated
     calibrations and frame counts that the configured noise falls inside +-1 and +-2 of
     these standard errors at the normal rates (68.3 %, 95.4 %).
     """

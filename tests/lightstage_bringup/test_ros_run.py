@@ -15,11 +15,10 @@ import pytest
 import yaml
 
 from ros_helpers import running_nodes
-from suite_helpers import GraphClient, fresh_domain_id
+from suite_helpers import REPO, GraphClient, fresh_domain_id
 
 pytestmark = pytest.mark.ros
 
-REPO = Path(__file__).resolve().parents[2]
 SHIPPED_YAML = REPO / 'src' / 'lightstage_bringup' / 'config' / 'lightstage.yaml'
 VENV = Path(sys.prefix)  # the suite runs with the venv's interpreter
 PROJECT_PACKAGES = sorted(p.parent.name for p in (REPO / 'src').glob('*/package.xml'))

@@ -121,6 +121,9 @@ def test_a_hung_firmware_gives_no_reply_error_in_time_and_its_watchdog_darkens(s
 
 def test_always_corrupted_replies_give_a_clear_error(sim, stage):
     sim.set_faults(corrupt_tx_prob=1.0)
+    # a reply the loaded machine delays past the 100 ms reply timeout would count as a
+    # timeout, not a CRC error: a generous timeout keeps this about corruption alone
+    stage.link.timeout_s = 5.0
     with pytest.raises(ReplyChecksumError, match=r'4 attempt\(s\) at HEARTBEAT met a CRC mismatch.*baud rate'):
         stage.heartbeat()
     # corrupted replies are retried at once, not after the reply timeout

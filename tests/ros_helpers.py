@@ -1,4 +1,5 @@
-"""Shared by the tests/ros tests: node processes through the supervisor, checked by the graph
+"""Shared by the tests that start node processes from the ROS side (ros2 run, cross-process
+interfaces, the trainer on Dask): node processes through the supervisor, checked by the graph
 as `lightstage up` does (domain ids and the in-process client are suite_helpers)."""
 from __future__ import annotations
 

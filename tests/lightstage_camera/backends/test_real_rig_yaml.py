@@ -3,7 +3,9 @@ from pathlib import Path
 
 import yaml
 
-REAL_RIG = Path(__file__).resolve().parents[2] / 'src' / 'lightstage_bringup' / 'config' / 'real_rig.yaml'
+from suite_helpers import REPO
+
+REAL_RIG = REPO / 'src' / 'lightstage_bringup' / 'config' / 'real_rig.yaml'
 
 
 def test_every_parameter_of_the_real_rig_yaml_is_declared_with_its_type():

@@ -15,6 +15,8 @@ import pytest
 from bringup_helpers import child_environment, fresh_domain_id, launcher_argv
 from lightstage_bringup import launcher
 
+from suite_helpers import REPO
+
 pytestmark = pytest.mark.ros
 
 FAKE = 'bringup_fake_node'
@@ -151,7 +153,7 @@ def _alive(pid: int) -> bool:
 def test_up_with_the_project_nodes_and_config(tmp_path):
     """The default set (driver, camera, classifier) from the registry with the shipped params
     YAML: every node starts, spins and stops cleanly (unconfigured camera/classifier only log)."""
-    config = Path(__file__).resolve().parents[2] / 'src' / 'lightstage_bringup' / 'config' / 'lightstage.yaml'
+    config = REPO / 'src' / 'lightstage_bringup' / 'config' / 'lightstage.yaml'
     p = run_up('--params', str(config), '--exit-after-up', '--log-dir', str(tmp_path), timeout_s=60)
     assert p.returncode == 0, p.stdout + p.stderr
     (up_line,) = [ln for ln in p.stdout.splitlines() if ln.startswith('graph up: ')]
@@ -216,5 +218,5 @@ def test_default_recording_is_bounded_unless_the_params_file_says_otherwise(tmp_
     params.write_text('recorder:\n  ros__parameters:\n    max_bag_files: 0\n')
     assert launcher.recorder_ros_args(bag, params) == [
         '-p', f'recorder:output_dir:={bag}', '-p', f'recorder:max_bag_size_bytes:={1 << 30}']
-    shipped = Path(__file__).resolve().parents[2] / 'src' / 'lightstage_bringup' / 'config' / 'lightstage.yaml'
+    shipped = REPO / 'src' / 'lightstage_bringup' / 'config' / 'lightstage.yaml'
     assert launcher.recorder_ros_args(bag, shipped) == ['-p', f'recorder:output_dir:={bag}']

@@ -24,7 +24,9 @@ from lifecycle_msgs.srv import ChangeState  # noqa: E402
 from lightstage_interfaces.msg import IlluminationState, Pattern  # noqa: E402
 from lightstage_interfaces.srv import ApplyPatterns  # noqa: E402
 
-SRC = Path(__file__).resolve().parents[2] / 'src'
+from suite_helpers import REPO
+
+SRC = REPO / 'src'
 
 
 def own_domain(k: int) -> int:

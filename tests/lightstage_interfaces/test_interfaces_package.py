@@ -5,7 +5,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-SRC = Path(__file__).resolve().parents[2] / 'src' / 'lightstage_interfaces'
+from suite_helpers import REPO
+
+SRC = REPO / 'src' / 'lightstage_interfaces'
 PREFIX = Path(sys.prefix)
 SHARE = PREFIX / 'share' / 'lightstage_interfaces'
 REBUILD = f'rebuild it: {sys.executable} -m pip install --no-build-isolation --no-deps --force-reinstall {SRC}'

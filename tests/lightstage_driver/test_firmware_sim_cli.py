@@ -6,7 +6,9 @@ from pathlib import Path
 
 from lightstage_driver.stage import LightStage
 
-SRC = Path(__file__).resolve().parents[2] / 'src' / 'lightstage_driver'
+from suite_helpers import REPO
+
+SRC = REPO / 'src' / 'lightstage_driver'
 
 
 def test_standalone_simulator_prints_its_pty_and_answers():

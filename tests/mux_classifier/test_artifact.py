@@ -19,6 +19,8 @@ from mux_classifier.estimator import MuxClassifier
 
 from artifact_mutations import mutated_artifacts
 
+from suite_helpers import REPO
+
 SIGMA3 = {"name": "sigma3", "sigma_p2": 0.94, "sigma_r2": 117.37, "gain_db": 17.5,
           "exposure_ms": 22.5}
 
@@ -152,7 +154,7 @@ def test_a_format_1_file_loads_with_the_dimmer_every_earlier_training_used(artif
 
 
 def test_the_bundled_format_1_artifact_still_loads():
-    bundled = Path(__file__).resolve().parents[2] / "bags" / "sim_session_classifier.npz"
+    bundled = REPO / "bags" / "sim_session_classifier.npz"
     with np.load(bundled, allow_pickle=False) as npz:
         assert json.loads(npz["header"].tobytes().decode())["format_version"] == 1
     art = TrainedArtifact.load(bundled)

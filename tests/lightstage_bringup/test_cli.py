@@ -7,6 +7,8 @@ import pytest
 
 from lightstage_bringup import cli
 
+from suite_helpers import REPO
+
 
 def test_help_lists_every_verb(capsys):
     assert cli.main(['--help']) == 0
@@ -36,7 +38,7 @@ def test_every_verb_points_at_a_callable(verb):
 
 
 def _ros_run_wrappers():
-    root = Path(__file__).resolve().parents[1] / 'src'
+    root = REPO / 'src'
     return sorted(root.glob('*/scripts/*'))
 
 

@@ -11,9 +11,8 @@ import numpy as np
 
 from lightstage_graph.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
-from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
+from suite_helpers import REPO, GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
-REPO = Path(__file__).resolve().parents[2]
 
 
 # ----------------------------------------------------------------------------- messages

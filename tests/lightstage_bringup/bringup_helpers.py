@@ -14,7 +14,7 @@ def fresh_domain_id() -> int:
     """A ROS domain id for one test: 1..99 (apart from the suite's 100..199), from the pid.
 
     Domains below 100 also keep every RTPS port under 32768, i.e. outside the ephemeral
-    port range (tests/ros relies on that to tell listening ports from send sockets).
+    port range (tests/lightstage_graph/test_ros_environment.py relies on that to tell listening ports from send sockets).
     """
     return 1 + (os.getpid() * 7 + next(_counter)) % 99
 

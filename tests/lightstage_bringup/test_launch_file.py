@@ -10,7 +10,9 @@ import yaml
 
 from lightstage_bringup import launcher
 
-PKG = Path(__file__).resolve().parents[2] / 'src' / 'lightstage_bringup'
+from suite_helpers import REPO
+
+PKG = REPO / 'src' / 'lightstage_bringup'
 LAUNCH = PKG / 'launch' / 'lightstage.launch.py'
 CONFIG = PKG / 'config' / 'lightstage.yaml'
 SRC = PKG.parent
