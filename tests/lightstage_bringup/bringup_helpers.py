@@ -33,3 +33,13 @@ def launcher_argv(*args: str, record: bool = False) -> list[str]:
     """`lightstage up ARGS` through the CLI dispatcher, run by this interpreter; without the
     recorder unless `record` (a test that records chooses where with --bag-dir)."""
     return [sys.executable, '-m', 'lightstage_bringup.cli', 'up', *args, *([] if record else ['--no-record'])]
+
+
+def pid_alive(pid: int) -> bool:
+    """The process exists and is not a zombie (a zombie still answers kill(pid, 0))."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f'/proc/{pid}/stat') as f:
+        return f.read().split(')')[-1].split()[0] != 'Z'

@@ -3,7 +3,6 @@
 The project's nodes are written by others; `--node NAME=MODULE` points the launcher at the
 fake nodes in this directory (bringup_fake_node.py, bringup_no_graph_node.py) instead.
 """
-import os
 import signal
 import subprocess
 import sys
@@ -12,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from bringup_helpers import child_environment, fresh_domain_id, launcher_argv
+from bringup_helpers import child_environment, fresh_domain_id, launcher_argv, pid_alive
 from lightstage_bringup import launcher
 
 from suite_helpers import REPO
@@ -62,7 +61,7 @@ def test_sigint_to_the_launcher_stops_every_node(tmp_path):
             lines.append(proc.stdout.readline())
         up = next(ln for ln in lines if ln.startswith('graph up: '))
         pids = [int(part.split(')')[0]) for part in up.split('(pid ')[1:]]
-        assert len(pids) == 2 and all(_alive(pid) for pid in pids)
+        assert len(pids) == 2 and all(pid_alive(pid) for pid in pids)
         time.sleep(0.5)  # running, not exiting by itself
         assert proc.poll() is None
         proc.send_signal(signal.SIGINT)
@@ -71,7 +70,7 @@ def test_sigint_to_the_launcher_stops_every_node(tmp_path):
         proc.kill()
     assert proc.returncode == 0, err
     assert 'SIGINT received; stopping' in err
-    assert not any(_alive(pid) for pid in pids)
+    assert not any(pid_alive(pid) for pid in pids)
 
 
 def test_a_node_dying_stops_the_rest_and_fails_naming_it(tmp_path):
@@ -139,15 +138,6 @@ def test_registry_points_at_the_project_node_modules():
     argv = launcher.node_command('pkg.mod', 'driver', '/p.yaml')
     assert argv[0] == sys.executable
     assert argv[argv.index('--ros-args'):] == ['--ros-args', '-r', '__node:=driver', '--params-file', '/p.yaml']
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    with open(f'/proc/{pid}/stat') as f:
-        return f.read().split(')')[-1].split()[0] != 'Z'
 
 
 def test_up_with_the_project_nodes_and_config(tmp_path):

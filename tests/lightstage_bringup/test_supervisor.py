@@ -13,6 +13,8 @@ import pytest
 from lightstage_bringup.supervisor import ExitReport, ProcessSpec, Supervisor
 from lightstage_graph.exits import describe_exit
 
+from bringup_helpers import pid_alive
+
 PY = sys.executable
 
 
@@ -61,16 +63,6 @@ def wait_for_pid_exit(pid: int, timeout_s: float = 30.0) -> bool:
         return bool(readable)
     finally:
         os.close(fd)
-
-
-def pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    # a zombie still answers kill(0); check its state
-    with open(f'/proc/{pid}/stat') as f:
-        return f.read().split(')')[-1].split()[0] != 'Z'
 
 
 def test_output_is_forwarded_line_by_line_with_the_name_and_logged(tmp_path):
