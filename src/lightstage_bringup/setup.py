@@ -11,14 +11,14 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', ['config/lightstage.yaml']),
+        ('share/' + package_name + '/config', ['config/lightstage.yaml', 'config/real_rig.yaml']),
         ('share/' + package_name + '/launch', ['launch/lightstage.launch.py']),
     ],
     install_requires=['setuptools'],
     zip_safe=False,
     maintainer='lightstage maintainers',
     maintainer_email='maintainers@lightstage.invalid',
-    description='Bring-up of the whole graph: the lightstage CLI, ROS environment, launch files, configuration.',
+    description='Bring-up of the whole graph: the lightstage CLI, lightstage up, launch file, configuration (the simulated stage and a real rig), the demo.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
