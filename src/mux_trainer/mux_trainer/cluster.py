@@ -162,6 +162,7 @@ class DaskCluster:
         results = []
         alone_since = None
         for future in futures:  # in task order: the result does not depend on arrival
+            troubled_since = None
             while True:
                 try:
                     results.append(future.result(timeout=POLL_S))
@@ -176,7 +177,14 @@ class DaskCluster:
                             'same lightstage packages as this machine') from None
                     if self.client.status == 'running' and future.status == 'error':
                         raise  # the task's own error: the search code's, not the cluster's
-                    raise self._lost(f'{type(exc).__name__}: {exc}') from None
+                    # While a lost worker's task is being moved, result() itself can fail
+                    # (distributed 2026.8 raised UnboundLocalError from it, once, on a
+                    # SIGKILLed worker): wait on while the client runs, for up to timeout_s.
+                    now = time.monotonic()
+                    troubled_since = now if troubled_since is None else troubled_since
+                    if (self.client.status != 'running' or future.status == 'cancelled'
+                            or now - troubled_since > self.timeout_s):
+                        raise self._lost(f'{type(exc).__name__}: {exc}') from None
                 alone_since = self._check_alive(alone_since)
         return results
 
