@@ -5,6 +5,7 @@ import os
 import re
 import shutil
 import subprocess
+import sys
 import xml.etree.ElementTree as ET
 
 import pytest
@@ -218,3 +219,57 @@ def test_the_suite_runs_where_no_packet_can_leave_the_machine():
         with pytest.raises(OSError) as excinfo:
             s.sendto(b'x', ('192.0.2.1', 9))  # TEST-NET-1: would need a route off the machine
     assert excinfo.value.errno == errno.ENETUNREACH
+
+
+# -- the service reply writer's profile ------------------------------------------------
+SERVICE_PROBE = '''
+import sys, time
+import rclpy
+from rcl_interfaces.srv import GetParameters
+rclpy.init()
+node = rclpy.create_node('reply_profile_probe')
+node.create_service(GetParameters, '/probe/echo', lambda request, response: response)
+client = node.create_client(GetParameters, '/probe/echo')
+deadline = time.monotonic() + float(sys.argv[1])
+while not client.service_is_ready() and time.monotonic() < deadline:
+    rclpy.spin_once(node, timeout_sec=0.05)
+if not client.service_is_ready():
+    print('not ready')
+else:
+    future = client.call_async(GetParameters.Request())
+    rclpy.spin_until_future_complete(node, future, timeout_sec=10.0)
+    print('answered' if future.done() else 'unanswered')
+'''
+
+
+def _probe_service(profile_path: str, wait_s: float) -> str:
+    env = ros_env.ros_environment(fresh_domain_id())
+    env['FASTRTPS_DEFAULT_PROFILES_FILE'] = profile_path
+    result = subprocess.run([sys.executable, '-c', SERVICE_PROBE, str(wait_s)], env=env,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    return result.stdout.strip()
+
+
+def test_the_profile_gives_service_replies_two_seconds_to_find_their_client():
+    root = ET.parse(ros_env.fastdds_profile_path()).getroot()
+    writer = root.find(f'.//{NS}data_writer[@profile_name="service"]')
+    blocking = writer.find(f'{NS}qos/{NS}reliability/{NS}max_blocking_time')
+    assert int(blocking.findtext(f'{NS}sec')) >= 1
+
+
+@pytest.mark.ros
+def test_the_service_profile_is_the_one_rmw_gives_the_reply_writer(tmp_path):
+    """Only if rmw_fastrtps takes the "service" profile for reply writers does its
+    max_blocking_time count: put that profile's writer into a partition no client reads, and
+    the service never becomes ready; with the profile as shipped, it answers."""
+    shipped = ros_env.fastdds_profile_path()
+    assert _probe_service(str(shipped), 10.0) == 'answered'
+    text = shipped.read_text()
+    moved = text.replace('<data_writer profile_name="service">\n      <qos>',
+                         '<data_writer profile_name="service">\n      <qos><partition><names>'
+                         '<name>nowhere</name></names></partition>', 1)
+    assert moved != text
+    path = tmp_path / 'service_writer_elsewhere.xml'
+    path.write_text(moved)
+    assert _probe_service(str(path), 3.0) == 'not ready'

@@ -48,6 +48,9 @@ class CameraGraphClient(GraphClient):
         self.node.create_subscription(FrameLost, FRAME_LOST_TOPIC, self.lost.append, IMAGE_QOS)
         self.node.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self.infos.append, IMAGE_QOS)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append, 50)
+        from lightstage_interfaces.srv import ApplyPatterns
+        # made now, so that the driver has discovered its reply reader by the first `fire`
+        self.service(ApplyPatterns, '/lightstage/apply_patterns')
 
     def fire(self, n, exposure_us=2000):
         from lightstage_interfaces.msg import Pattern
