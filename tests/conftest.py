@@ -58,13 +58,23 @@ def stage_modelset(stage_capture):
 def stage_artifact_path(stage_capture, tmp_path_factory):
     """A per-colour artifact (2 site patterns -> classifiers for 4 and 8 images), sigma3 noise,
     trained the way `lightstage train` does: at 120 px from the capture."""
+    return _train_stage_artifact(stage_capture, tmp_path_factory, 'hog_grid')
+
+
+@pytest.fixture(scope='session')
+def stage_intensity_artifact_path(stage_capture, tmp_path_factory):
+    """The same artifact on the pose-robust `intensity_stats` features."""
+    return _train_stage_artifact(stage_capture, tmp_path_factory, 'intensity_stats')
+
+
+def _train_stage_artifact(stage_capture, tmp_path_factory, features):
     from lightstage_camera.capture_format import load_capture
     from mux_trainer.baselines import FixedPatternClassifier
     from suite_helpers import TRAIN_SITE_PATTERNS
     modelset = load_capture(stage_capture, downscale_to=120)
     model = FixedPatternClassifier(patterns=TRAIN_SITE_PATTERNS, n_repeats=10, noise='sigma3',
-                                   seed=0).fit(modelset)
-    path = tmp_path_factory.mktemp('artifact') / 'classifier.npz'
+                                   seed=0, features=features).fit(modelset)
+    path = tmp_path_factory.mktemp('artifact') / f'classifier_{features}.npz'
     model.to_artifact().save(path)
     return path
 

@@ -108,7 +108,7 @@ def test_other_version_is_refused(artifact, tmp_path):
     with pytest.raises(ArtifactError, match=rf"version {FORMAT_VERSION + 1}.*reads version {FORMAT_VERSION}.*Retrain"):
         TrainedArtifact.load(tmp_path / "b.npz")
     _rewrite(tmp_path / "a.npz", tmp_path / "c.npz", change_header=lambda h: h.update(format_version=0))
-    with pytest.raises(ArtifactError, match=r"version 0; .*reads version 2 and the older 1\."):
+    with pytest.raises(ArtifactError, match=r"version 0; .*reads version 3 and the older 1, 2\."):
         TrainedArtifact.load(tmp_path / "c.npz")
 
 
@@ -134,6 +134,30 @@ def _as_format_1(header):
     """What the lightstage before format 2 wrote: no dimmer in the header."""
     header.update(format_version=1)
     header.pop("dimmer")
+    header.pop("features")
+
+
+def test_a_format_2_file_loads_with_the_hog_grid_it_always_used(artifact, toy_stacks, tmp_path):
+    stacks, _ = toy_stacks
+    artifact.save(tmp_path / "a.npz")
+
+    def as_format_2(header):
+        header.update(format_version=2)
+        header.pop("features")
+    _rewrite(tmp_path / "a.npz", tmp_path / "two.npz", change_header=as_format_2)
+    two = TrainedArtifact.load(tmp_path / "two.npz")
+    assert two.features == "hog_grid" and "hog_grid features" in two.describe()
+    np.testing.assert_array_equal(two.predict(stacks), artifact.predict(stacks))
+
+
+def test_an_unknown_or_learning_feature_extractor_is_refused(artifact, tmp_path):
+    artifact.save(tmp_path / "a.npz")
+    for name, why in (("sift", "unknown feature extractor 'sift'"),
+                      ("bow", "learns from images"), (3, "must be the name of a feature")):
+        _rewrite(tmp_path / "a.npz", tmp_path / "b.npz",
+                 change_header=lambda h, name=name: h.update(features=name))
+        with pytest.raises(ArtifactError, match=why):
+            TrainedArtifact.load(tmp_path / "b.npz")
 
 
 def test_a_format_1_file_loads_with_the_dimmer_every_earlier_training_used(artifact, toy_stacks,
@@ -147,7 +171,7 @@ def test_a_format_1_file_loads_with_the_dimmer_every_earlier_training_used(artif
     assert "dimmer 0.45 (not recorded: a format-1 file; every training before format 2 used " \
            "0.45)" in old.describe()
     np.testing.assert_array_equal(old.predict(stacks), artifact.predict(stacks))
-    # saved again, it is a format-2 file that records the dimmer
+    # saved again, it is a file of today's format that records the dimmer
     old.save(tmp_path / "again.npz")
     again = TrainedArtifact.load(tmp_path / "again.npz")
     assert again.dimmer == 0.45 and again.dimmer_recorded

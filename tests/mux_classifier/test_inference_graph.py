@@ -110,6 +110,31 @@ def test_classify_over_samples_is_complete_consistent_and_accurate(graph):
     assert exact >= len(SAMPLES) - 1, answers
 
 
+def test_an_artifact_on_pose_robust_features_classifies_on_the_stage(
+        graph, stage_intensity_artifact_path, stage_artifact_path):
+    """Issue 16: an artifact whose classifiers use `intensity_stats` (recorded in its
+    header), set at run time, classifies the stage's samples through the graph."""
+    from mux_classifier.artifact import TrainedArtifact
+    client = graph.client
+    assert TrainedArtifact.load(stage_intensity_artifact_path).features == 'intensity_stats'
+    (ok,) = client.set_parameters('classifier', artifact_path=str(stage_intensity_artifact_path))
+    assert ok.successful, ok.reason
+    try:
+        answers = []
+        for sample in SAMPLES:
+            (ok,) = client.set_parameters('camera', sample=sample)
+            assert ok.successful, ok.reason
+            r = classify(client, max_images=8)
+            assert r.success, r.message
+            assert r.images_used == 8
+            answers.append((sample.split('/')[0], r.label))
+        assert sum(t.split('-')[0] == p.split('-')[0] for t, p in answers) == len(SAMPLES), answers
+        assert sum(t == p for t, p in answers) >= len(SAMPLES) - 1, answers
+    finally:
+        (ok,) = client.set_parameters('classifier', artifact_path=str(stage_artifact_path))
+        assert ok.successful, ok.reason
+
+
 def test_unknown_sample_is_rejected_and_the_stage_keeps_its_sample(graph):
     client = graph.client
     (ok,) = client.set_parameters('camera', sample='orange-real/s0/p01')

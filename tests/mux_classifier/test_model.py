@@ -34,7 +34,8 @@ def test_params_and_clone():
     clf = MuxClassifier(estimator="ridge", alpha=0.5, C=2.0, hog_config=HogConfig(batch_size=4))
     params = clf.get_params()
     assert params == {"estimator": "ridge", "C": 2.0, "alpha": 0.5, "max_iter": 10000,
-                      "hog_config": HogConfig(batch_size=4), "random_state": 0}
+                      "hog_config": HogConfig(batch_size=4), "random_state": 0,
+                      "features": "hog_grid"}
     copy = clone(clf)
     assert copy is not clf and copy.get_params() == params
     assert not hasattr(copy, "coef_")
@@ -97,3 +98,26 @@ def test_fit_features_equals_fit(toy_stacks):
     b = MuxClassifier(estimator="ridge").fit_features(stack_features(stacks), y)
     np.testing.assert_allclose(a.coef_, b.coef_)
     assert b.n_images_ == 3
+
+
+def test_a_standardised_feature_is_scaled_on_training_samples_and_folded_into_the_weights(toy_stacks):
+    """MuxClassifier(features="intensity_stats") = StandardScaler + LinearSVC on the raw
+    per-image features, with the scaling folded into coef_ / intercept_ (so the artifact
+    stores weights for raw features only)."""
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import LinearSVC
+
+    from mux_classifier.features import make_extractor
+    stacks, y = toy_stacks
+    clf = MuxClassifier(features="intensity_stats").fit(stacks, y)
+    X = make_extractor("intensity_stats").raw_features(stacks).astype(np.float64)
+    assert clf.coef_.shape == (len(np.unique(y)), X.shape[1])
+    reference = make_pipeline(StandardScaler(), LinearSVC(C=1.0, max_iter=10000, random_state=0))
+    reference.fit(X, y)
+    np.testing.assert_array_equal(clf.predict(stacks), reference.predict(X))
+    ours = clf.decision_function(stacks)
+    theirs = reference.decision_function(X)
+    if theirs.ndim == 1:
+        theirs = np.stack([-theirs, theirs], axis=1)
+    np.testing.assert_allclose(ours, theirs, rtol=1e-6, atol=1e-6 * np.abs(theirs).max())

@@ -2,7 +2,8 @@
 
 ``TrainedArtifact``: the LED pattern matrix (32, N) in image order, the per-colour site
 matrix when the paper's mode was used, the noise setting and the dimmer it was trained for,
-class names, HOG configuration, one linear classifier for each image count, and provenance.
+class names, the feature extractor (by name) and HOG configuration, one linear classifier
+for each image count (on the extractor's raw features), and provenance.
 ``save``/``load`` use a versioned ``.npz`` whose metadata is a JSON document stored as a
 uint8 array; it is read with ``allow_pickle=False``, so opening a file never runs code. The
 file format is documented in docs/CLASSIFIER.md.
@@ -25,7 +26,7 @@ from lightstage_camera.rig import DEFAULT_DIMMER, N_LEDS, site_to_led_patterns
 from sklearn.utils.validation import check_is_fitted
 
 from .estimator import MuxClassifier
-from .features import check_stacks, stack_features
+from .features import DEFAULT_EXTRACTOR, check_stacks, searchable_extractor
 from .hog import HogConfig
 
 __all__ = [
@@ -35,11 +36,12 @@ __all__ = [
 ]
 
 FORMAT_NAME = "lightstage.mux_classifier"
+# 3: the header names the feature extractor ("features"); before, it was always the HOG grid.
 # 2: the header records the dimmer the training rendered with. 1: it did not; every
 # training that wrote version 1 rendered at the authors' dimmer, `UNRECORDED_DIMMER` (should
 # DEFAULT_DIMMER ever change, this must keep its old value).
-FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+FORMAT_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
 UNRECORDED_DIMMER = DEFAULT_DIMMER
 MODES = ("per_colour", "joint", "naive")
 
@@ -131,6 +133,7 @@ class TrainedArtifact:
     provenance: dict = field(default_factory=dict)
     dimmer: float = DEFAULT_DIMMER
     dimmer_recorded: bool = True
+    features: str = DEFAULT_EXTRACTOR
 
     def __post_init__(self):
         with np.errstate(over="ignore"):  # out-of-range values become inf: refused below
@@ -172,11 +175,13 @@ class TrainedArtifact:
         if led_patterns is None:
             raise ArtifactError("give led_patterns (32, N) or site_patterns (8, m)")
         names = class_names if class_names is not None else [str(c) for c in first.classes_]
+        if len({c.features for c in classifiers}) != 1:
+            raise ArtifactError("classifiers were trained on different features")
         stages = [LinearStage(int(c.n_images_), c.coef_, c.intercept_) for c in classifiers]
         return cls(led_patterns=led_patterns, class_names=list(names), stages=stages,
                    noise=noise, hog_config=first._config(), mode=mode or "joint",
                    site_patterns=site_patterns, provenance=dict(provenance or {}),
-                   dimmer=dimmer)
+                   dimmer=dimmer, features=first.features)
 
     def _validate(self):
         P = self.led_patterns
@@ -196,7 +201,14 @@ class TrainedArtifact:
             raise ArtifactError(f"need at least 2 distinct class names, got {self.class_names}")
         if not self.stages:
             raise ArtifactError("the artifact holds no classifier")
-        nf = self.hog_config.n_features
+        if not isinstance(self.features, str):
+            raise ArtifactError(f"features must name a feature extractor, got "
+                                f"{reprlib.repr(self.features)}")
+        try:
+            self._extractor = searchable_extractor(self.features, self.hog_config)
+        except ValueError as exc:
+            raise ArtifactError(str(exc)) from None
+        nf = self._extractor.features_per_image
         seen = set()
         for s in self.stages:
             s.n_images = int(s.n_images)
@@ -218,10 +230,11 @@ class TrainedArtifact:
         """One line of what the artifact holds, for logs and listings."""
         dimmer = f"dimmer {self.dimmer:g}"
         if not self.dimmer_recorded:
-            dimmer += (f" (not recorded: a format-1 file; every training before format "
-                       f"{FORMAT_VERSION} used {UNRECORDED_DIMMER:g})")
-        return (f"{len(self.class_names)} classes, {self.mode} patterns, classifiers for "
-                f"{self.n_images} images, noise {self.noise.get('name')}, {dimmer}")
+            dimmer += (f" (not recorded: a format-1 file; every training before format 2 "
+                       f"used {UNRECORDED_DIMMER:g})")
+        return (f"{len(self.class_names)} classes, {self.mode} patterns, {self.features} "
+                f"features, classifiers for {self.n_images} images, noise "
+                f"{self.noise.get('name')}, {dimmer}")
 
     @property
     def n_images(self) -> list[int]:
@@ -243,7 +256,7 @@ class TrainedArtifact:
         """A fitted MuxClassifier for ``n_images`` (labels are class names)."""
         s = self.stage(n_images)
         return MuxClassifier.from_linear(s.coef, s.intercept, np.asarray(self.class_names),
-                                         hog_config=self.hog_config)
+                                         hog_config=self.hog_config, features=self.features)
 
     def _check(self, stacks, n_images):
         try:
@@ -262,7 +275,7 @@ class TrainedArtifact:
         """Scores (n, n_classes) for stacks (n, k, H, W); k selects the classifier."""
         arr = self._check(stacks, n_images)
         s = self.stage(arr.shape[1])
-        X = stack_features(arr, self.hog_config)
+        X = self._extractor.raw_features(arr)
         return X.astype(np.float64) @ s.coef.T + s.intercept
 
     def predict(self, stacks, n_images: int | None = None) -> np.ndarray:
@@ -293,6 +306,7 @@ class TrainedArtifact:
             "has_site_patterns": self.site_patterns is not None,
             "provenance": self.provenance,
             "dimmer": self.dimmer,
+            "features": self.features,
         }
 
     def save(self, path) -> None:
@@ -380,6 +394,8 @@ class TrainedArtifact:
             dimmer, recorded = UNRECORDED_DIMMER, False
         else:  # a number here; __post_init__ refuses booleans and values <= 0
             dimmer, recorded = field_of("dimmer", (int, float), "a positive number"), True
+        features = (field_of("features", str, "the name of a feature extractor")
+                    if header["format_version"] >= 3 else DEFAULT_EXTRACTOR)
         return cls(
             led_patterns=array("led_patterns"),
             class_names=class_names,
@@ -392,6 +408,7 @@ class TrainedArtifact:
             provenance=dict(field_of("provenance", (dict, type(None)), "an object") or {}),
             dimmer=dimmer,
             dimmer_recorded=recorded,
+            features=features,
         )
 
 

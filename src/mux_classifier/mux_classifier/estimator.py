@@ -1,7 +1,8 @@
 """The multiplexed-illumination classifier, in scikit-learn estimator style.
 
-``MuxClassifier``: HOG features of a sample's k images, concatenated in image order, then a
-multi-class linear classifier, either a linear SVM (``LinearSVC``, one-vs-rest: the authors'
+``MuxClassifier``: features of a sample's k images (the paper's HOG grid, or another
+extractor of `features` by name), concatenated in image order, then a multi-class linear
+classifier, either a linear SVM (``LinearSVC``, one-vs-rest: the authors'
 MATLAB code uses one-vs-all error-correcting output codes, which is the same decomposition)
 or a ridge least-squares classifier (``RidgeClassifier``, the fast stand-in used inside the
 pattern search). The trained classifier's file is `artifact.TrainedArtifact`.
@@ -12,10 +13,10 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.utils.validation import check_is_fitted
 
-from .features import check_stacks, stack_features
+from .features import DEFAULT_EXTRACTOR, check_stacks, searchable_extractor
 from .hog import HogConfig
 
-__all__ = ["ESTIMATORS", "MuxClassifier"]
+__all__ = ["ESTIMATORS", "MuxClassifier", "column_scaling"]
 
 ESTIMATORS = ("linear_svm", "ridge")
 
@@ -35,8 +36,17 @@ def _linear_arrays(estimator, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
     return coef, intercept
 
 
+def column_scaling(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-column mean and scale (std, never 0) of features X (n, F): a z-scoring learnt
+    from the rows given (training samples only)."""
+    X = np.asarray(X, dtype=np.float64)
+    mean = X.mean(axis=0)
+    scale = X.std(axis=0)
+    return mean, np.where(scale > 1e-9 * (np.abs(mean) + 1.0), scale, 1.0)
+
+
 class MuxClassifier(ClassifierMixin, BaseEstimator):
-    """HOG of each image of a stack, concatenated, then a multi-class linear classifier.
+    """Features of each image of a stack, concatenated, then a multi-class linear classifier.
 
     Parameters
     ----------
@@ -51,25 +61,35 @@ class MuxClassifier(ClassifierMixin, BaseEstimator):
         Iteration limit of the linear SVM solver.
     hog_config : HogConfig or None
         Feature configuration (None: the paper's, 900 values per 120 x 120 image).
+    features : str
+        The feature extractor by name (`mux_classifier.features.EXTRACTORS`, one that the
+        search can use): "hog_grid" (the paper's) or a pose-robust one such as
+        "intensity_stats". An extractor marked ``standardise`` has each feature column
+        z-scored with statistics of the training samples; that scaling is folded into
+        ``coef_`` and ``intercept_``, which therefore apply to the raw features.
     random_state : int
         Seed of the SVM solver's coordinate order (makes fits reproducible).
 
-    Fitted attributes: ``classes_``, ``coef_`` (n_classes, n_images_ * 900),
+    Fitted attributes: ``classes_``, ``coef_`` (n_classes, n_images_ * values per image),
     ``intercept_`` (n_classes,), ``n_images_``, ``n_features_in_`` (feature length).
     ``decision_function`` always returns (n, n_classes), also for two classes.
     """
 
     def __init__(self, estimator="linear_svm", C=1.0, alpha=1.0, max_iter=10000,
-                 hog_config=None, random_state=0):
+                 hog_config=None, random_state=0, features=DEFAULT_EXTRACTOR):
         self.estimator = estimator
         self.C = C
         self.alpha = alpha
         self.max_iter = max_iter
         self.hog_config = hog_config
         self.random_state = random_state
+        self.features = features
 
     def _config(self) -> HogConfig:
         return HogConfig() if self.hog_config is None else self.hog_config
+
+    def _extractor(self):
+        return searchable_extractor(self.features, self._config())
 
     def _make_estimator(self):
         if self.estimator == "linear_svm":
@@ -85,14 +105,14 @@ class MuxClassifier(ClassifierMixin, BaseEstimator):
     # --- stacks of images
     def fit(self, stacks, y):
         """Fit on stacks (n, k, H, W) of images and labels y (n,); returns self."""
-        X = stack_features(stacks, self._config())
+        X = self._extractor().raw_features(stacks)
         return self.fit_features(X, y, n_images=np.asarray(stacks).shape[1])
 
     def decision_function(self, stacks) -> np.ndarray:
         """Per-class scores (n, n_classes) for stacks (n, k, H, W)."""
         check_is_fitted(self, "coef_")
         arr = check_stacks(stacks, self._config(), n_images=self.n_images_)
-        return self.decision_function_features(stack_features(arr, self._config()))
+        return self.decision_function_features(self._extractor().raw_features(arr))
 
     def predict(self, stacks) -> np.ndarray:
         """Predicted class labels for stacks (n, k, H, W)."""
@@ -101,10 +121,11 @@ class MuxClassifier(ClassifierMixin, BaseEstimator):
 
     # --- precomputed features (the search computes them once for many fits)
     def fit_features(self, X, y, n_images: int | None = None):
-        """Fit on concatenated HOG features X (n, k * 900); returns self."""
+        """Fit on concatenated raw features X (n, k * values per image); returns self."""
         X = np.asarray(X, dtype=np.float64)
         y = np.asarray(y)
-        n_per_image = self._config().n_features
+        extractor = self._extractor()
+        n_per_image = extractor.features_per_image
         if X.ndim != 2 or X.shape[1] == 0 or X.shape[1] % n_per_image:
             raise ValueError(
                 f"features must be (n_samples, k * {n_per_image}), got shape {X.shape}")
@@ -116,9 +137,17 @@ class MuxClassifier(ClassifierMixin, BaseEstimator):
         k = X.shape[1] // n_per_image
         if n_images is not None and n_images != k:
             raise ValueError(f"features hold {k} images but n_images={n_images}")
-        est = self._make_estimator().fit(X, y)
+        if extractor.standardise:
+            mean, scale = column_scaling(X)
+            est = self._make_estimator().fit((X - mean) / scale, y)
+            coef, intercept = _linear_arrays(est, classes.size)
+            # w.((x - mean) / scale) + b = (w / scale).x + (b - (w / scale).mean)
+            self.coef_ = coef / scale
+            self.intercept_ = intercept - self.coef_ @ mean
+        else:
+            est = self._make_estimator().fit(X, y)
+            self.coef_, self.intercept_ = _linear_arrays(est, classes.size)
         self.classes_ = est.classes_
-        self.coef_, self.intercept_ = _linear_arrays(est, classes.size)
         self.n_images_ = k
         self.n_features_in_ = X.shape[1]
         return self
@@ -138,10 +167,11 @@ class MuxClassifier(ClassifierMixin, BaseEstimator):
 
     @classmethod
     def from_linear(cls, coef, intercept, classes, hog_config=None, **params) -> "MuxClassifier":
-        """A fitted classifier from stored arrays (used when loading an artifact)."""
+        """A fitted classifier from stored arrays (used when loading an artifact); `coef`
+        applies to the raw features of ``params['features']`` (default the HOG grid)."""
         clf = cls(hog_config=hog_config, **params)
         coef = np.asarray(coef, dtype=np.float64)
-        n_per_image = clf._config().n_features
+        n_per_image = clf._extractor().features_per_image
         if coef.ndim != 2 or coef.shape[1] % n_per_image or coef.shape[1] == 0:
             raise ValueError(f"coef must be (n_classes, k * {n_per_image}), got shape {coef.shape}")
         clf.classes_ = np.asarray(classes)

@@ -5,7 +5,14 @@ by name (`extractor(name)`, `EXTRACTORS`); every one keeps the layout described 
 fixed number of values per image, image j's in columns j*d .. (j+1)*d - 1) and has a
 scikit-learn style ``fit(stacks)`` / ``transform(stacks)``: whatever it learns (a codebook,
 standardisation statistics) comes from the stacks given to ``fit`` only, so fit on
-training poses and transform held-out ones.
+training poses and transform held-out ones. Every image's raw features come from that
+image alone (`image_features`; the pose-robust ones find the object in each image), so the
+layout's prefix property holds exactly.
+
+The pattern search and the trained classifier (`MuxClassifier(features=NAME)`, the
+artifact) use the raw per-image features of a `searchable` extractor; the ones marked
+`standardise` are z-scored per column by the classifier, which learns that from its
+training samples and folds it into its linear weights.
 
 A *stack* is the k images of one sample taken under k illumination patterns, shape
 (k, H, W); a batch of stacks is (n, k, H, W). Image j's 900 HOG values occupy columns
@@ -20,11 +27,13 @@ import numpy as np
 from .hog import HogConfig, hog_batch
 
 __all__ = ["stack_features", "check_stacks", "EXTRACTORS", "DEFAULT_EXTRACTOR", "extractor",
-           "StackFeatureExtractor", "features_for_split"]
+           "StackFeatureExtractor", "features_for_split", "make_extractor", "searchable_extractor"]
 
 
-def check_stacks(stacks, config: HogConfig = HogConfig(), n_images: int | None = None) -> np.ndarray:
-    """Validate a batch of stacks (n, k, H, W) and return it as an array.
+def check_stacks(stacks, config: HogConfig = HogConfig(), n_images: int | None = None,
+                 image_size: int | None = None) -> np.ndarray:
+    """Validate a batch of stacks (n, k, H, W) of images of `image_size` (default: the HOG
+    configuration's) and return it as an array.
 
     Raises ValueError saying what is wrong (rank, image size, number of images) and what
     to do about it.
@@ -33,7 +42,7 @@ def check_stacks(stacks, config: HogConfig = HogConfig(), n_images: int | None =
     if arr.ndim != 4:
         hint = (" (one sample's stack (k, H, W)? pass stacks[None])" if arr.ndim == 3 else "")
         raise ValueError(f"expected a batch of image stacks (n, k, H, W), got shape {arr.shape}{hint}")
-    size = config.image_size
+    size = config.image_size if image_size is None else image_size
     if arr.shape[2:] != (size, size):
         raise ValueError(
             f"images are {arr.shape[2]} x {arr.shape[3]} px but the features are configured "
@@ -71,9 +80,27 @@ class StackFeatureExtractor:
 
     name = ""
     standardise = False
+    searchable = True  # per image and learns nothing raw: the pattern search can score with it
 
     def __init__(self, image_size: int = 120):
         self.image_size = int(image_size)
+
+    def image_features(self, images) -> np.ndarray:
+        """Raw features of single images (N, H, W) -> float32 (N, features_per_image), each
+        from its own image alone (its own object mask): what the pattern search and the
+        classifier compute, before any standardisation."""
+        arr = np.asarray(images)
+        if arr.ndim != 3:
+            raise ValueError(f"expected images (N, H, W), got shape {arr.shape}")
+        self._check(arr[:, None])
+        return np.ascontiguousarray(self._raw(arr[:, None]).reshape(len(arr), -1), np.float32)
+
+    def raw_features(self, stacks) -> np.ndarray:
+        """Raw features of stacks (n, k, H, W) -> float32 (n, k * features_per_image): each
+        image's own `image_features`, in image order."""
+        arr = self._check(stacks)
+        n, k = arr.shape[:2]
+        return self.image_features(arr.reshape(n * k, *arr.shape[2:])).reshape(n, -1)
 
     @property
     def features_per_image(self) -> int:
@@ -83,13 +110,13 @@ class StackFeatureExtractor:
         raise NotImplementedError
 
     def _check(self, stacks) -> np.ndarray:
-        return check_stacks(stacks, HogConfig(image_size=self.image_size))
+        return check_stacks(stacks, image_size=self.image_size)
 
     def fit(self, stacks, y=None):
         """Learn from training stacks only (nothing for a stateless extractor); returns self."""
         arr = self._check(stacks)
         if self.standardise:
-            per_image = self._raw(arr).reshape(-1, self.features_per_image).astype(np.float64)
+            per_image = self.raw_features(arr).reshape(-1, self.features_per_image).astype(np.float64)
             self.mean_ = per_image.mean(axis=0)
             self.scale_ = per_image.std(axis=0) + 1e-6 * (np.abs(self.mean_) + 1.0)
         self.fitted_ = True
@@ -101,7 +128,7 @@ class StackFeatureExtractor:
             raise ValueError(f"feature extractor {self.name!r} is not fitted; call fit(training "
                              "stacks) first")
         n, k = arr.shape[:2]
-        X = self._raw(arr)
+        X = self.raw_features(arr)
         if self.standardise:
             X = ((X.reshape(n, k, -1) - self.mean_) / self.scale_).reshape(n, -1)
         return np.ascontiguousarray(X, dtype=np.float32)
@@ -221,6 +248,7 @@ class BagOfWordsExtractor(StackFeatureExtractor):
     the codebook is learnt in fit."""
 
     name = "bow"
+    searchable = False  # its codebook is learnt from images
 
     def __init__(self, image_size: int = 120, n_words: int = 200, random_state: int = 0):
         super().__init__(image_size)
@@ -264,6 +292,26 @@ def extractor(name: str = DEFAULT_EXTRACTOR, **params) -> StackFeatureExtractor:
         raise ValueError(f"unknown feature extractor {name!r}; choose from "
                          f"{', '.join(EXTRACTORS)}")
     return EXTRACTORS[name](**params)
+
+
+def make_extractor(name: str = DEFAULT_EXTRACTOR, hog_config: HogConfig | None = None):
+    """The extractor `name` for images of `hog_config`'s size (the HOG grid with that very
+    configuration), as the search, the classifier and the artifact use it."""
+    config = HogConfig() if hog_config is None else hog_config
+    if name == HogGridExtractor.name:
+        return HogGridExtractor(config.image_size, config)
+    return extractor(name, image_size=config.image_size)
+
+
+def searchable_extractor(name: str, hog_config: HogConfig | None = None):
+    """`make_extractor`, refusing an extractor that learns from images (the search and the
+    trained classifier need features of each image alone)."""
+    ex = make_extractor(name, hog_config)
+    if not ex.searchable:
+        choices = ", ".join(n for n, cls in EXTRACTORS.items() if cls.searchable)
+        raise ValueError(f"feature extractor {name!r} learns from images and cannot be used "
+                         f"by the pattern search or a trained classifier; choose from {choices}")
+    return ex
 
 
 def features_for_split(name: str, stacks, train, test, **params):

@@ -18,10 +18,10 @@ from __future__ import annotations
 import numpy as np
 from joblib import Parallel
 from lightstage_camera.rig import DEFAULT_DIMMER
+from mux_classifier.features import DEFAULT_EXTRACTOR
 from sklearn.base import BaseEstimator
 
 from .candidate_patterns import all_leds_on
-from .data import search_data
 from .evaluation import CandidateEvaluator
 from .pattern_model import PatternModelMixin
 from .rendering import SearchData
@@ -40,7 +40,7 @@ class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
     def __init__(self, patterns=None, mode='per_colour', n_repeats=400, test_fraction=0.25,
                  inner_classifier='squared_hinge', alpha=0.5, C=1.0, final_classifier='linear_svm',
                  final_C=1.0, final_alpha=0.1, noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None,
-                 seed=0, n_jobs=1):
+                 seed=0, n_jobs=1, features=DEFAULT_EXTRACTOR):
         self.patterns = patterns
         self.mode = mode
         self.n_repeats = n_repeats
@@ -56,11 +56,7 @@ class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
         self.hog_config = hog_config
         self.seed = seed
         self.n_jobs = n_jobs
-
-    def _data(self, X) -> SearchData:
-        if isinstance(X, SearchData):
-            return X
-        return search_data(X, self.noise, hog_config=self.hog_config, dimmer=self.dimmer)
+        self.features = features
 
     def _patterns_for(self, data: SearchData) -> np.ndarray:
         if self.patterns is None:
@@ -99,12 +95,13 @@ class SnrOptimalClassifier(FixedPatternClassifier):
     def __init__(self, n_images=None, n_iter=20000, mode='per_colour', n_repeats=400,
                  test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5, C=1.0,
                  final_classifier='linear_svm', final_C=1.0, final_alpha=0.1, noise='sigma3',
-                 dimmer=DEFAULT_DIMMER, hog_config=None, seed=0, n_jobs=1, start='both'):
+                 dimmer=DEFAULT_DIMMER, hog_config=None, seed=0, n_jobs=1, start='both',
+                 features=DEFAULT_EXTRACTOR):
         super().__init__(patterns=None, mode=mode, n_repeats=n_repeats,
                          test_fraction=test_fraction, inner_classifier=inner_classifier,
                          alpha=alpha, C=C, final_classifier=final_classifier, final_C=final_C,
                          final_alpha=final_alpha, noise=noise, dimmer=dimmer,
-                         hog_config=hog_config, seed=seed, n_jobs=n_jobs)
+                         hog_config=hog_config, seed=seed, n_jobs=n_jobs, features=features)
         self.n_images = n_images
         self.n_iter = n_iter
         self.start = start
@@ -135,12 +132,13 @@ class NaiveClassifier(FixedPatternClassifier):
 
     def __init__(self, n_repeats=400, test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5,
                  C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
-                 noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None, seed=0, n_jobs=1):
+                 noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None, seed=0, n_jobs=1,
+                 features=DEFAULT_EXTRACTOR):
         super().__init__(patterns=None, mode='joint', n_repeats=n_repeats,
                          test_fraction=test_fraction, inner_classifier=inner_classifier,
                          alpha=alpha, C=C, final_classifier=final_classifier, final_C=final_C,
                          final_alpha=final_alpha, noise=noise, dimmer=dimmer,
-                         hog_config=hog_config, seed=seed, n_jobs=n_jobs)
+                         hog_config=hog_config, seed=seed, n_jobs=n_jobs, features=features)
 
     def _patterns_for(self, data: SearchData) -> np.ndarray:
         return all_leds_on(data.n_sites * data.n_channels)

@@ -51,9 +51,30 @@ def _common(p: argparse.ArgumentParser, capture_optional: bool = False) -> None:
     p.add_argument('--json', action='store_true', help='print the results as one JSON document')
     p.add_argument('--quiet', action='store_true', help='no progress on stderr')
     g = p.add_argument_group('features (defaults: the paper\'s HOG, 900 values per image)')
+    g.add_argument('--features', default='hog_grid', metavar='NAME' + ('[,NAME]' if capture_optional else ''),
+                   help='feature extractor the search scores with and the classifier uses: '
+                        'hog_grid (the paper\'s, default), intensity_stats (object reflectance '
+                        'statistics: any placement), pooled_hog, pooled_hog_stats, pose_hog '
+                        '(docs/SEARCH.md compares them)'
+                        + ('; several, comma-separated: every method once per extractor'
+                           if capture_optional else ''))
     g.add_argument('--image-size', type=int, default=120)
     g.add_argument('--cell-px', type=int, default=12)
     g.add_argument('--block-cells', type=int, default=10)
+
+
+def _feature_names(prog: str, value: str, several: bool) -> list[str]:
+    from mux_classifier.features import searchable_extractor
+    names = [n.strip() for n in value.split(',') if n.strip()]
+    if not names or (len(names) > 1 and not several):
+        raise SystemExit(f'{prog}: --features takes {"names" if several else "one name"}, '
+                         f'got {value!r}')
+    for name in names:
+        try:
+            searchable_extractor(name)
+        except ValueError as exc:
+            raise SystemExit(f'{prog}: {exc}') from None
+    return list(dict.fromkeys(names))
 
 
 def _positive(args, *names):
@@ -123,6 +144,7 @@ def train_main(argv: list[str] | None = None) -> int:
     if args.refine_top < 0:
         raise SystemExit(f'lightstage: --refine-top must be >= 0, got {args.refine_top}')
     hog_config = _hog_config(args)
+    features = _feature_names('lightstage train', args.features, several=False)[0]
     from .training import ArtifactNotWritten, check_artifact_path, train_modelset
     try:  # before the capture is loaded: a run must not end in an unwritable path
         check_artifact_path(args.out)
@@ -137,7 +159,8 @@ def train_main(argv: list[str] | None = None) -> int:
                 noise=args.noise, max_images=args.max_images, repeats=args.repeats, seed=args.seed,
                 n_jobs=args.jobs, hog_config=hog_config, fixed_count=args.fixed_count,
                 inner_classifier=args.inner_classifier, final_classifier=args.classifier,
-                beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet)
+                beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet,
+                features=features)
         except ValueError as exc:
             raise SystemExit(f'lightstage train: {exc}') from None
         except ArtifactNotWritten as exc:  # the result is printed all the same
@@ -205,6 +228,7 @@ def eval_main(argv: list[str] | None = None) -> int:
     if not 0 < args.holdout < 1:
         raise SystemExit(f'lightstage eval: --holdout must be in (0, 1), got {args.holdout}')
     hog_config = _hog_config(args)
+    features = _feature_names('lightstage eval', args.features, several=True)
     from .report import check_output_dir, json_ready, keep_outputs, run_evaluation, write_outputs
     if args.out:
         try:  # before the evaluation: its results must not end in an unwritable folder
@@ -214,7 +238,8 @@ def eval_main(argv: list[str] | None = None) -> int:
     with _on_cluster('lightstage eval', args):
         modelset = _load(args.capture_dir, hog_config)
         try:
-            results = run_evaluation(modelset, noises, methods, n_repeats=args.repeats,
+            results = run_evaluation(modelset, noises, methods, features=features,
+                                     n_repeats=args.repeats,
                                      max_images=args.max_images, holdout_fraction=args.holdout,
                                      n_renders=args.renders, seed=args.seed, n_jobs=args.jobs,
                                      hog_config=hog_config, beam_width=args.beam_width,
@@ -226,17 +251,17 @@ def eval_main(argv: list[str] | None = None) -> int:
     results['settings'] = {'repeats': args.repeats, 'max_images': args.max_images,
                            'joint_max_images': args.joint_max_images or args.max_images,
                            'holdout': args.holdout, 'renders': args.renders, 'seed': args.seed,
-                           'methods': methods, 'noise': noises, 'dimmer': DEFAULT_DIMMER}
+                           'methods': methods, 'noise': noises, 'features': features,
+                           'dimmer': DEFAULT_DIMMER}
     doc = json_ready(results)
     if args.json:
         print(json.dumps(doc), flush=True)
     else:
-        for noise, r in doc['by_noise'].items():
-            print(f'noise {noise}: held-out accuracy (test poses {r["test_poses"]})')
-            for name, m in r['methods'].items():
-                types = ', '.join(f'{t} {100 * a:.1f}' for t, a in m['accuracy_by_type'].items())
-                print(f'  {name:<13} {100 * m["accuracy"]:6.2f} %  at {m["n_images"]} image(s)'
-                      f'  [{types}]')
+        for feature, f in doc['by_features'].items():
+            for noise, r in f['by_noise'].items():
+                print(f'noise {noise}, features {feature}: held-out accuracy (test poses '
+                      f'{r["test_poses"]})')
+                _print_methods(r['methods'])
         sys.stdout.flush()
     if args.out:
         try:
@@ -248,6 +273,12 @@ def eval_main(argv: list[str] | None = None) -> int:
             if not args.quiet:
                 print(f'wrote {path}', file=sys.stderr)
     return 0
+
+
+def _print_methods(methods: dict) -> None:
+    for name, m in methods.items():
+        types = ', '.join(f'{t} {100 * a:.1f}' for t, a in m['accuracy_by_type'].items())
+        print(f'  {name:<13} {100 * m["accuracy"]:6.2f} %  at {m["n_images"]} image(s)  [{types}]')
 
 
 def _outputs_from_results(p: argparse.ArgumentParser, args) -> int:

@@ -6,6 +6,7 @@ import re
 import numpy as np
 from lightstage_camera.noise import NoiseModel, load_noise_file, noise_setting
 from lightstage_camera.rig import DEFAULT_DIMMER
+from mux_classifier.features import DEFAULT_EXTRACTOR
 from mux_classifier.hog import HogConfig
 
 from .rendering import SearchData
@@ -53,9 +54,9 @@ def object_type_of(class_name: str) -> str:
 
 
 def search_data(modelset, noise='sigma3', *, hog_config: HogConfig | None = None,
-                dimmer: float = DEFAULT_DIMMER) -> SearchData:
+                dimmer: float = DEFAULT_DIMMER, features: str = DEFAULT_EXTRACTOR) -> SearchData:
     """A ModelSet -> SearchData at the HOG configuration's image size with a noise setting
-    (anything `resolve_noise` takes).
+    (anything `resolve_noise` takes), scored with the feature extractor `features`.
 
     The models are downscaled (area mean) if they are larger than the feature resolution;
     the noise variance is scaled by the downscale's factor (`ModelSet.noise_scale`), which
@@ -78,7 +79,7 @@ def search_data(modelset, noise='sigma3', *, hog_config: HogConfig | None = None
     return SearchData.from_models(
         modelset.models, modelset.labels, modelset.pose_index, modelset.class_names,
         dimmer=dimmer, noise_a=a, noise_b=b, max_level=float(modelset.max_level),
-        noise_name=name, noise_model=model, hog_config=hog_config)
+        noise_name=name, noise_model=model, hog_config=hog_config, features=features)
 
 
 def noise_dict(name: str, model: NoiseModel | None) -> dict:

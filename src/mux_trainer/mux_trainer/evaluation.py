@@ -1,7 +1,8 @@
 """Candidate evaluation: how good is the illumination matrix `[columns so far | candidate]`?
 
 For one new column the whole training set is rendered under the earlier columns and each
-candidate with fresh noise, HOG features are extracted, and the mean test accuracy over
+candidate with fresh noise, features are extracted (the data's extractor, the HOG grid by
+default; `rendering.scoring_features`), and the mean test accuracy over
 `n_repeats` random pose splits (75 / 25, the same held-out pose indices for every class) is
 the candidate's score. Everything is seeded: the same seed gives the same scores whatever
 `n_jobs` or joblib backend is used.
@@ -31,7 +32,7 @@ from threadpoolctl import threadpool_limits
 
 from .cluster import active_cluster, register_sizes
 from .rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
-                        image_features, standard_normal)
+                        image_features, scoring_features, standard_normal)
 from .split_scoring import make_scorer
 from .splits import pose_splits
 
@@ -134,7 +135,7 @@ def _score_chunk(data, ctx, candidates, timings):
         t1 = clock()
         noisy = add_noise(data, clean, ctx.z, out=noisy)
         t2 = clock()
-        Xc = image_features(data, noisy)
+        Xc = scoring_features(data, noisy)
         t3 = clock()
         out[j] = _score_features(data, ctx, Xc)
         t4 = clock()
@@ -208,7 +209,7 @@ class CandidateEvaluator:
         X_prev = None
         K_prev = np.zeros((n, n))
         if column > 0:
-            X_prev = image_features(self.data, self.noisy_images(columns, column))
+            X_prev = scoring_features(self.data, self.noisy_images(columns, column))
             X64 = X_prev.astype(np.float64)
             K_prev = X64 @ X64.T
         return ColumnContext(mode=self.mode, column=column, z=self.candidate_noise(column),
@@ -243,8 +244,9 @@ class CandidateEvaluator:
         return np.vstack(parts) if parts else np.empty((0, len(self.test_masks)))
 
     def features(self, columns: np.ndarray, column_noise_of: int | None = None) -> np.ndarray:
-        """Features of all images of `columns` with the noise the search used for its last
-        column (the earlier columns' noise of that step, the candidate noise for the last)."""
+        """Raw features of all images of `columns` (a classifier scales its own) with the noise
+        the search used for its last column (the earlier columns' noise of that step, the
+        candidate noise for the last)."""
         k = columns.shape[1]
         last = k - 1 if column_noise_of is None else column_noise_of
         parts = []

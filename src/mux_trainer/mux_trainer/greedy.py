@@ -33,13 +33,12 @@ import time
 import numpy as np
 from joblib import Parallel
 from lightstage_camera.rig import DEFAULT_DIMMER, N_LEDS
+from mux_classifier.features import DEFAULT_EXTRACTOR
 from sklearn.base import BaseEstimator
 
-from .data import search_data
 from .evaluation import CandidateEvaluator, images_per_column
 from .candidate_patterns import site_pattern_candidates
 from .pattern_model import PatternModelMixin
-from .rendering import SearchData
 from .split_scoring import SquaredHingeSplitScorer
 
 # refinement defaults (see `could_still_win`; benchmarks/rank_agreement.py measures them)
@@ -92,6 +91,9 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     final_classifier : estimator of the kept classifiers ('linear_svm', the paper's, or 'ridge').
     final_C, final_alpha : their regularisation.
     noise, dimmer, hog_config : rendering, used when `fit` is given a ModelSet.
+    features : the feature extractor the search scores candidates with and the kept
+        classifiers use (`mux_classifier.features`; the paper's "hog_grid" by default), used
+        when `fit` is given a ModelSet (a SearchData carries its own).
     beam_width, max_lit_leds : joint mode only (see module docstring).
     seed, n_jobs, chunk_size, progress : reproducibility and execution.
     callback : None, or a callable given one dict per event of the search, for progress
@@ -119,7 +121,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
                  alpha=0.5, C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
                  noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None, beam_width=1,
                  max_lit_leds=N_LEDS, seed=0, n_jobs=1, chunk_size=32, progress=False,
-                 callback=None):
+                 callback=None, features=DEFAULT_EXTRACTOR):
         self.mode = mode
         self.n_patterns = n_patterns
         self.max_patterns = max_patterns
@@ -145,13 +147,9 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         self.chunk_size = chunk_size
         self.progress = progress
         self.callback = callback
+        self.features = features
 
     # ------------------------------------------------------------------ fit
-    def _data(self, X) -> SearchData:
-        if isinstance(X, SearchData):
-            return X
-        return search_data(X, self.noise, hog_config=self.hog_config, dimmer=self.dimmer)
-
     def fit(self, X, y=None):
         """Search patterns on a ModelSet (or a prepared SearchData); returns self."""
         images_per_column(self.mode)

@@ -12,8 +12,9 @@ from lightstage_camera.rig import N_CHANNELS
 from mux_classifier.artifact import TrainedArtifact
 from mux_classifier.estimator import MuxClassifier
 
-from .data import noise_dict
+from .data import noise_dict, search_data
 from .evaluation import images_per_column
+from .rendering import SearchData
 
 
 def _fit(classifier, X, y):
@@ -21,7 +22,8 @@ def _fit(classifier, X, y):
 
 
 class PatternModelMixin:
-    """Needs `mode`, `seed`, `dimmer`, `final_classifier`, `final_C`, `final_alpha`; after fit:
+    """Needs `mode`, `seed`, `noise`, `hog_config`, `dimmer`, `features`, `final_classifier`,
+    `final_C`, `final_alpha`; after fit:
     `patterns_`, `classifiers_`, `accuracy_by_images_`, `class_names_`, `evaluator_`."""
 
     method_name = 'patterns'
@@ -30,19 +32,27 @@ class PatternModelMixin:
     def images_per_pattern(self) -> int:
         return images_per_column(self.mode, N_CHANNELS)
 
-    def _make_classifier(self, hog_config) -> MuxClassifier:
+    def _data(self, X) -> SearchData:
+        """The search's data: X itself, or a ModelSet rendered with the estimator's noise,
+        HOG configuration, dimmer and feature extractor."""
+        if isinstance(X, SearchData):
+            return X
+        return search_data(X, self.noise, hog_config=self.hog_config, dimmer=self.dimmer,
+                           features=self.features)
+
+    def _make_classifier(self, data: SearchData) -> MuxClassifier:
         return MuxClassifier(estimator=self.final_classifier, C=self.final_C,
-                             alpha=self.final_alpha, hog_config=hog_config,
-                             random_state=int(self.seed))
+                             alpha=self.final_alpha, hog_config=data.hog_config,
+                             random_state=int(self.seed), features=data.features)
 
     def _fit_classifiers(self, ev, columns) -> dict:
         """One classifier per column count, on the images the search rendered for it.
 
-        The fits (LinearSVC on up to 8 x 4 x 900 features: seconds each) run through joblib.
+        The fits (LinearSVC on up to 8 x 4 x 900 HOG values: seconds each) run through joblib.
         """
         counts = list(range(1, columns.shape[1] + 1))
         clfs = Parallel(n_jobs=getattr(self, 'n_jobs', 1))(
-            delayed(_fit)(self._make_classifier(ev.data.hog_config),
+            delayed(_fit)(self._make_classifier(ev.data),
                           ev.features(columns[:, :k]), ev.data.labels)
             for k in counts)
         return dict(zip(counts, clfs))

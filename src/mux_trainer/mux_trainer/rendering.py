@@ -18,6 +18,8 @@ from dataclasses import dataclass, field, replace
 import numba
 import numpy as np
 
+from mux_classifier.estimator import column_scaling
+from mux_classifier.features import DEFAULT_EXTRACTOR, searchable_extractor
 from mux_classifier.hog import HogConfig, hog_batch
 
 from lightstage_camera.rig import DEFAULT_DIMMER
@@ -34,6 +36,8 @@ class SearchData:
     max_level: saturation level (1023 for a 10-bit camera).
     noise_name, noise_model: the noise setting and its camera NoiseModel at full resolution
     (None without noise), for the artifact.
+    features: the feature extractor the search scores with (`mux_classifier.features`);
+    hog_config is the HOG grid's configuration and sets the image size of every extractor.
     """
 
     basis: np.ndarray
@@ -47,6 +51,7 @@ class SearchData:
     noise_name: str = 'none'
     noise_model: object = None
     hog_config: HogConfig = field(default_factory=HogConfig)
+    features: str = DEFAULT_EXTRACTOR
 
     def __post_init__(self):
         self.basis = np.ascontiguousarray(self.basis, dtype=np.float32)
@@ -61,6 +66,11 @@ class SearchData:
         H, W = self.image_shape
         if H * W != self.basis.shape[3]:
             raise ValueError(f'image_shape {self.image_shape} does not match {self.basis.shape[3]} pixels')
+        searchable_extractor(self.features, self.hog_config)  # a clear error for a bad name
+
+    @property
+    def extractor(self):
+        return searchable_extractor(self.features, self.hog_config)
 
     @classmethod
     def from_models(cls, models: np.ndarray, labels, pose_index, class_names, *,
@@ -184,12 +194,28 @@ def add_noise_numpy(data: SearchData, clean: np.ndarray, z: np.ndarray | None,
 
 
 def image_features(data: SearchData, images: np.ndarray) -> np.ndarray:
-    """Images `(m, n, pixels)` -> per-sample concatenated HOG `(n, m * n_features)` float32."""
+    """Images `(m, n, pixels)` -> per-sample concatenated raw features `(n, m * d)` float32
+    (d values per image of the data's extractor; the HOG grid: 900)."""
     m, n, _ = images.shape
     H, W = data.image_shape
-    feats = hog_batch(images.reshape(m * n, H, W), data.hog_config)
+    flat = images.reshape(m * n, H, W)
+    if data.features == DEFAULT_EXTRACTOR:
+        feats = hog_batch(flat, data.hog_config)
+    else:
+        feats = data.extractor.image_features(flat)
     return np.ascontiguousarray(
         feats.reshape(m, n, -1).transpose(1, 0, 2).reshape(n, -1))
+
+
+def scoring_features(data: SearchData, images: np.ndarray) -> np.ndarray:
+    """`image_features` as the search's split scorers see them: an extractor marked
+    `standardise` has each column z-scored over the search's samples (its training data;
+    held-out poses are never among them), as `MuxClassifier` does on its training samples."""
+    X = image_features(data, images)
+    if not data.extractor.standardise:
+        return X
+    mean, scale = column_scaling(X)
+    return ((X - mean) / scale).astype(np.float32)
 
 
 def compile_kernels() -> None:

@@ -5,7 +5,11 @@ pose indices, train every requested method on the rest (greedy per-colour search
 fixed column count as the paper does for its figures, SNR-optimal with a classifier per
 column count, naive all-LEDs-on with and without a bag of words, optionally the joint
 32-LED greedy search), and test them on fresh noisy renders of the held-out poses.
-`write_outputs` writes results.json, table1.csv, accuracy_vs_images.csv and the PNG plots.
+With several feature extractors (`features`), every method runs once per extractor (the
+naive + BoW baseline, which has its own features, once): the document's `methods` and
+`by_noise` are the first extractor's, `by_features[name]` holds each one's.
+`write_outputs` writes results.json, table1.csv, accuracy_vs_images.csv and the PNG plots
+(the first extractor's), and table1_features.csv with every extractor's Table 1.
 """
 from __future__ import annotations
 
@@ -57,17 +61,21 @@ def _naive_bow_summary(naive, train_data, test_data, n_renders, seed, n_jobs):
 def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_repeats=400,
                            max_images=8, holdout_fraction=0.25, n_renders=4, seed=0,
                            n_jobs=1, hog_config=None, beam_width=1, joint_max_images=None,
-                           quiet=False, progress=False) -> dict:
+                           quiet=False, progress=False, features='hog_grid',
+                           naive_bow=None) -> dict:
     """All requested methods at one noise setting; returns {'methods': {...}, ...}.
 
     joint_max_images: pattern columns of 'greedy_joint' (one exposure each; default
     max_images). 4 x max_images gives it the exposures of the per-colour search.
+    features: the extractor every method (but naive + BoW) scores and classifies with.
+    naive_bow: an earlier run's naive + BoW result for this noise, reused instead of
+    training it again (it does not depend on `features`).
     """
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f'unknown methods {sorted(unknown)}; choose from {", ".join(METHODS)}')
     check_jobs(n_jobs)
-    data = search_data(modelset, noise, hog_config=hog_config)
+    data = search_data(modelset, noise, hog_config=hog_config, features=features)
     train_idx, test_idx = holdout_split(data, holdout_fraction, seed)
     train, test = data.subset(train_idx), data.subset(test_idx)
     common = dict(n_repeats=n_repeats, seed=seed, n_jobs=n_jobs)
@@ -76,7 +84,10 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     naive = None
     for name in methods:
         t0 = time.perf_counter()
-        _log(f'[{noise}] {name}: training on {train.n_samples} samples '
+        if name == 'naive_bow' and naive_bow is not None:
+            results[name] = naive_bow
+            continue
+        _log(f'[{noise}, {features}] {name}: training on {train.n_samples} samples '
              f'({len(np.unique(train.pose_index))} poses per class)', quiet)
         if name in ('naive', 'naive_bow'):
             if naive is None:
@@ -97,30 +108,49 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
         else:
             results[name] = method_summary(model, test, n_renders, seed, train_seconds=train_s)
             models[name] = model
-        _log(f'[{noise}] {name}: held-out accuracy {results[name]["accuracy"]:.4f} '
+        _log(f'[{noise}, {features}] {name}: held-out accuracy {results[name]["accuracy"]:.4f} '
              f'at {results[name]["n_images"]} image(s) ({time.perf_counter() - t0:.1f} s)', quiet)
-    return {'noise': noise, 'n_train': int(train.n_samples), 'n_test': int(test.n_samples),
+    return {'noise': noise, 'features': features,
+            'n_train': int(train.n_samples), 'n_test': int(test.n_samples),
             'test_poses': sorted(int(p) for p in np.unique(test.pose_index)),
             'methods': results, '_models': models}
 
 
-def run_evaluation(modelset, noises=('sigma3',), methods=DEFAULT_METHODS, **kwargs) -> dict:
-    """Every noise setting; the top-level 'methods' are those of the first setting."""
-    by_noise = {}
-    for noise in noises:
-        by_noise[noise] = evaluate_noise_setting(modelset, noise, methods, **kwargs)
-    first = by_noise[noises[0]]
-    return {'noise': noises[0], 'methods': first['methods'],
-            'by_noise': by_noise,
+def run_evaluation(modelset, noises=('sigma3',), methods=DEFAULT_METHODS,
+                   features=('hog_grid',), **kwargs) -> dict:
+    """Every noise setting for every feature extractor; the top-level 'methods' are those of
+    the first setting and the first extractor, 'by_noise' the first extractor's, and
+    'by_features[name]' = {'methods' (first noise), 'by_noise'} for each extractor."""
+    features = list(features)
+    if not features:
+        raise ValueError('no feature extractor given')
+    by_features = {}
+    for feature in features:
+        by_noise = {}
+        for noise in noises:
+            earlier = by_features[features[0]]['by_noise'][noise] if by_features else None
+            bow = earlier['methods'].get('naive_bow') if earlier else None
+            by_noise[noise] = evaluate_noise_setting(modelset, noise, methods, features=feature,
+                                                     naive_bow=bow, **kwargs)
+        by_features[feature] = {'methods': by_noise[noises[0]]['methods'], 'by_noise': by_noise}
+    first = by_features[features[0]]
+    return {'noise': noises[0], 'features': features[0], 'methods': first['methods'],
+            'by_noise': first['by_noise'], 'by_features': by_features,
             'object_types': list(dict.fromkeys(c.split('-', 1)[0] for c in modelset.class_names)),
             'class_names': list(modelset.class_names)}
 
 
+def _without_models(by_noise: dict) -> dict:
+    return {n: {k: v for k, v in r.items() if k != '_models'} for n, r in by_noise.items()}
+
+
 def json_ready(results: dict) -> dict:
     """Drop the fitted models (kept for plots) from a result document."""
-    out = {k: v for k, v in results.items() if k != 'by_noise'}
-    out['by_noise'] = {n: {k: v for k, v in r.items() if k != '_models'}
-                       for n, r in results['by_noise'].items()}
+    out = {k: v for k, v in results.items() if k not in ('by_noise', 'by_features')}
+    out['by_noise'] = _without_models(results['by_noise'])
+    if 'by_features' in results:  # absent from a results.json written before it existed
+        out['by_features'] = {f: {'methods': r['methods'], 'by_noise': _without_models(r['by_noise'])}
+                              for f, r in results['by_features'].items()}
     return out
 
 
@@ -180,6 +210,19 @@ def write_outputs(results: dict, out_dir, plots: bool = True) -> list[Path]:
                             f'{m.get("train_seconds", float("nan")):.1f}',
                             f'{m.get("infer_ms_per_sample", float("nan")):.3f}'])
     written.append(path)
+    if 'by_features' in doc:
+        path = out / 'table1_features.csv'
+        with path.open('w', newline='') as fh:
+            w = csv.writer(fh)
+            w.writerow(['features', 'noise', 'method', *types, 'overall', 'n_images'])
+            for feature, f in doc['by_features'].items():
+                for noise, r in f['by_noise'].items():
+                    for name, m in r['methods'].items():
+                        w.writerow([feature, noise, name,
+                                    *[f'{100 * m["accuracy_by_type"].get(t, float("nan")):.2f}'
+                                      for t in types],
+                                    f'{100 * m["accuracy"]:.2f}', m['n_images']])
+        written.append(path)
     path = out / 'accuracy_vs_images.csv'
     with path.open('w', newline='') as fh:
         w = csv.writer(fh)

@@ -16,6 +16,7 @@ import time
 from lightstage_camera.workers import usable_cores
 from lightstage_graph.names import TRAINER_NODE, TRAIN_ACTION
 from lightstage_graph.params import declare_parameters, floating, integer, string
+from mux_classifier.features import DEFAULT_EXTRACTOR, EXTRACTORS
 from lightstage_graph.spin import init_node, spin_until_stopped
 from lightstage_interfaces.action import Train
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -35,12 +36,13 @@ class _Cancelled(Exception):
     pass
 
 
-def goal_options(goal, n_jobs: int, refine_top: int = REFINE_TOP) -> dict:
+def goal_options(goal, n_jobs: int, refine_top: int = REFINE_TOP,
+                 features: str = DEFAULT_EXTRACTOR) -> dict:
     """Train goal fields -> `train_from_capture` options, with the documented defaults."""
     return dict(method=goal.method or 'greedy', mode=goal.mode or 'per_colour',
                 noise=goal.noise or 'sigma3', max_images=int(goal.max_images) or 8,
                 repeats=int(goal.repeats) or 400, seed=int(goal.seed), n_jobs=n_jobs,
-                refine_top=refine_top)
+                refine_top=refine_top, features=features)
 
 
 class TrainerNode(Node):
@@ -55,6 +57,11 @@ class TrainerNode(Node):
             'refine_top': (REFINE_TOP, integer(
                 'greedy: candidates per column re-scored with the exact linear SVM after the '
                 'ridge screen (0 = the screen picks)', 0, SITE_CANDIDATES)),
+            'features': (DEFAULT_EXTRACTOR, string(
+                'feature extractor the search scores with and the trained classifier uses: '
+                'hog_grid (the paper\'s), intensity_stats (objects placed any way), pooled_hog, '
+                'pooled_hog_stats or pose_hog (docs/SEARCH.md); a bad name aborts the goal',
+                constraints=', '.join(n for n, c in EXTRACTORS.items() if c.searchable))),
             'dask_scheduler': ('', string(
                 'address of an existing Dask scheduler to evaluate the candidates on, e.g. '
                 'tcp://HOST:8786 (empty = locally, with n_jobs processes); same results')),
@@ -84,7 +91,8 @@ class TrainerNode(Node):
         result = Train.Result()
         t0 = time.perf_counter()
         with self._busy:
-            options = goal_options(goal, int(self.p('n_jobs')), int(self.p('refine_top')))
+            options = goal_options(goal, int(self.p('n_jobs')), int(self.p('refine_top')),
+                                   str(self.p('features')))
             cluster = dict(dask_scheduler=str(self.p('dask_scheduler')).strip(),
                            dask_timeout_s=float(self.p('dask_timeout_s')))
             total = SITE_CANDIDATES if options['mode'] == 'per_colour' else 0

@@ -74,24 +74,32 @@ def _save_artifact(artifact, out: Path, summary: dict) -> None:
                              f'you want it (mv {kept} {out}); no need to train again', summary)
 
 
+def check_features(features: str) -> None:
+    """A feature extractor the search and the classifier can use, or ValueError listing them."""
+    from mux_classifier.features import searchable_extractor
+    searchable_extractor(features)
+
+
 def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8, repeats=400,
                 seed=0, n_jobs=1, hog_config=None, fixed_count=False, inner_classifier=None,
                 final_classifier='linear_svm', beam_width=1, progress=False, callback=None,
-                refine_top=None):
+                refine_top=None, features='hog_grid'):
     """The unfitted estimator for these options (greedy search or a baseline).
 
     inner_classifier: the classifier of the split accuracies; None = the method's default
     (greedy: the ridge screen with `refine_top` candidates re-scored by the exact SVM;
     baselines, which score one matrix per image count: the exact SVM). refine_top: greedy
-    only; None = `greedy.REFINE_TOP`.
+    only; None = `greedy.REFINE_TOP`. features: the feature extractor the search scores
+    with and the classifier uses (`mux_classifier.features`; "hog_grid" is the paper's).
     """
     from .baselines import NaiveClassifier, SnrOptimalClassifier
     from .greedy import REFINE_TOP, GreedyPatternSelector
 
     check_options(method, mode, noise, max_images, repeats)
     check_jobs(n_jobs)
+    check_features(features)
     common = dict(n_repeats=repeats, seed=seed, n_jobs=n_jobs, noise=noise, hog_config=hog_config,
-                  final_classifier=final_classifier)
+                  final_classifier=final_classifier, features=features)
     if method == 'greedy':
         return GreedyPatternSelector(mode=mode, max_patterns=max_images,
                                      n_patterns=max_images if fixed_count else None,
@@ -133,6 +141,7 @@ def train_from_capture(capture_dir, out_path, *, image_size: int = 120, dask_sch
                   options.get('noise', 'sigma3'), options.get('max_images', 8),
                   options.get('repeats', 400))
     check_jobs(options.get('n_jobs', 1))
+    check_features(options.get('features', 'hog_grid'))
     check_artifact_path(out_path)
     with dask_cluster(dask_scheduler, dask_timeout_s):  # connect first: fail before the load
         modelset = load_training_set(capture_dir, image_size)
@@ -158,7 +167,7 @@ def train_modelset(modelset, out_path, *, capture=None, **options) -> dict:
     artifact = model.to_artifact(provenance=provenance)
     summary = {
         'method': options.get('method', 'greedy'), 'mode': model.mode,
-        'noise': options.get('noise', 'sigma3'), 'artifact': str(out),
+        'noise': options.get('noise', 'sigma3'), 'features': model.features, 'artifact': str(out),
         'class_names': list(model.class_names_),
         'patterns': model.patterns_.astype(int).tolist(),
         'images_per_pattern': int(model.images_per_pattern),
