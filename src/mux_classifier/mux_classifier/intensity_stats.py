@@ -61,11 +61,12 @@ def intensity_stats_images(images: np.ndarray) -> np.ndarray:
     its own object's pixels, the gray-level quantiles 10/25/50/75/90 %, the mean gray level,
     the mean gradient magnitude and its quantiles 50/90 % (compiled; quantiles within one
     histogram bin of the exact ones, see the module docstring)."""
+    integer_levels = np.issubdtype(np.asarray(images).dtype, np.integer)
     x = _check_images(images, "intensity_stats_images")
     out = np.empty((len(x), N_STATS), np.float32)
     bad = np.zeros(len(x), np.bool_)
     if len(x):
-        _stats_images(x, MASK_FRACTION, _MASK_QUANTILES, _LEVEL_FRACTIONS, _GRADIENT_FRACTIONS,
+        _stats_images(x, integer_levels, MASK_FRACTION, _MASK_QUANTILES, _LEVEL_FRACTIONS, _GRADIENT_FRACTIONS,
                       N_BINS, out, bad)
     _refuse_bad(bad, "intensity_stats_images")
     return out
@@ -122,11 +123,12 @@ def _refuse_bad(bad: np.ndarray, who: str) -> None:
 # --- the compiled kernel -------------------------------------------------------------------
 
 @numba.njit(cache=True, nogil=True)
-def _order_stats(hist, first, first_count, first_edge, lo, width, ranks, values):
+def _order_stats(hist, first, first_count, first_edge, lo, width, exact, ranks, values):
     """Estimated order statistics (0-based ranks, ascending) of the pixels counted in hist
     from bin `first` on, whose count and lower edge are first_count and first_edge (a bin
     cut by the object's threshold); bin b spans [lo + b width, lo + (b + 1) width). The
-    r-th of a bin's c pixels is put at (r + 1/2) / c of the bin: within one bin width."""
+    r-th of a bin's c pixels is put at (r + 1/2) / c of the bin: within one bin width;
+    exact: every bin holds one level, its lower edge."""
     last = len(hist) - 1
     b = first
     count = first_count
@@ -138,13 +140,16 @@ def _order_stats(hist, first, first_count, first_edge, lo, width, ranks, values)
             b += 1
             count = hist[b]
         edge = first_edge if b == first else lo + b * width
-        top = lo + (b + 1) * width
-        values[j] = edge + (r - below + 0.5) / max(count, 1) * (top - edge)
+        if exact:
+            values[j] = edge
+        else:
+            top = lo + (b + 1) * width
+            values[j] = edge + (r - below + 0.5) / max(count, 1) * (top - edge)
 
 
 @numba.njit(cache=True, nogil=True)
-def _quantiles(hist, first, first_count, first_edge, lo, width, n, fractions, ranks, values,
-               out):
+def _quantiles(hist, first, first_count, first_edge, lo, width, exact, n, fractions, ranks,
+               values, out):
     """np.percentile's linear quantiles (fractions, ascending) of n pixels counted in hist,
     interpolated between the estimated order statistics around each one, into out."""
     m = len(fractions)
@@ -152,7 +157,7 @@ def _quantiles(hist, first, first_count, first_edge, lo, width, n, fractions, ra
         k = int(math.floor(fractions[j] * (n - 1)))
         ranks[2 * j] = k
         ranks[2 * j + 1] = min(k + 1, n - 1)
-    _order_stats(hist, first, first_count, first_edge, lo, width, ranks[:2 * m], values)
+    _order_stats(hist, first, first_count, first_edge, lo, width, exact, ranks[:2 * m], values)
     for j in range(m):
         pos = fractions[j] * (n - 1)
         a = values[2 * j]
@@ -228,10 +233,12 @@ def _object_pass(img, threshold, lo, scale, n_bins, cut_bin, object_grads, gr_ro
 
 
 @numba.njit(cache=True, nogil=True)
-def _stats_images(images, fraction, mask_fractions, level_fractions, grad_fractions, n_bins,
-                  out, bad):
+def _stats_images(images, integer_levels, fraction, mask_fractions, level_fractions,
+                  grad_fractions, n_bins, out, bad):
     """The 9 statistics of every image of images (N, H, W) float32 into out (N, 9); bad[i]
-    (and out[i] zeros) for an image with a non-finite level or gradient."""
+    (and out[i] zeros) for an image with a non-finite level or gradient. integer_levels:
+    the levels are whole numbers (an integer dtype), so an image spanning fewer than n_bins
+    levels gets one bin per level, and exact level quantiles and mask."""
     n, H, W = images.shape
     P = H * W
     level_hist = np.zeros(n_bins, np.int32)
@@ -258,18 +265,19 @@ def _stats_images(images, fraction, mask_fractions, level_fractions, grad_fracti
         for j in range(2):  # order keys back to float32 bits
             key[j] ^= (key[j] >> 31) & mantissa
         lo = np.float64(key_levels[0])
-        width = (np.float64(key_levels[1]) - lo) / n_bins
+        exact = integer_levels and np.float64(key_levels[1]) - lo < n_bins
+        width = 1.0 if exact else (np.float64(key_levels[1]) - lo) / n_bins
         scale = 1.0 / width if width > 0 else 0.0
         level_hist[:] = 0
         for p in range(P):
             level_hist[_bin(np.float64(pix[p]), lo, scale, n_bins)] += 1
         # the object: brighter than the floor (median) by `fraction` of the way to the top
-        _quantiles(level_hist, 0, level_hist[0], lo, lo, width, P, mask_fractions, ranks,
-                   values, mask_levels)
+        _quantiles(level_hist, 0, level_hist[0], lo, lo, width, exact, P, mask_fractions,
+                   ranks, values, mask_levels)
         floor, top = mask_levels[0], mask_levels[1]
         threshold = floor + fraction * max(top - floor, 1e-6)
         cut_bin = _bin(threshold, lo, scale, n_bins)
-        first_edge = threshold
+        first_edge = lo + cut_bin if exact else threshold  # a bin's pixels above it
         count, level_sum, grad_sum, grad_max, in_cut = _object_pass(
             img, threshold, lo, scale, n_bins, cut_bin, object_grads, gr_row, gc_row)
         if count == 0:  # no pixel stands out: the whole image stands in for the object
@@ -282,8 +290,8 @@ def _stats_images(images, fraction, mask_fractions, level_fractions, grad_fracti
             out[i, :] = 0
             continue
         o = out[i]
-        _quantiles(level_hist, cut_bin, in_cut, first_edge, lo, width, count, level_fractions,
-                   ranks, values, o[:5])
+        _quantiles(level_hist, cut_bin, in_cut, first_edge, lo, width, exact, count,
+                   level_fractions, ranks, values, o[:5])
         o[5] = level_sum / count
         o[6] = grad_sum / count
         g_width = np.float64(grad_max) / n_bins
@@ -291,5 +299,5 @@ def _stats_images(images, fraction, mask_fractions, level_fractions, grad_fracti
         grad_hist[:] = 0
         for p in range(count):
             grad_hist[_bin(np.float64(object_grads[p]), 0.0, g_scale, n_bins)] += 1
-        _quantiles(grad_hist, 0, grad_hist[0], 0.0, 0.0, g_width, count, grad_fractions,
-                   ranks, values, o[7:])
+        _quantiles(grad_hist, 0, grad_hist[0], 0.0, 0.0, g_width, False, count,
+                   grad_fractions, ranks, values, o[7:])
