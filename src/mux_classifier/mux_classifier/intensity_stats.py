@@ -40,6 +40,7 @@ LEVEL_QUANTILES = (10, 25, 50, 75, 90)
 GRADIENT_QUANTILES = (50, 90)
 N_STATS = len(LEVEL_QUANTILES) + 1 + 1 + len(GRADIENT_QUANTILES)
 N_BINS = 2048  # histogram bins of the kernel's quantiles (8 KiB of counts: stays in L1)
+_GROUP = 32  # bins summed into one step of the quantile walk (N_BINS is a multiple)
 
 _MASK_QUANTILES = np.array([0.50, 0.99])  # the floor level and the bright end
 _LEVEL_FRACTIONS = np.array(LEVEL_QUANTILES) / 100.0
@@ -123,12 +124,13 @@ def _refuse_bad(bad: np.ndarray, who: str) -> None:
 # --- the compiled kernel -------------------------------------------------------------------
 
 @numba.njit(cache=True, nogil=True)
-def _order_stats(hist, first, first_count, first_edge, lo, width, exact, ranks, values):
+def _order_stats(hist, groups, first, first_count, first_edge, lo, width, exact, ranks, values):
     """Estimated order statistics (0-based ranks, ascending) of the pixels counted in hist
     from bin `first` on, whose count and lower edge are first_count and first_edge (a bin
     cut by the object's threshold); bin b spans [lo + b width, lo + (b + 1) width). The
     r-th of a bin's c pixels is put at (r + 1/2) / c of the bin: within one bin width;
-    exact: every bin holds one level, its lower edge."""
+    exact: every bin holds one level, its lower edge. groups: hist's sums over _GROUP bins,
+    to step over whole groups (the walk is then ~n_bins / _GROUP steps, not n_bins)."""
     last = len(hist) - 1
     b = first
     count = first_count
@@ -138,6 +140,9 @@ def _order_stats(hist, first, first_count, first_edge, lo, width, exact, ranks, 
         while below + count <= r and b < last:
             below += count
             b += 1
+            while b % _GROUP == 0 and b + _GROUP <= last and below + groups[b // _GROUP] <= r:
+                below += groups[b // _GROUP]
+                b += _GROUP
             count = hist[b]
         edge = first_edge if b == first else lo + b * width
         if exact:
@@ -148,8 +153,18 @@ def _order_stats(hist, first, first_count, first_edge, lo, width, exact, ranks, 
 
 
 @numba.njit(cache=True, nogil=True)
-def _quantiles(hist, first, first_count, first_edge, lo, width, exact, n, fractions, ranks,
-               values, out):
+def _group_sums(hist, groups):
+    """groups[g] = the count of hist's bins g * _GROUP .. (g + 1) * _GROUP - 1."""
+    for g in range(len(groups)):
+        total = 0
+        for b in range(g * _GROUP, (g + 1) * _GROUP):
+            total += hist[b]
+        groups[g] = total
+
+
+@numba.njit(cache=True, nogil=True)
+def _quantiles(hist, groups, first, first_count, first_edge, lo, width, exact, n, fractions,
+               ranks, values, out):
     """np.percentile's linear quantiles (fractions, ascending) of n pixels counted in hist,
     interpolated between the estimated order statistics around each one, into out."""
     m = len(fractions)
@@ -157,18 +172,34 @@ def _quantiles(hist, first, first_count, first_edge, lo, width, exact, n, fracti
         k = int(math.floor(fractions[j] * (n - 1)))
         ranks[2 * j] = k
         ranks[2 * j + 1] = min(k + 1, n - 1)
-    _order_stats(hist, first, first_count, first_edge, lo, width, exact, ranks[:2 * m], values)
+    _order_stats(hist, groups, first, first_count, first_edge, lo, width, exact, ranks[:2 * m], values)
     for j in range(m):
         pos = fractions[j] * (n - 1)
         a = values[2 * j]
         out[j] = a + (values[2 * j + 1] - a) * (pos - math.floor(pos))
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
+def _histogram(values, n, lo, scale, hist, bins):
+    """Count values[:n] (float32) into hist, bin b = int((v - lo) * scale) in float32 (the
+    last bin also takes the top), and keep each value's bin in bins. The float32 steps are
+    monotonic in v, so a threshold's bin splits the values: the ones above it lie in that
+    bin or later. The bins are computed first, in a loop LLVM vectorizes, then counted."""
+    lo32 = np.float32(lo)
+    scale32 = np.float32(scale)
+    last = np.float32(len(hist) - 1)
+    for p in range(n):
+        bins[p] = np.int32(min((values[p] - lo32) * scale32, last))
+    hist[:] = 0
+    for p in range(n):
+        hist[bins[p]] += 1
+
+
+@numba.njit(cache=True, nogil=True)
 def _bin(v, lo, scale, n_bins):
-    """Histogram bin of v (float64): monotonic in v, so a threshold's bin splits the pixels."""
-    b = int((v - lo) * scale)
-    return n_bins - 1 if b >= n_bins else b
+    """The bin `_histogram` gives a float32 value v."""
+    return np.int32(min((np.float32(v) - np.float32(lo)) * np.float32(scale),
+                        np.float32(n_bins - 1)))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -191,22 +222,22 @@ def _range_if_finite(keys):
 
 
 @numba.njit(cache=True, nogil=True)
-def _object_pass(img, threshold, lo, scale, n_bins, cut_bin, object_grads, gr_row, gc_row):
-    """The object's pixels of img (H, W): gray level above threshold. Their gradient
-    magnitudes go to object_grads[:count] (in float32, as the numpy reference's). Returns
-    count, the sums of their levels and gradients (float64), the largest gradient, and how
-    many lie in the level bin cut_bin."""
+def _object_pass(img, threshold, bins, cut_bin, object_levels, object_grads, gr_row, gc_row):
+    """The object's pixels of img (H, W): gray level above threshold. Their levels go to
+    object_levels[:count] and their gradient magnitudes to object_grads[:count] (float32,
+    bit for bit the numpy reference's). Returns count, the largest gradient and how many
+    of them lie in the level bin cut_bin (bins: each pixel's level bin).
+
+    The squared gradients are computed for every pixel in branch-free loops (vectorized),
+    the square roots (the costly part) only for the object's pixels, after compaction."""
     H, W = img.shape
     zero = np.float32(0.0)
     count = 0
     in_cut = 0
-    level_sum = 0.0
-    grad_sum = 0.0
-    grad_max = zero
+    square_max = zero
     gc_row[0] = zero
     gc_row[W - 1] = zero
     for r in range(H):
-        # gradients first, in branch-free loops (LLVM vectorizes them), then the object's
         if 0 < r < H - 1:
             for c in range(W):
                 gr_row[c] = img[r + 1, c] - img[r - 1, c]
@@ -215,21 +246,35 @@ def _object_pass(img, threshold, lo, scale, n_bins, cut_bin, object_grads, gr_ro
         for c in range(1, W - 1):
             gc_row[c] = img[r, c + 1] - img[r, c - 1]
         for c in range(W):
-            gc_row[c] = np.sqrt(gr_row[c] * gr_row[c] + gc_row[c] * gc_row[c])
+            gr_row[c] = gr_row[c] * gr_row[c] + gc_row[c] * gc_row[c]
         for c in range(W):
             v = img[r, c]
             if v > threshold:
-                g = gc_row[c]
-                object_grads[count] = g
+                square = gr_row[c]
+                object_levels[count] = v
+                object_grads[count] = square
+                square_max = max(square_max, square)
+                in_cut += bins[r * W + c] == cut_bin
                 count += 1
-                level_sum += v
-                grad_sum += g
-                grad_max = max(grad_max, g)
-                if _bin(np.float64(v), lo, scale, n_bins) == cut_bin:
-                    in_cut += 1
-        gc_row[0] = zero
-        gc_row[W - 1] = zero
-    return count, level_sum, grad_sum, grad_max, in_cut
+    for p in range(count):
+        object_grads[p] = np.sqrt(object_grads[p])
+    return count, np.sqrt(square_max), in_cut  # sqrt is monotonic and correctly rounded
+
+
+@numba.njit(cache=True, nogil=True)
+def _sum(values, n):
+    """Sum of values[:n] in float64, in four interleaved partial sums (independent chains
+    of additions run in parallel; a fixed order, so the same bits on every CPU)."""
+    s0 = s1 = s2 = s3 = 0.0
+    m = n - n % 4
+    for p in range(0, m, 4):
+        s0 += values[p]
+        s1 += values[p + 1]
+        s2 += values[p + 2]
+        s3 += values[p + 3]
+    for p in range(m, n):
+        s0 += values[p]
+    return (s0 + s1) + (s2 + s3)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -243,6 +288,10 @@ def _stats_images(images, integer_levels, fraction, mask_fractions, level_fracti
     P = H * W
     level_hist = np.zeros(n_bins, np.int32)
     grad_hist = np.zeros(n_bins, np.int32)
+    level_groups = np.empty(n_bins // _GROUP, np.int64)
+    grad_groups = np.empty(n_bins // _GROUP, np.int64)
+    bins = np.empty(P, np.int32)
+    object_levels = np.empty(P, np.float32)
     object_grads = np.empty(P, np.float32)
     gr_row = np.empty(W, np.float32)
     gc_row = np.empty(W, np.float32)
@@ -268,36 +317,34 @@ def _stats_images(images, integer_levels, fraction, mask_fractions, level_fracti
         exact = integer_levels and np.float64(key_levels[1]) - lo < n_bins
         width = 1.0 if exact else (np.float64(key_levels[1]) - lo) / n_bins
         scale = 1.0 / width if width > 0 else 0.0
-        level_hist[:] = 0
-        for p in range(P):
-            level_hist[_bin(np.float64(pix[p]), lo, scale, n_bins)] += 1
+        _histogram(pix, P, lo, scale, level_hist, bins)
         # the object: brighter than the floor (median) by `fraction` of the way to the top
-        _quantiles(level_hist, 0, level_hist[0], lo, lo, width, exact, P, mask_fractions,
-                   ranks, values, mask_levels)
+        _group_sums(level_hist, level_groups)
+        _quantiles(level_hist, level_groups, 0, level_hist[0], lo, lo, width, exact, P,
+                   mask_fractions, ranks, values, mask_levels)
         floor, top = mask_levels[0], mask_levels[1]
         threshold = floor + fraction * max(top - floor, 1e-6)
         cut_bin = _bin(threshold, lo, scale, n_bins)
         first_edge = lo + cut_bin if exact else threshold  # a bin's pixels above it
-        count, level_sum, grad_sum, grad_max, in_cut = _object_pass(
-            img, threshold, lo, scale, n_bins, cut_bin, object_grads, gr_row, gc_row)
+        count, grad_max, in_cut = _object_pass(img, threshold, bins, cut_bin, object_levels,
+                                               object_grads, gr_row, gc_row)
         if count == 0:  # no pixel stands out: the whole image stands in for the object
             cut_bin = 0
             first_edge = lo
-            count, level_sum, grad_sum, grad_max, in_cut = _object_pass(
-                img, -np.inf, lo, scale, n_bins, cut_bin, object_grads, gr_row, gc_row)
+            count, grad_max, in_cut = _object_pass(img, -np.inf, bins, cut_bin, object_levels,
+                                                   object_grads, gr_row, gc_row)
         if not math.isfinite(grad_max):  # float32 gradients overflowed
             bad[i] = True
             out[i, :] = 0
             continue
         o = out[i]
-        _quantiles(level_hist, cut_bin, in_cut, first_edge, lo, width, exact, count,
+        _quantiles(level_hist, level_groups, cut_bin, in_cut, first_edge, lo, width, exact, count,
                    level_fractions, ranks, values, o[:5])
-        o[5] = level_sum / count
-        o[6] = grad_sum / count
+        o[5] = _sum(object_levels, count) / count
+        o[6] = _sum(object_grads, count) / count
         g_width = np.float64(grad_max) / n_bins
         g_scale = 1.0 / g_width if g_width > 0 else 0.0
-        grad_hist[:] = 0
-        for p in range(count):
-            grad_hist[_bin(np.float64(object_grads[p]), 0.0, g_scale, n_bins)] += 1
-        _quantiles(grad_hist, 0, grad_hist[0], 0.0, 0.0, g_width, False, count,
+        _histogram(object_grads, count, 0.0, g_scale, grad_hist, bins)
+        _group_sums(grad_hist, grad_groups)
+        _quantiles(grad_hist, grad_groups, 0, grad_hist[0], 0.0, 0.0, g_width, False, count,
                    grad_fractions, ranks, values, o[7:])
