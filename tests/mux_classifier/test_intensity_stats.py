@@ -126,7 +126,7 @@ def test_bad_input_is_refused_with_the_reason():
     with pytest.raises(ValueError, match=r"images \[1\].*NaN"):
         intensity_stats_images(images)
     huge = np.zeros((2, 5, 5), np.float32)
-    huge[1, 1, 2], huge[1, 2, 2], huge[1, 3, 2] = -3e38, 3e38, 3e38  # the centre's gradient overflows
+    huge[1, 1, 2], huge[1, 2, 2], huge[1, 3, 2] = -3e38, 3e38, 3e38  # centre's gradient: inf
     with pytest.raises(ValueError, match=r"images \[1\].*overflow"):
         intensity_stats_images(huge)
     with pytest.raises(ValueError, match="images\\[None\\]"):

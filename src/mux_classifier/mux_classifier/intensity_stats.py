@@ -19,10 +19,21 @@ of ``N_BINS`` bins, over the image's [min, max] for the gray levels (the mask's 
 99th percentile too) and over [0, the object's largest gradient] for the gradients: an
 order statistic is placed inside its bin by its rank among the bin's pixels, and
 np.percentile's linear interpolation between the two order statistics around a quantile is
-then done on these. So every quantile is within one bin (range / N_BINS) of the exact one;
-the mask's threshold is too, so pixels within a bin of it may fall on the other side than in
-the exact mask. Means are exact (float64 sums). ``intensity_stats_images_numpy`` is the
-exact reference (np.percentile), kept to test the kernel against.
+then done on these. So every quantile is within one bin (range / N_BINS) of the exact one
+(plus a float32 rounding of the bin index); the mask's threshold is too, so pixels within a
+bin of it may fall on the other side than in the exact mask (and an image whose 99th
+percentile lies within a bin of its median, e.g. more than half of it at its top level, may
+get a partial mask where the exact rule takes the whole image). Integer images (an integer
+dtype) spanning fewer than N_BINS levels, such as 10-bit camera frames, get one bin per
+level: their level quantiles and mask are exact. Means are float64 sums over the same
+pixels, so they equal the reference's wherever the masks agree. Gradients are the
+reference's bit for bit. ``intensity_stats_images_numpy`` is the exact reference
+(np.percentile), kept to test the kernel against.
+
+Speed (benchmarks/bench_intensity_stats.py): about half the HOG grid's time per 120 x 120
+image for small objects, three quarters for objects covering 40 % of it. Portable and
+deterministic as hog_kernel (no fastmath: the same bits on every CPU). The first call in a
+process without numba's cache compiles the kernel (seconds); ``cache=True`` keeps it.
 """
 from __future__ import annotations
 
@@ -52,7 +63,8 @@ def intensity_stats(stacks: np.ndarray) -> np.ndarray:
     each image's 9 depend on that image alone (`intensity_stats_images`)."""
     arr = np.asarray(stacks)
     if arr.ndim != 4:
-        raise ValueError(f"intensity_stats expects stacks of shape (n, k, H, W), got shape {arr.shape}")
+        raise ValueError("intensity_stats expects stacks of shape (n, k, H, W), "
+                         f"got shape {arr.shape}")
     n, k, H, W = arr.shape
     return intensity_stats_images(arr.reshape(n * k, H, W)).reshape(n, k * N_STATS)
 
@@ -62,13 +74,13 @@ def intensity_stats_images(images: np.ndarray) -> np.ndarray:
     its own object's pixels, the gray-level quantiles 10/25/50/75/90 %, the mean gray level,
     the mean gradient magnitude and its quantiles 50/90 % (compiled; quantiles within one
     histogram bin of the exact ones, see the module docstring)."""
-    integer_levels = np.issubdtype(np.asarray(images).dtype, np.integer)
-    x = _check_images(images, "intensity_stats_images")
+    arr = np.asarray(images)
+    x = _check_images(arr, "intensity_stats_images")
     out = np.empty((len(x), N_STATS), np.float32)
     bad = np.zeros(len(x), np.bool_)
     if len(x):
-        _stats_images(x, integer_levels, MASK_FRACTION, _MASK_QUANTILES, _LEVEL_FRACTIONS, _GRADIENT_FRACTIONS,
-                      N_BINS, out, bad)
+        _stats_images(x, np.issubdtype(arr.dtype, np.integer), MASK_FRACTION, _MASK_QUANTILES,
+                      _LEVEL_FRACTIONS, _GRADIENT_FRACTIONS, N_BINS, out, bad)
     _refuse_bad(bad, "intensity_stats_images")
     return out
 
@@ -108,7 +120,8 @@ def _check_images(images, who: str) -> np.ndarray:
     if arr.shape[1] * arr.shape[2] == 0:
         raise ValueError(f"{who}: images of {arr.shape[1]} x {arr.shape[2]} px have no pixel")
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise ValueError(f"{who}: images must hold integer or float gray levels, got dtype {arr.dtype}")
+        raise ValueError(f"{who}: images must hold integer or float gray levels, "
+                         f"got dtype {arr.dtype}")
     return np.ascontiguousarray(arr, dtype=np.float32)
 
 
@@ -172,7 +185,8 @@ def _quantiles(hist, groups, first, first_count, first_edge, lo, width, exact, n
         k = int(math.floor(fractions[j] * (n - 1)))
         ranks[2 * j] = k
         ranks[2 * j + 1] = min(k + 1, n - 1)
-    _order_stats(hist, groups, first, first_count, first_edge, lo, width, exact, ranks[:2 * m], values)
+    _order_stats(hist, groups, first, first_count, first_edge, lo, width, exact, ranks[:2 * m],
+                 values)
     for j in range(m):
         pos = fractions[j] * (n - 1)
         a = values[2 * j]
