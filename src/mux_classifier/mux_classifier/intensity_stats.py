@@ -252,6 +252,11 @@ def _object_pass(img, threshold, bins, cut_bin, object_levels, object_grads, gr_
     gc_row[0] = zero
     gc_row[W - 1] = zero
     for r in range(H):
+        hit = False  # any object pixel in this row (a vectorized OR); else skip the row
+        for c in range(W):
+            hit |= img[r, c] > threshold
+        if not hit:
+            continue
         if 0 < r < H - 1:
             for c in range(W):
                 gr_row[c] = img[r + 1, c] - img[r - 1, c]
