@@ -1,28 +1,36 @@
 """Where the object lies in a stack of images: a foreground mask and its pose (centroid,
 principal axis), shared by the pose-robust feature extractors.
 
-All images of a stack show the same pose, so one mask per stack is taken from the stack's
-summed image: the stage floor (black felt) covers most of the field of view, so its level
-is the sum's median; a pixel is object when it is brighter than the floor by a fraction of
-the object's range (floor to the 99th percentile). Nothing is learned: a stack's mask
-depends on that stack alone.
+A mask is taken from one gray image: the stage floor (black felt) covers most of the field
+of view, so its level is the image's median; a pixel is object when it is brighter than the
+floor by a fraction of the object's range (floor to the 99th percentile). All images of a
+stack show the same pose, so the pose-robust extractors take one mask per stack, from the
+stack's summed image (`stack_masks`); `image_masks` is the same rule on single images
+(`intensity_stats` takes each image's own). Nothing is learned: a mask depends on its image
+(or stack) alone.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["stack_masks", "mask_moments"]
+__all__ = ["image_masks", "stack_masks", "mask_moments", "MASK_FRACTION"]
 
 MASK_FRACTION = 0.25  # of the way from the floor level to the bright end
 
 
-def stack_masks(stacks: np.ndarray, fraction: float = MASK_FRACTION) -> np.ndarray:
-    """Foreground masks (n, H, W) bool of stacks (n, k, H, W)."""
-    total = np.asarray(stacks, dtype=np.float32).sum(axis=1)
-    flat = total.reshape(len(total), -1)
+def image_masks(images: np.ndarray, fraction: float = MASK_FRACTION) -> np.ndarray:
+    """Foreground masks (n, H, W) bool of gray images (n, H, W), each from its image alone
+    (exact median and 99th percentile; may be empty: then no pixel stands out)."""
+    arr = np.asarray(images, dtype=np.float32)
+    flat = arr.reshape(len(arr), -1)
     floor, top = np.percentile(flat, [50, 99], axis=1)
     threshold = floor + fraction * np.maximum(top - floor, 1e-6)
-    return total > threshold[:, None, None]
+    return arr > threshold[:, None, None]
+
+
+def stack_masks(stacks: np.ndarray, fraction: float = MASK_FRACTION) -> np.ndarray:
+    """Foreground masks (n, H, W) bool of stacks (n, k, H, W), from each stack's summed image."""
+    return image_masks(np.asarray(stacks, dtype=np.float32).sum(axis=1), fraction)
 
 
 def mask_moments(masks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
