@@ -6,6 +6,7 @@ import re
 import numpy as np
 from lightstage_camera.noise import NoiseModel, load_noise_file, noise_setting
 from lightstage_camera.rig import DEFAULT_DIMMER
+from lightstage_camera.scene_models import object_type_of
 from mux_classifier.features import DEFAULT_EXTRACTOR
 from mux_classifier.hog import HogConfig
 
@@ -46,11 +47,6 @@ def resolve_noise(spec) -> tuple[str, NoiseModel | None]:
         raise ValueError(f'noise {text!r}: after the @ give GAIN_DB:EXPOSURE_MS, two numbers '
                          f'(e.g. {path}@17.5:22.5), not {setting!r}')
     raise ValueError(f'unknown noise setting {text!r}; use {NOISE_HELP}')
-
-
-def object_type_of(class_name: str) -> str:
-    """"banana-fake" -> "banana" (the capture format's label convention)."""
-    return str(class_name).split('-', 1)[0]
 
 
 def search_data(modelset, noise='sigma3', *, hog_config: HogConfig | None = None,

@@ -220,7 +220,7 @@ def scoring_features(data: SearchData, images: np.ndarray) -> np.ndarray:
 
 def compile_kernels() -> None:
     """Compile (or load from numba's cache) every compiled kernel of the search and the
-    classify path: HOG, noise and the exact SVM's Newton solves. scripts/bootstrap.sh calls
+    classify path: HOG, intensity statistics, noise and the exact SVM's Newton solves. scripts/bootstrap.sh calls
     it after installing the packages, so the cache is written once, there."""
     from .split_scoring import SquaredHingeSplitScorer
     rng = np.random.default_rng(0)
@@ -230,5 +230,6 @@ def compile_kernels() -> None:
                       image_shape=(config.image_size,) * 2, noise_a=1.0, noise_b=1.0)
     clean = rng.uniform(0, 1023, (1, 4, config.image_size ** 2)).astype(np.float32)
     X = image_features(data, add_noise(data, clean, standard_normal(rng, clean.shape)))
+    image_features(replace(data, features='intensity_stats'), clean)
     masks = [np.array([True, False, False, False]), np.array([False, True, True, False])]
     SquaredHingeSplitScorer().split_accuracies(data.labels, masks, X=X, n_classes=2)

@@ -136,7 +136,7 @@ def run_evaluation(modelset, noises=('sigma3',), methods=DEFAULT_METHODS,
     first = by_features[features[0]]
     return {'noise': noises[0], 'features': features[0], 'methods': first['methods'],
             'by_noise': first['by_noise'], 'by_features': by_features,
-            'object_types': list(dict.fromkeys(c.split('-', 1)[0] for c in modelset.class_names)),
+            'object_types': modelset.object_types,
             'class_names': list(modelset.class_names)}
 
 
