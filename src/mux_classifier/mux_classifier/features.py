@@ -80,7 +80,7 @@ class StackFeatureExtractor:
 
     name = ""
     standardise = False
-    searchable = True  # per image and learns nothing raw: the pattern search can score with it
+    searchable = True  # its raw features learn nothing from images: the search can score with it
 
     def __init__(self, image_size: int = 120):
         self.image_size = int(image_size)
