@@ -158,6 +158,23 @@ def test_train_action_streams_feedback_and_returns_a_result(graph, tiny_capture,
     assert bad.accepted
     bad_result = c.result(bad.get_result_async(), 30, 'the failed Train result').result
     assert not bad_result.success and 'no such capture folder' in bad_result.message
+    # the node's features parameter picks the extractor (issue 16); a bad name aborts a goal
+    small = dict(capture_dir=str(tiny_capture), noise='sigma2', max_images=1, repeats=3)
+    try:
+        (ok,) = c.set_parameters('trainer', features='intensity_stats')
+        assert ok.successful, ok.reason
+        stats = tmp_path / 'stats.npz'
+        done = c.result(client.send_goal_async(Train.Goal(output_path=str(stats), **small)))
+        result = c.result(done.get_result_async(), 60, 'the intensity_stats Train result').result
+        assert result.success, result.message
+        assert TrainedArtifact.load(stats).features == 'intensity_stats'
+        (ok,) = c.set_parameters('trainer', features='sift')
+        assert ok.successful, ok.reason
+        bad = c.result(client.send_goal_async(Train.Goal(output_path=str(tmp_path / 'y.npz'), **small)))
+        bad_result = c.result(bad.get_result_async(), 30, 'the bad-features Train result').result
+        assert not bad_result.success and "unknown feature extractor 'sift'" in bad_result.message
+    finally:
+        c.set_parameters('trainer', features='hog_grid')
     client.destroy()
 
 

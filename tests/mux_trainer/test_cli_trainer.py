@@ -89,6 +89,38 @@ def test_eval_selects_methods_and_noises(capture, capsys):
     assert doc['settings']['dimmer'] == DEFAULT_DIMMER
 
 
+def test_eval_and_train_with_feature_extractors(capture, tmp_path, capsys):
+    """Issue 16: --features runs every method once per extractor; methods stay the first's,
+    by_features holds each; train writes an artifact on the chosen extractor."""
+    out_dir = tmp_path / 'eval'
+    rc = eval_main([str(capture), '--repeats', '4', '--max-images', '1', '--renders', '1',
+                    '--methods', 'naive,naive_bow,greedy', '--features', 'hog_grid,intensity_stats',
+                    '--json', '--quiet', '--out', str(out_dir), *TINY])
+    assert rc == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc['features'] == 'hog_grid' and doc['settings']['features'] == ['hog_grid', 'intensity_stats']
+    assert set(doc['by_features']) == {'hog_grid', 'intensity_stats'}
+    assert doc['by_features']['hog_grid']['methods'] == doc['methods']
+    other = doc['by_features']['intensity_stats']['methods']
+    assert set(other) == {'naive', 'naive_bow', 'greedy'}
+    assert other['naive_bow'] == doc['methods']['naive_bow']  # its own features: run once
+    table = (out_dir / 'table1_features.csv').read_text().splitlines()
+    assert table[0].startswith('features,noise,method') and len(table) == 1 + 2 * 3
+    out = tmp_path / 'stats.npz'
+    rc = train_main([str(capture), '--out', str(out), '--repeats', '4', '--max-images', '1',
+                     '--features', 'intensity_stats', '--json', '--quiet', *TINY])
+    assert rc == 0
+    assert json.loads(capsys.readouterr().out)['features'] == 'intensity_stats'
+    assert TrainedArtifact.load(out).features == 'intensity_stats'
+    with pytest.raises(SystemExit, match="unknown feature extractor 'sift'"):
+        eval_main([str(capture), '--features', 'hog_grid,sift', *TINY])
+    with pytest.raises(SystemExit, match='learns from images'):
+        train_main([str(capture), '--out', str(tmp_path / 'b.npz'), '--features', 'bow', *TINY])
+    with pytest.raises(SystemExit, match='--features takes one name'):
+        train_main([str(capture), '--out', str(tmp_path / 'b.npz'), '--features',
+                    'hog_grid,intensity_stats', *TINY])
+
+
 def test_bad_input_fails_clearly(capture, tmp_path, capsys):
     with pytest.raises(SystemExit, match='no such capture folder'):
         train_main([str(tmp_path / 'missing'), '--out', str(tmp_path / 'a.npz')])
