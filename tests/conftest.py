@@ -11,10 +11,18 @@ The fixtures below are the stage the node and recording tests share: a tiny synt
 capture and an artifact trained on it, made once per run.
 """
 import os
+import signal
 
 import pytest
 
 from lightstage_graph.ros_env import apply_ros_environment
+
+# A run started with SIGINT ignored (a background job of a non-interactive shell, nohup, some
+# CI runners) hands SIG_IGN on to every process it starts, and the tests that stop nodes and
+# CLIs with Ctrl-C then fail: give the run Python's own handler, which exec resets to the
+# default in the children.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 TEST_RUN_DOMAIN_ID = 100 + os.getpid() % 100
 apply_ros_environment(domain_id=int(os.environ.get('LIGHTSTAGE_TEST_DOMAIN_ID', TEST_RUN_DOMAIN_ID)))
