@@ -73,6 +73,12 @@ class FirmwareModel:
     def t_us(self, now: float) -> int:
         return (int(round((now - self.boot_time) * 1e6)) + self.clock_offset_us) & 0xFFFFFFFF
 
+    def end_us(self, t_start: float, t_end: float) -> int:
+        """The exposure's end on the firmware clock: its start plus the exposure in whole us,
+        as the firmware computes it (rounding both ends of the float times could make the
+        difference 1 us off the exposure)."""
+        return (self.t_us(t_start) + int(round((t_end - t_start) * 1e6))) & 0xFFFFFFFF
+
     def _fw_s(self, now: float) -> float:
         return now - self.boot_time
 
@@ -270,7 +276,7 @@ class FirmwareModel:
             self._fire = None
             self._end_exposure(t0, t1)
             reply = p.encode_frame(seq, cmd | p.REPLY_BIT,
-                                   p.pack_u32(self.t_us(t0)) + p.pack_u32(self.t_us(t1)))
+                                   p.pack_u32(self.t_us(t0)) + p.pack_u32(self.end_us(t0, t1)))
             self._cache = (seq, cmd, reply)
             out.append(reply)
             pending, self._pending = self._pending, []
@@ -289,7 +295,7 @@ class FirmwareModel:
             t_end = seq['next_time']
             self._end_exposure(seq['t_start'], t_end)
             out.append(p.encode_frame(seq['seq'], p.Event.TRIGGER, p.TriggerEvent(
-                seq['index'], self.t_us(seq['t_start']), self.t_us(t_end)).pack()))
+                seq['index'], self.t_us(seq['t_start']), self.end_us(seq['t_start'], t_end)).pack()))
             seq['exposing'] = False
             seq['index'] += 1
             seq['next_time'] = t_end + seq['gap_s']
