@@ -13,7 +13,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.utils.validation import check_is_fitted
 
-from .features import DEFAULT_EXTRACTOR, check_stacks, searchable_extractor
+from .features import DEFAULT_EXTRACTOR, check_stacks, column_scaling, searchable_extractor
 from .hog import HogConfig
 
 __all__ = ["ESTIMATORS", "MuxClassifier", "column_scaling"]
@@ -34,15 +34,6 @@ def _linear_arrays(estimator, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
         coef = np.vstack([-coef, coef])
         intercept = np.concatenate([-intercept, intercept])
     return coef, intercept
-
-
-def column_scaling(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-column mean and scale (std, never 0) of features X (n, F): a z-scoring learnt
-    from the rows given (training samples only)."""
-    X = np.asarray(X, dtype=np.float64)
-    mean = X.mean(axis=0)
-    scale = X.std(axis=0)
-    return mean, np.where(scale > 1e-9 * (np.abs(mean) + 1.0), scale, 1.0)
 
 
 class MuxClassifier(ClassifierMixin, BaseEstimator):

@@ -27,7 +27,8 @@ import numpy as np
 from .hog import HogConfig, hog_batch
 
 __all__ = ["stack_features", "check_stacks", "EXTRACTORS", "DEFAULT_EXTRACTOR", "extractor",
-           "StackFeatureExtractor", "features_for_split", "make_extractor", "searchable_extractor"]
+           "StackFeatureExtractor", "features_for_split", "make_extractor", "searchable_extractor",
+           "column_scaling"]
 
 
 def check_stacks(stacks, config: HogConfig = HogConfig(), n_images: int | None = None,
@@ -66,6 +67,15 @@ def stack_features(stacks, config: HogConfig = HogConfig()) -> np.ndarray:
         return np.zeros((0, k * config.n_features), dtype=np.float32)
     flat = hog_batch(arr.reshape(n * k, *arr.shape[2:]), config)
     return flat.reshape(n, k * config.n_features)
+
+
+def column_scaling(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-column mean and scale (std, never 0) of features X (n, F): a z-scoring learnt
+    from the rows given (training samples only)."""
+    X = np.asarray(X, dtype=np.float64)
+    mean = X.mean(axis=0)
+    scale = X.std(axis=0)
+    return mean, np.where(scale > 1e-9 * (np.abs(mean) + 1.0), scale, 1.0)
 
 
 # ---- feature extractors by name ------------------------------------------------------------
@@ -116,9 +126,8 @@ class StackFeatureExtractor:
         """Learn from training stacks only (nothing for a stateless extractor); returns self."""
         arr = self._check(stacks)
         if self.standardise:
-            per_image = self.raw_features(arr).reshape(-1, self.features_per_image).astype(np.float64)
-            self.mean_ = per_image.mean(axis=0)
-            self.scale_ = per_image.std(axis=0) + 1e-6 * (np.abs(self.mean_) + 1.0)
+            per_image = self.raw_features(arr).reshape(-1, self.features_per_image)
+            self.mean_, self.scale_ = column_scaling(per_image)
         self.fitted_ = True
         return self
 

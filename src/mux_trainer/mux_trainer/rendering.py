@@ -18,9 +18,8 @@ from dataclasses import dataclass, field, replace
 import numba
 import numpy as np
 
-from mux_classifier.estimator import column_scaling
-from mux_classifier.features import DEFAULT_EXTRACTOR, searchable_extractor
-from mux_classifier.hog import HogConfig, hog_batch
+from mux_classifier.features import DEFAULT_EXTRACTOR, column_scaling, searchable_extractor
+from mux_classifier.hog import HogConfig
 
 from lightstage_camera.rig import DEFAULT_DIMMER
 
@@ -198,11 +197,7 @@ def image_features(data: SearchData, images: np.ndarray) -> np.ndarray:
     (d values per image of the data's extractor; the HOG grid: 900)."""
     m, n, _ = images.shape
     H, W = data.image_shape
-    flat = images.reshape(m * n, H, W)
-    if data.features == DEFAULT_EXTRACTOR:
-        feats = hog_batch(flat, data.hog_config)
-    else:
-        feats = data.extractor.image_features(flat)
+    feats = data.extractor.image_features(images.reshape(m * n, H, W))
     return np.ascontiguousarray(
         feats.reshape(m, n, -1).transpose(1, 0, 2).reshape(n, -1))
 
