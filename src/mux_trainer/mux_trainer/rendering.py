@@ -215,8 +215,9 @@ def scoring_features(data: SearchData, images: np.ndarray) -> np.ndarray:
 
 def compile_kernels() -> None:
     """Compile (or load from numba's cache) every compiled kernel of the search and the
-    classify path: HOG, intensity statistics, noise and the exact SVM's Newton solves. scripts/bootstrap.sh calls
-    it after installing the packages, so the cache is written once, there."""
+    classify path: HOG, intensity statistics, noise and the exact SVM's Newton solves.
+    scripts/bootstrap.sh calls it after installing the packages, so the cache is written
+    once, there."""
     from .split_scoring import SquaredHingeSplitScorer
     rng = np.random.default_rng(0)
     config = HogConfig()
