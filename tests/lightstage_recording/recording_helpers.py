@@ -162,3 +162,16 @@ def replay_into_observing_classifier(bag, artifact_path, tmp_path: Path, n_resul
     finally:
         client.close()
     return replayed, p
+
+
+def assert_replayed_results_match(recorded, replayed, rtol: float, atol: float) -> list:
+    """Every recorded ClassificationResult came again from the replay, matched by its trigger
+    sequences: same label, image count and scores (to rtol/atol). Returns the (recorded,
+    replayed) pairs for further checks."""
+    by_sequences = {tuple(r.sequences): r for r in replayed}
+    assert len(by_sequences) == len(recorded)
+    pairs = [(r, by_sequences[tuple(r.sequences)]) for r in recorded]
+    for r, again in pairs:
+        assert (again.label, again.images_used) == (r.label, r.images_used)
+        np.testing.assert_allclose(again.scores, r.scores, rtol=rtol, atol=atol)
+    return pairs

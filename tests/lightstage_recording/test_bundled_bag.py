@@ -1,11 +1,11 @@
 """bags/sim_session, the recorded session in the repository: what it holds, and replaying it
 into a classifier that only observes gives back the recorded labels."""
-import numpy as np
 import pytest
 from rclpy.serialization import deserialize_message
 
 from lightstage_recording import BagReader
-from recording_helpers import REPO, bag_results, mcap_ros2_decode, replay_into_observing_classifier
+from recording_helpers import (REPO, assert_replayed_results_match, bag_results, mcap_ros2_decode,
+                               replay_into_observing_classifier)
 
 BAG = REPO / 'bags' / 'sim_session'
 ARTIFACT = REPO / 'bags' / 'sim_session_classifier.npz'
@@ -35,12 +35,7 @@ def test_replaying_the_bundled_bag_reproduces_its_labels(tmp_path):
     recorded = _results()
     replayed, _ = replay_into_observing_classifier(BAG, ARTIFACT, tmp_path, len(recorded),
                                                    '--rate', '5')
-    by_sequences = {tuple(r.sequences): r for r in replayed}
-    assert len(by_sequences) == len(recorded)
-    for r in recorded:
-        again = by_sequences[tuple(r.sequences)]
-        assert (again.label, again.images_used) == (r.label, r.images_used)
-        np.testing.assert_allclose(again.scores, r.scores, rtol=1e-4, atol=1e-5)
+    assert_replayed_results_match(recorded, replayed, rtol=1e-4, atol=1e-5)
 
 
 def test_independent_readers_decode_the_recorded_messages():

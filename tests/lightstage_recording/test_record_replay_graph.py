@@ -16,7 +16,7 @@ from rclpy.serialization import deserialize_message
 from lightstage_recording import BagReader, msg_definitions
 from lightstage_graph.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
-from recording_helpers import bag_results, replay_into_observing_classifier
+from recording_helpers import assert_replayed_results_match, bag_results, replay_into_observing_classifier
 from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
@@ -159,10 +159,5 @@ def test_replay_into_an_observing_classifier_reproduces_the_labels(session, stag
     replayed, p = replay_into_observing_classifier(bag, stage_artifact_path, tmp_path, len(recorded),
                                                    '--start-offset-s', f'{offset_s:.6f}', '--rate', '4')
     assert f'played {n_played} messages on 2 topics' in p.stdout, p.stdout
-    by_sequences = {tuple(r.sequences): r for r in replayed}
-    assert len(by_sequences) == len(recorded)
-    for r in recorded:
-        again = by_sequences[tuple(r.sequences)]
-        assert (again.label, again.images_used) == (r.label, r.images_used)
-        np.testing.assert_allclose(again.scores, r.scores, rtol=1e-5, atol=1e-6)
+    for r, again in assert_replayed_results_match(recorded, replayed, rtol=1e-5, atol=1e-6):
         assert again.header.stamp == r.header.stamp
