@@ -2,13 +2,22 @@
 
 Their classes differ only under particular light, not in outline:
 
-- ``coin``: a brass token with an embossed motif (real) against a flat printed copy of the
-  same token (fake) whose print reproduces the motif's shading under diffuse light. With
-  every LED on the two look alike; a grazing site casts shading and shadows that turn with
-  the light on the embossed one and stay put on the print.
+- ``coin``: a brass token with a motif embossed 0.15 mm deep (real) against a flat printed
+  copy of the same token (fake). With every LED on the two look alike; a grazing site casts
+  shading, shadows and glints that turn with the light on the embossed one and stay put on
+  the print.
 - ``note``: a paper note printed with a design; the real note's inks are transparent in
   NIR (the NIR image shows plain paper, brighter), the copy's inks absorb NIR too. Visible
   images look alike.
+- ``seal``: a certificate's embossed seal on matte paper: the real seal's design is pressed
+  0.2 mm into relief (and inked), the copy is a flat print of the same design in the same
+  inks, reproducing the relief's shading under diffuse light. Shallow relief on matte
+  paper: a faint cue that only light from one side brings out of the noise (the raking
+  light a clerk tilts a document under).
+
+The printed copies (``coin``, ``seal``) are printed from a photograph of the original
+under every LED at once (`PRINTED_RELIEF_MM`): with every LED on they return what the
+original returns, pixel for pixel.
 
 Each instance has its own motif/design (a smoothed random field on the object's own grid),
 so a classifier must learn relief vs print or NIR ink, not a particular design. Geometry
@@ -21,13 +30,18 @@ import math
 import numpy as np
 from scipy import ndimage
 
-FLAT_TYPES = ("coin", "note")
+FLAT_TYPES = ("coin", "note", "seal")
 COIN_RADIUS_MM = 26.0
 COIN_THICKNESS_MM = 2.0
 NOTE_SIZE_MM = (96.0, 48.0)  # length, width
 NOTE_THICKNESS_MM = 0.2
+SEAL_CARD_MM = 70.0  # side of the square card the seal is pressed into
+SEAL_RADIUS_MM = 24.0
+SEAL_CARD_THICKNESS_MM = 0.3
 MOTIF_GRID = 64  # object-frame samples per side of a motif/design field
-EMBOSS_REFERENCE_MM = 0.5  # relief depth whose diffuse shading a printed copy reproduces
+# relief of the original whose all-LED appearance a printed copy reproduces (the real
+# material's `emboss_mm`)
+PRINTED_RELIEF_MM = {"coin": 0.15, "seal": 0.2}
 
 
 def _motif_field(rng, scale_px: float, threshold: float) -> np.ndarray:
@@ -46,6 +60,8 @@ def instance_params(kind: str, rng) -> dict:
         params["motif"] = _motif_field(rng, 3.5, 0.3)
     elif kind == "note":
         params["design"] = _motif_field(rng, 2.5, 0.0)
+    elif kind == "seal":
+        params["motif"] = _motif_field(rng, 2.0, 0.3)
     else:
         raise ValueError(f"unknown flat object type {kind!r}; choose from {', '.join(FLAT_TYPES)}")
     return params
@@ -79,6 +95,16 @@ def shape(kind: str, x, y, shape_params: dict, pose: dict):
         motif = np.maximum(_sample(shape_params["motif"], u, v, (r, r)) * (rho < 0.8 * r),
                            ndimage.gaussian_filter(rim, 0.8))
         z = np.where(mask, COIN_THICKNESS_MM, 0.0)
+        return z, mask, motif * mask
+    if kind == "seal":
+        half = SEAL_CARD_MM / 2
+        mask = (np.abs(u) < half) & (np.abs(v) < half)
+        r = SEAL_RADIUS_MM
+        rho = np.hypot(u, v)
+        ring = ((rho > 0.88 * r) & (rho < 0.95 * r)).astype(np.float64)
+        motif = np.maximum(_sample(shape_params["motif"], u, v, (r, r)) * (rho < 0.82 * r),
+                           ndimage.gaussian_filter(ring, 0.8))
+        z = np.where(mask, SEAL_CARD_THICKNESS_MM, 0.0)
         return z, mask, motif * mask
     if kind == "note":
         half = (NOTE_SIZE_MM[0] / 2, NOTE_SIZE_MM[1] / 2)

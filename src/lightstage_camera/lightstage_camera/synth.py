@@ -72,7 +72,7 @@ class Material:
     relief_mm: float  # micro-relief depth
     relief_scale_mm: float
     # flat objects (flat_objects.py): depth of the embossed motif; how strongly a printed
-    # copy reproduces the motif's diffuse shading (1 = as an EMBOSS_REFERENCE_MM relief);
+    # copy reproduces the original's all-LED appearance (1 = fully, see _print_factors);
     # how much the printed design darkens each colour
     emboss_mm: float = 0.0
     print_contrast: float = 0.0
@@ -145,7 +145,7 @@ MATERIALS: dict[str, dict[str, Material]] = {
         "real": _m(albedo=(0.70, 0.55, 0.30, 0.78), pigment_contrast=(0.05, 0.05, 0.05, 0.05),
                    pigment_scale_mm=2.0, specular=0.08, shininess=40,
                    sss=(0.0, 0.0, 0.0, 0.0), sss_radius_mm=(0.5, 0.5, 0.5, 0.5),
-                   relief_mm=0.02, relief_scale_mm=1.0, emboss_mm=0.5),
+                   relief_mm=0.02, relief_scale_mm=1.0, emboss_mm=0.15),
         "fake": _m(albedo=(0.70, 0.55, 0.30, 0.78), pigment_contrast=(0.05, 0.05, 0.05, 0.05),
                    pigment_scale_mm=2.0, specular=0.08, shininess=40,
                    sss=(0.0, 0.0, 0.0, 0.0), sss_radius_mm=(0.5, 0.5, 0.5, 0.5),
@@ -160,6 +160,19 @@ MATERIALS: dict[str, dict[str, Material]] = {
                    pigment_scale_mm=1.5, specular=0.02, shininess=10,
                    sss=(0.2, 0.2, 0.2, 0.2), sss_radius_mm=(0.5, 0.5, 0.5, 0.5),
                    relief_mm=0.01, relief_scale_mm=1.0, ink_contrast=(0.45, 0.45, 0.45, 0.40)),
+    },
+    # Seal: the same card and inks; a design pressed into relief (real) vs a flat print.
+    "seal": {
+        "real": _m(albedo=(0.82, 0.80, 0.74, 0.86), pigment_contrast=(0.04, 0.04, 0.04, 0.04),
+                   pigment_scale_mm=1.5, specular=0.01, shininess=8,
+                   sss=(0.2, 0.2, 0.2, 0.2), sss_radius_mm=(0.5, 0.5, 0.5, 0.5),
+                   relief_mm=0.005, relief_scale_mm=1.0, emboss_mm=0.2,
+                   ink_contrast=(0.30, 0.35, 0.40, 0.30)),
+        "fake": _m(albedo=(0.82, 0.80, 0.74, 0.86), pigment_contrast=(0.04, 0.04, 0.04, 0.04),
+                   pigment_scale_mm=1.5, specular=0.01, shininess=8,
+                   sss=(0.2, 0.2, 0.2, 0.2), sss_radius_mm=(0.5, 0.5, 0.5, 0.5),
+                   relief_mm=0.005, relief_scale_mm=1.0, print_contrast=1.0,
+                   ink_contrast=(0.30, 0.35, 0.40, 0.30)),
     },
 }
 
@@ -315,15 +328,72 @@ def _masked_blur(image, mask_f, sigma_px, mask_blur_cache: dict):
     return ndimage.gaussian_filter(image * mask_f, sigma_px) / mask_blur_cache[key]
 
 
-def _print_factor(material: Material, motif, px: float, channel: int):
-    """Albedo factor of a flat object's print: its ink design, and for a printed copy of an
-    embossed motif the motif's shading under diffuse light (an all-LED ring light sees a
-    surface tilted by n roughly as n_z times a flat one)."""
-    factor = 1.0 - material.ink_contrast[channel] * motif
-    if material.print_contrast:
-        nz = _normals(flat_objects.EMBOSS_REFERENCE_MM * motif, px)[2]
-        factor = factor * (1.0 - material.print_contrast * (1.0 - nz))
-    return factor
+def _site_shading(z, mask_f, material: Material, x, y, px: float, sites):
+    """How each site lights a height field, before albedo: per site the irradiance
+    ``(S, H, W)`` (relative to the average site's at the centre), per colour and site the
+    diffuse factor ``(4, S, H, W)`` (Lambert with cast shadows, part of it scattered below
+    the surface) and per site the specular term ``(S, H, W)``. A pixel's level under site s in
+    colour c is then ``WHITE * power[c] * irradiance[s] * (albedo[c] * diffuse[c, s] +
+    specular[s])``."""
+    nx, ny, nz = _normals(z, px)
+    shininess = 1.0 / (1.0 / material.shininess + 1.0 / DIFFUSER_SHININESS)
+    spec_norm = (shininess + 8.0) / 8.0
+    blur_cache: dict = {}
+    # reference: a flat white patch at the centre lit by the average site
+    ref = np.mean([s[2] / np.linalg.norm(s) ** 3 for s in sites])
+    shadows = _shadows(z, sites, px)
+    irradiance = np.empty((len(sites),) + z.shape)
+    diffuse = np.empty((4, len(sites)) + z.shape)
+    specular = np.empty((len(sites),) + z.shape)
+    for s, (sx, sy, sz) in enumerate(sites):
+        lx, ly, lz = sx - x, sy - y, sz - z
+        d = np.sqrt(lx * lx + ly * ly + lz * lz)
+        lx, ly, lz = lx / d, ly / d, lz / d
+        # LED lobe aimed at the stage centre (cos^2 falloff off-axis) and inverse-square law
+        axis = -np.array([sx, sy, sz]) / math.sqrt(sx * sx + sy * sy + sz * sz)
+        lobe = np.clip(-(lx * axis[0] + ly * axis[1] + lz * axis[2]), 0, 1) ** 2
+        irradiance[s] = lobe / (d * d) / ref
+        vis = shadows[s]
+        ndotl = nx * lx + ny * ly + nz * lz
+        lambert = np.clip(ndotl, 0, None) * vis
+        wrap = np.clip((ndotl + 0.35) / 1.35, 0, None) * (0.4 + 0.6 * vis)
+        hx, hy, hz = lx, ly, lz + 1.0
+        hn = np.sqrt(hx * hx + hy * hy + hz * hz)
+        ndoth = np.clip((nx * hx + ny * hy + nz * hz) / hn, 0, 1)
+        specular[s] = mask_f * material.specular * spec_norm * ndoth ** shininess * lambert
+        for c in range(4):
+            diffuse_sss = _masked_blur(wrap, mask_f, material.sss_radius_mm[c] / px, blur_cache)
+            k = material.sss[c] * mask_f
+            diffuse[c, s] = (1 - k) * lambert + k * diffuse_sss
+    return irradiance, diffuse, specular
+
+
+def _all_led_level(albedo_c, irradiance, diffuse_c, specular):
+    """Level (before the white level and colour power) of one colour with every site on."""
+    return (irradiance * (albedo_c * diffuse_c + specular)).sum(axis=0)
+
+
+def _print_factors(kind: str, material: Material, albedo, mask_f, z_flat, motif, shading, x, y,
+                   px: float, sites):
+    """Albedo factors (4, H, W) of a flat copy printed from a photograph of the embossed
+    original under every LED: where the copy's print is full strength (print_contrast 1) the
+    flat copy returns, with every LED on, what the original with a PRINTED_RELIEF_MM[kind]
+    relief of the same motif returns, pixel for pixel (its shading, shadows and glints), so
+    the two are told apart only by light that does not come from all sides at once."""
+    z_ref = z_flat + flat_objects.PRINTED_RELIEF_MM[kind] * motif
+    irr_ref, diff_ref, spec_ref = _site_shading(z_ref, mask_f, material, x, y, px, sites)
+    irradiance, diffuse, specular = shading
+    factors = np.ones((4,) + z_flat.shape)
+    inside = mask_f > 0.5
+    for c in range(4):
+        target = _all_led_level(albedo[c], irr_ref, diff_ref[c], spec_ref)
+        copy_gloss = (irradiance * specular).sum(axis=0)
+        copy_matte = albedo[c] * (irradiance * diffuse[c]).sum(axis=0)
+        exact = (target - copy_gloss) / np.maximum(copy_matte, 1e-9)
+        # ink darkens, paper whitens no further than its own white
+        exact = np.clip(exact, 0.0, 1.0 / max(material.albedo[c], 1e-6))
+        factors[c] = np.where(inside, 1.0 + material.print_contrast * (exact - 1.0), 1.0)
+    return factors
 
 
 def render_pose(kind: str, material: Material, shape_params: dict, pose: dict, rig: Rig,
@@ -334,6 +404,7 @@ def render_pose(kind: str, material: Material, shape_params: dict, pose: dict, r
     flat = kind in FLAT_TYPES
     if flat:
         z_obj, mask, motif = flat_objects.shape(kind, x, y, shape_params, pose)
+        z_flat = z_obj
         z_obj = z_obj + material.emboss_mm * motif
     else:
         z_obj, mask = _shape(kind, x, y, shape_params, pose)
@@ -341,8 +412,8 @@ def render_pose(kind: str, material: Material, shape_params: dict, pose: dict, r
     # micro-relief: pores are dimples (negative), ridges for the banana come from the shape
     relief = _smooth_noise(rng, x.shape, material.relief_scale_mm / px)
     relief = -np.abs(relief) if kind in ("orange", "grape") else relief
-    z = z_obj + mask_f * material.relief_mm * relief
-    nx, ny, nz = _normals(z, px)
+    micro = mask_f * material.relief_mm * relief
+    z = z_obj + micro
     # pigment: one mottle field, contrast per colour (multiplicative on albedo)
     mottle = _smooth_noise(rng, x.shape, material.pigment_scale_mm / px)
     if kind == "red_apple":  # streaks run along meridians: stretch the mottle radially
@@ -354,40 +425,19 @@ def render_pose(kind: str, material: Material, shape_params: dict, pose: dict, r
     for c in range(4):
         obj = material.albedo[c] * tint[c] * np.clip(1 + material.pigment_contrast[c] * mottle,
                                                      0.05, None)
-        if flat:
-            obj = obj * _print_factor(material, motif, px, c)
+        if flat:  # the printed design darkens each colour by its ink's contrast
+            obj = obj * (1.0 - material.ink_contrast[c] * motif)
         albedo[c] = mask_f * obj + (1 - mask_f) * FLOOR_ALBEDO[c]
-    shininess = 1.0 / (1.0 / material.shininess + 1.0 / DIFFUSER_SHININESS)
-    spec_norm = (shininess + 8.0) / 8.0
-    blur_cache: dict = {}
     sites = rig.site_positions_mm()
+    shading = _site_shading(z, mask_f, material, x, y, px, sites)
+    if flat and material.print_contrast:
+        albedo = albedo * _print_factors(kind, material, albedo, mask_f, z_flat + micro, motif,
+                                         shading, x, y, px, sites)
+    irradiance, diffuse, specular = shading
     out = np.empty((4, len(sites), size, size), np.float32)
-    # reference: a flat white patch at the centre lit by the average site
-    ref = np.mean([s[2] / np.linalg.norm(s) ** 3 for s in sites])
-    shadows = _shadows(z, sites, px)
-    for s, (sx, sy, sz) in enumerate(sites):
-        lx, ly, lz = sx - x, sy - y, sz - z
-        d = np.sqrt(lx * lx + ly * ly + lz * lz)
-        lx, ly, lz = lx / d, ly / d, lz / d
-        # LED lobe aimed at the stage centre (cos^2 falloff off-axis) and inverse-square law
-        axis = -np.array([sx, sy, sz]) / math.sqrt(sx * sx + sy * sy + sz * sz)
-        lobe = np.clip(-(lx * axis[0] + ly * axis[1] + lz * axis[2]), 0, 1) ** 2
-        irradiance = lobe / (d * d) / ref
-        vis = shadows[s]
-        ndotl = nx * lx + ny * ly + nz * lz
-        lambert = np.clip(ndotl, 0, None) * vis
-        wrap = np.clip((ndotl + 0.35) / 1.35, 0, None) * (0.4 + 0.6 * vis)
-        hx, hy, hz = lx, ly, lz + 1.0
-        hn = np.sqrt(hx * hx + hy * hy + hz * hz)
-        ndoth = np.clip((nx * hx + ny * hy + nz * hz) / hn, 0, 1)
-        spec = mask_f * material.specular * spec_norm * ndoth ** shininess * lambert
-        for c in range(4):
-            diffuse_sss = _masked_blur(wrap, mask_f, material.sss_radius_mm[c] / px, blur_cache)
-            k = material.sss[c] * mask_f
-            diffuse = (1 - k) * lambert + k * diffuse_sss
-            level = WHITE_LEVEL_PER_LED * CHANNEL_POWER[c] * irradiance * (
-                albedo[c] * diffuse + spec)
-            out[c, s] = level
+    for c in range(4):
+        out[c] = WHITE_LEVEL_PER_LED * CHANNEL_POWER[c] * irradiance * (
+            albedo[c] * diffuse[c] + specular)
     if model_noise > 0:  # residual noise of the averaged capture frames
         out += rng.normal(0, model_noise, out.shape).astype(np.float32)
     return np.clip(out, 0, rig.max_level, out=out)
@@ -526,8 +576,9 @@ def main(argv: list[str] | None = None) -> int:
                     "and fake objects) as a capture folder. Object types: the five fruit "
                     "(default) and flat objects whose classes differ only under particular "
                     "light: coin (embossed brass token vs a flat print of it: alike under "
-                    "all LEDs, apart under grazing light) and note (paper note whose inks are "
-                    "NIR-transparent vs a copy whose inks absorb NIR).")
+                    "all LEDs, apart under grazing light), note (paper note whose inks are "
+                    "NIR-transparent vs a copy whose inks absorb NIR) and seal (a card with a "
+                    "seal pressed 0.2 mm into relief vs a flat print of it).")
     parser.add_argument("out_dir", help="folder to write (created if missing)")
     parser.add_argument("--size", type=int, default=DEFAULT_SIZE,
                         help=f"image side in pixels (default {DEFAULT_SIZE})")
