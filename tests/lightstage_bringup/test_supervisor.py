@@ -131,6 +131,37 @@ def test_shutdown_escalates_sigint_sigterm_sigkill():
     assert not any(pid_alive(pid) for pid in pids)
 
 
+def test_children_stop_on_sigint_even_when_the_supervisor_ignores_it():
+    # A supervisor started from a background job ignores SIGINT; its children must not
+    # inherit that, or the SIGINT of a clean stop goes unheard until SIGTERM.
+    import subprocess
+    code = (
+        'import io, signal, sys\n'
+        'from lightstage_bringup.supervisor import ProcessSpec, Supervisor\n'
+        'signal.signal(signal.SIGINT, signal.SIG_IGN)\n'
+        'sup = Supervisor(stdout=sys.stdout, stderr=io.StringIO(), sigint_timeout_s=20)\n'
+        'sup.start(ProcessSpec("child", [sys.executable, "-c", "import signal\\n"\n'
+        '    "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler, flush=True)\\n"\n'
+        '    "while True: signal.pause()"]))\n'
+        'print(sys.stdin.readline().strip(), flush=True)\n'
+        'r = sup.shutdown()[0]\n'
+        'print("stopped by", r.signal_sent, r.returncode, flush=True)\n')
+    boss = subprocess.Popen([PY, '-c', code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            text=True)
+    try:
+        assert boss.stdout.readline().strip() == '[child] True'  # Python's own SIGINT handler
+        boss.stdin.write('go\n')
+        boss.stdin.flush()
+        assert boss.stdout.readline().strip() == 'go'
+        # stopped by the SIGINT (KeyboardInterrupt: exit status 1 or -SIGINT), not SIGTERM
+        assert boss.stdout.readline().split()[:3] == ['stopped', 'by', 'SIGINT']
+        assert boss.wait(timeout=30) == 0
+    finally:
+        boss.kill()
+        boss.stdout.close()
+        boss.stdin.close()
+
+
 def test_grandchildren_are_stopped_with_their_parent():
     out = Lines()
     with Supervisor(stdout=out, stderr=io.StringIO(), sigint_timeout_s=2) as sup:

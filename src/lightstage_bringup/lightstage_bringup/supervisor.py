@@ -35,9 +35,13 @@ _CLEAN_STOP_CODES = {0, -signal.SIGINT, -signal.SIGTERM,
                      128 + signal.SIGINT, 128 + signal.SIGTERM}
 
 
-def _die_with_parent() -> None:  # runs in the child between fork and exec
+def _child_setup() -> None:  # runs in the child between fork and exec
     if _libc is not None:
         _libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    # An ignored SIGINT survives exec: started from a background job (`cmd &` in a script,
+    # nohup) the supervisor ignores it, and so would every node, deaf to the SIGINT that
+    # asks it to stop cleanly. Each child starts with the default disposition instead.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 @dataclass(frozen=True)
@@ -144,7 +148,7 @@ class Supervisor:
         popen = subprocess.Popen(
             list(spec.argv), env=env, cwd=spec.cwd, stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, encoding='utf-8',
-            errors='replace', bufsize=1, process_group=0, preexec_fn=_die_with_parent)
+            errors='replace', bufsize=1, process_group=0, preexec_fn=_child_setup)
         proc = ManagedProcess(spec, popen, time.monotonic())
         for pipe, stream_name in ((popen.stdout, 'stdout'), (popen.stderr, 'stderr')):
             t = threading.Thread(target=self._forward, args=(spec.name, pipe, stream_name),
