@@ -53,7 +53,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--per-class', type=int, default=3,
                    help='held-out poses per class put on the stage (default: 3)')
     p.add_argument('--jobs', type=jobs_type, default=2, help='worker processes (default: 2)')
-    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--seed', type=int, default=0,
+                   help='seed of the dataset, the search and the stage camera\'s noise (default: 0)')
     p.add_argument('--domain-id', type=int, default=None,
                    help='ROS_DOMAIN_ID of the demo graph (default: $ROS_DOMAIN_ID, else 42)')
     p.add_argument('--fresh', action='store_true', help='redo the dataset and the training')
@@ -171,11 +172,12 @@ def _params_file(path: Path, sections: dict) -> Path:
 
 
 def _write_params(out: Path, capture: Path, artifact: str, first_sample: str,
-                  recorder: dict) -> Path:
+                  recorder: dict, seed: int) -> Path:
     return _params_file(out / 'demo_params.yaml', {
         'driver': {'port': 'sim'},
+        # a seeded camera: the same demo gives the same frames, so the same figures
         'camera': {'backend': 'sim', 'capture_dir': str(capture.resolve()),
-                   'sample': first_sample, 'noise': 'auto'},
+                   'sample': first_sample, 'noise': 'auto', 'seed': seed},
         'classifier': {'artifact_path': str(Path(artifact).resolve())},
         RECORDER: recorder,
     })
@@ -194,7 +196,7 @@ def replay_commands(bag: Path, artifact: str, out: Path, domain_id: int) -> list
 
 
 def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domain_id: int,
-              recorder: dict | None = None) -> dict:
+              recorder: dict | None = None, seed: int = 0) -> dict:
     """Classify `samples` on the stage with each method of `summary`, recorded into the bag
     OUT/BAG (`recorder`: more parameters of the recorder, e.g. max_bag_size_bytes)."""
     import shutil
@@ -207,7 +209,7 @@ def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domai
     if bag.is_dir():
         shutil.rmtree(bag)  # the previous demo's: OUT is the demo's own working folder
     params = _write_params(out, capture, summary['greedy']['artifact'], samples[0],
-                           {'output_dir': str(bag.resolve()), **(recorder or {})})
+                           {'output_dir': str(bag.resolve()), **(recorder or {})}, seed)
     env = ros_environment(domain_id)
     log_dir = out / 'logs'
     results = {}
@@ -309,7 +311,7 @@ def main(argv: list[str] | None = None) -> int:
         capture = _dataset(out, args)
         summary, held_out = _train(out, capture, args)
         samples = _choose_on_stage(held_out, args.per_class)
-        results = _on_stage(out, capture, summary, samples, domain_id)
+        results = _on_stage(out, capture, summary, samples, domain_id, seed=args.seed)
     except (RuntimeError, ValueError, OSError) as exc:  # a GraphTimeout is an OSError
         print(f'lightstage demo: {exc}', file=sys.stderr)
         return 1
