@@ -30,3 +30,32 @@ def test_dask_backend_gives_the_same_scores_and_patterns(tiny_data):
         assert len(stream.data) >= 2
     np.testing.assert_array_equal(local, remote)
     np.testing.assert_array_equal(local_sel.patterns_, sel.patterns_)
+
+
+def test_a_worker_measures_the_search_data_by_its_arrays():
+    # A Dask worker unpickles the scattered SearchData and measures it with dask's sizeof
+    # before it ever imports the evaluation module: the size must come with the class.
+    import subprocess
+    import sys
+    code = (
+        'import pickle, sys\n'
+        'import numpy as np\n'
+        'from mux_trainer.rendering import SearchData\n'
+        'data = SearchData(basis=np.zeros((8, 4, 10, 144), np.float32), labels=np.zeros(10),\n'
+        '                  pose_index=np.arange(10), class_names=["a"], image_shape=(12, 12))\n'
+        'blob = pickle.dumps(data)\n'
+        'from dask.sizeof import sizeof\n'
+        'print("mux_trainer.evaluation" in sys.modules, sizeof(pickle.loads(blob)))\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out[0] == 'False'  # the scenario: evaluation not imported
+    assert int(out[1]) >= 8 * 4 * 10 * 144 * 4  # the basis alone
+
+
+def test_a_column_context_is_measured_by_its_arrays():
+    from dask.sizeof import sizeof
+    from mux_trainer.evaluation import ColumnContext
+    z = np.zeros((4, 10, 144), np.float32)
+    ctx = ColumnContext('per_colour', 0, z, None, np.zeros((10, 10)), [np.zeros(10, bool)],
+                        None, 2)
+    assert sizeof(ctx) >= z.nbytes + 10 * 10 * 8 + 10

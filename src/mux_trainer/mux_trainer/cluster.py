@@ -213,8 +213,11 @@ def shared_bytes(obj) -> int:
 
 
 def array_nbytes(obj) -> int:
-    """Bytes of the numpy arrays among `obj`'s attributes (also in lists): its size for
-    the scheduler's memory accounting, which would otherwise see a few hundred bytes."""
+    """Bytes of the numpy arrays among `obj`'s attributes (also in lists): what an array
+    holder's `__sizeof__` adds, so that Dask's `sizeof` (sys.getsizeof for unknown types), run
+    on the workers that hold the object, counts its arrays and not a few hundred bytes.
+    Through `__sizeof__` rather than a registration with Dask, a worker that only unpickled
+    the object (and imported its module, nothing else) measures it right too."""
     import numpy as np
     total = 0
     for value in vars(obj).values():
@@ -222,15 +225,3 @@ def array_nbytes(obj) -> int:
             if isinstance(item, np.ndarray):
                 total += item.nbytes
     return total
-
-
-def register_sizes(*types) -> None:
-    """Teach Dask's `sizeof` (run where the objects are held: the workers) the size of these
-    array holders (`array_nbytes`); nothing without Dask."""
-    try:
-        from dask.sizeof import sizeof
-    except ImportError:  # pragma: no cover - dask is a pinned requirement
-        return
-    for cls in types:
-        sizeof.register(cls)(array_nbytes)
-

@@ -30,7 +30,7 @@ import numpy as np
 from joblib import Parallel, delayed
 from threadpoolctl import threadpool_limits
 
-from .cluster import active_cluster, register_sizes
+from .cluster import active_cluster, array_nbytes
 from .rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
                         image_features, scoring_features, standard_normal)
 from .split_scoring import make_scorer
@@ -75,8 +75,8 @@ class ColumnContext:
     scorer: object
     n_classes: int
 
-
-register_sizes(SearchData, ColumnContext)  # what a Dask worker holds, for its scheduler
+    def __sizeof__(self) -> int:  # for a Dask worker's memory accounting
+        return object.__sizeof__(self) + array_nbytes(self)
 
 
 def _score_features(data: SearchData, ctx: ColumnContext, Xc: np.ndarray) -> np.ndarray:

@@ -23,6 +23,8 @@ from mux_classifier.hog import HogConfig
 
 from lightstage_camera.rig import DEFAULT_DIMMER
 
+from .cluster import array_nbytes
+
 
 @dataclass
 class SearchData:
@@ -70,6 +72,9 @@ class SearchData:
     @property
     def extractor(self):
         return searchable_extractor(self.features, self.hog_config)
+
+    def __sizeof__(self) -> int:  # for a Dask worker's memory accounting
+        return object.__sizeof__(self) + array_nbytes(self)
 
     @classmethod
     def from_models(cls, models: np.ndarray, labels, pose_index, class_names, *,
