@@ -385,9 +385,9 @@ def _print_factors(kind: str, material: Material, albedo, mask_f, z_flat, motif,
     irradiance, diffuse, specular = shading
     factors = np.ones((4,) + z_flat.shape)
     inside = mask_f > 0.5
+    copy_gloss = (irradiance * specular).sum(axis=0)  # the copy's own gloss, every LED on
     for c in range(4):
         target = _all_led_level(albedo[c], irr_ref, diff_ref[c], spec_ref)
-        copy_gloss = (irradiance * specular).sum(axis=0)
         copy_matte = albedo[c] * (irradiance * diffuse[c]).sum(axis=0)
         exact = (target - copy_gloss) / np.maximum(copy_matte, 1e-9)
         # ink darkens, paper whitens no further than its own white
