@@ -121,6 +121,26 @@ def test_eval_and_train_with_feature_extractors(capture, tmp_path, capsys):
                     'hog_grid,intensity_stats', *TINY])
 
 
+def test_eval_holds_out_whole_physical_samples(capture, tmp_path, capsys):
+    import dataclasses
+    from trainer_helpers import make_modelset
+    base = make_modelset(n_poses=8)
+    path = tmp_path / 'four_samples'
+    write_capture(path, dataclasses.replace(base, instance=base.pose_index // 2,
+                                            sample_names=[''] * len(base.labels)))  # s<i>/p<j>
+    args = ['--repeats', '4', '--max-images', '1', '--renders', '1', '--methods', 'naive',
+            '--holdout-by', 'instances', *TINY]
+    assert eval_main([str(path), *args]) == 0
+    assert 'held-out accuracy (test samples [' in capsys.readouterr().out
+    assert eval_main([str(path), '--json', '--quiet', *args]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc['settings']['holdout_by'] == 'instances'
+    assert len(doc['by_noise']['sigma3']['test_instances']) == 1
+    # one physical sample per class cannot be split that way: a clear error
+    with pytest.raises(SystemExit, match='at least 2 physical samples'):
+        eval_main([str(capture), *args])
+
+
 def test_bad_input_fails_clearly(capture, tmp_path, capsys):
     with pytest.raises(SystemExit, match='no such capture folder'):
         train_main([str(tmp_path / 'missing'), '--out', str(tmp_path / 'a.npz')])

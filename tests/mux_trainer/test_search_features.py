@@ -79,6 +79,28 @@ def test_the_evaluation_learns_nothing_from_the_held_out_poses():
         clean['methods']['naive']['accuracy'] != other['methods']['naive']['accuracy']
 
 
+def test_held_out_physical_samples_never_reach_training():
+    """--holdout-by instances: replacing every pose of the held-out samples changes no trained
+    weight, and those samples are the test set."""
+    base = make_modelset(n_types=2, n_poses=8)
+    modelset = dataclasses.replace(base, instance=base.pose_index // 2)  # 4 samples x 2 poses
+    options = dict(methods=('naive', 'greedy'), n_repeats=8, max_images=2, seed=0,
+                   hog_config=TINY_HOG, quiet=True, features='intensity_stats',
+                   holdout_by='instances')
+    clean = evaluate_noise_setting(modelset, 'sigma3', **options)
+    assert clean['holdout_by'] == 'instances' and len(clean['test_instances']) == 1
+    held_poses = np.unique(modelset.pose_index[np.isin(modelset.instance, clean['test_instances'])])
+    assert clean['test_poses'] == sorted(held_poses.tolist())
+    other = evaluate_noise_setting(_corrupt_poses(modelset, held_poses), 'sigma3', **options)
+    for name in ('naive', 'greedy'):
+        a, b = clean['_models'][name], other['_models'][name]
+        np.testing.assert_array_equal(a.patterns_, b.patterns_)
+        for k in a.classifiers_:
+            np.testing.assert_array_equal(a.classifiers_[k].coef_, b.classifiers_[k].coef_)
+    with pytest.raises(ValueError, match='holdout_by'):
+        evaluate_noise_setting(modelset, 'sigma3', **{**options, 'holdout_by': 'classes'})
+
+
 def test_a_global_standardisation_would_be_caught(monkeypatch):
     """The negative control: scaling the features over all samples before the hold-out
     (the leak the test above guards against) changes the trained weights."""

@@ -193,7 +193,13 @@ def eval_main(argv: list[str] | None = None) -> int:
                    help=f'comma-separated, from {",".join(METHODS)} (default: '
                         f'{",".join(DEFAULT_METHODS)})')
     p.add_argument('--holdout', type=float, default=0.25,
-                   help='fraction of pose indices held out for testing (default: 0.25)')
+                   help='fraction of pose indices (or of physical samples, see --holdout-by) '
+                        'held out for testing (default: 0.25)')
+    p.add_argument('--holdout-by', choices=('poses', 'instances'), default='poses',
+                   help='hold out pose indices, the same for every class (default, the '
+                        'paper\'s rule: a test object is seen in training in other poses), or '
+                        'physical samples with all their poses (objects never seen in '
+                        'training)')
     p.add_argument('--renders', type=int, default=4,
                    help='noisy renders of each held-out sample (default: 4)')
     p.add_argument('--beam-width', type=int, default=1, help='greedy_joint: beam width')
@@ -244,13 +250,14 @@ def eval_main(argv: list[str] | None = None) -> int:
                                      n_renders=args.renders, seed=args.seed, n_jobs=args.jobs,
                                      hog_config=hog_config, beam_width=args.beam_width,
                                      joint_max_images=args.joint_max_images, quiet=args.quiet,
-                                     progress=not args.quiet)
+                                     progress=not args.quiet, holdout_by=args.holdout_by)
         except ValueError as exc:
             raise SystemExit(f'lightstage eval: {exc}') from None
     results['capture'] = str(Path(args.capture_dir).resolve())
     results['settings'] = {'repeats': args.repeats, 'max_images': args.max_images,
                            'joint_max_images': args.joint_max_images or args.max_images,
-                           'holdout': args.holdout, 'renders': args.renders, 'seed': args.seed,
+                           'holdout': args.holdout, 'holdout_by': args.holdout_by,
+                           'renders': args.renders, 'seed': args.seed,
                            'methods': methods, 'noise': noises, 'features': features,
                            'dimmer': DEFAULT_DIMMER}
     doc = json_ready(results)
@@ -259,8 +266,10 @@ def eval_main(argv: list[str] | None = None) -> int:
     else:
         for feature, f in doc['by_features'].items():
             for noise, r in f['by_noise'].items():
-                print(f'noise {noise}, features {feature}: held-out accuracy (test poses '
-                      f'{r["test_poses"]})')
+                held = (f'test samples {r["test_instances"]} of every class, all poses'
+                        if r.get('test_instances') is not None
+                        else f'test poses {r["test_poses"]}')
+                print(f'noise {noise}, features {feature}: held-out accuracy ({held})')
                 _print_methods(r['methods'])
         sys.stdout.flush()
     if args.out:

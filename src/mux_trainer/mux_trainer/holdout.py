@@ -1,7 +1,9 @@
 """Held-out evaluation: train on some poses, test on fresh renders of the others.
 
 The outer split holds out a random subset of pose indices (the same for every class, like
-the inner splits); methods are trained (search + classifiers) on the remaining poses only.
+the inner splits), or of physical samples with all their poses (`holdout_by='instances'`:
+objects never seen in training); methods are trained (search + classifiers) on the rest
+only.
 Test images are rendered under each method's patterns with noise drawn independently of
 everything used in training, `n_renders` times, and classified by the method's classifier
 for each column count.
@@ -20,9 +22,23 @@ from .splits import pose_splits
 HOLDOUT_STREAM = 7919  # seed-sequence tag of the test-noise stream (distinct from the search's)
 
 
-def holdout_split(data: SearchData, test_fraction: float = 0.25, seed: int = 0):
-    """(train indices, test indices): a random subset of pose indices is held out."""
-    mask = pose_splits(data.pose_index, 1, test_fraction,
+HOLDOUT_BY = ('poses', 'instances')
+
+
+def holdout_split(data: SearchData, test_fraction: float = 0.25, seed: int = 0,
+                  instance=None):
+    """(train indices, test indices): a random subset of pose indices is held out, the same
+    for every class; or, given `instance` (each sample's physical sample number within its
+    class, `ModelSet.instance`), a random subset of instance numbers with all their poses, so
+    no held-out object is seen in training in another pose."""
+    groups = data.pose_index if instance is None else np.asarray(instance)
+    if groups.shape != data.pose_index.shape:
+        raise ValueError(f'instance must hold one entry per sample ({data.n_samples}), got '
+                         f'shape {groups.shape}')
+    if instance is not None and np.unique(groups).size < 2:
+        raise ValueError('holding out instances needs at least 2 physical samples per class; '
+                         'this capture has 1 (hold out poses instead)')
+    mask = pose_splits(groups, 1, test_fraction,
                        np.random.default_rng([int(seed), HOLDOUT_STREAM, 1]))[0]
     return np.flatnonzero(~mask), np.flatnonzero(mask)
 

@@ -27,7 +27,7 @@ from lightstage_camera.workers import check_jobs
 from .baselines import NaiveClassifier, SnrOptimalClassifier
 from .data import search_data
 from .greedy import GreedyPatternSelector
-from .holdout import accuracy_by_type, holdout_split, method_summary, test_features
+from .holdout import HOLDOUT_BY, accuracy_by_type, holdout_split, method_summary, test_features
 
 METHODS = ('naive', 'naive_bow', 'snr_optimal', 'greedy', 'greedy_joint')
 DEFAULT_METHODS = ('naive', 'naive_bow', 'snr_optimal', 'greedy')
@@ -62,7 +62,7 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
                            max_images=8, holdout_fraction=0.25, n_renders=4, seed=0,
                            n_jobs=1, hog_config=None, beam_width=1, joint_max_images=None,
                            quiet=False, progress=False, features='hog_grid',
-                           naive_bow=None) -> dict:
+                           naive_bow=None, holdout_by='poses') -> dict:
     """All requested methods at one noise setting; returns {'methods': {...}, ...}.
 
     joint_max_images: pattern columns of 'greedy_joint' (one exposure each; default
@@ -70,13 +70,18 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     features: the extractor every method (but naive + BoW) scores and classifies with.
     naive_bow: an earlier run's naive + BoW result for this noise, reused instead of
     training it again (it does not depend on `features`).
+    holdout_by: 'poses' (the paper's rule: pose indices held out, their objects seen in
+    other poses) or 'instances' (physical samples held out with all their poses).
     """
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f'unknown methods {sorted(unknown)}; choose from {", ".join(METHODS)}')
     check_jobs(n_jobs)
+    if holdout_by not in HOLDOUT_BY:
+        raise ValueError(f'unknown holdout_by {holdout_by!r}; choose from {", ".join(HOLDOUT_BY)}')
     data = search_data(modelset, noise, hog_config=hog_config, features=features)
-    train_idx, test_idx = holdout_split(data, holdout_fraction, seed)
+    instance = np.asarray(modelset.instance) if holdout_by == 'instances' else None
+    train_idx, test_idx = holdout_split(data, holdout_fraction, seed, instance)
     train, test = data.subset(train_idx), data.subset(test_idx)
     common = dict(n_repeats=n_repeats, seed=seed, n_jobs=n_jobs)
     results: dict = {}
@@ -113,6 +118,9 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     return {'noise': noise, 'features': features,
             'n_train': int(train.n_samples), 'n_test': int(test.n_samples),
             'test_poses': sorted(int(p) for p in np.unique(test.pose_index)),
+            'holdout_by': holdout_by,
+            'test_instances': (sorted(int(i) for i in np.unique(instance[test_idx]))
+                               if instance is not None else None),
             'methods': results, '_models': models}
 
 
