@@ -39,8 +39,8 @@ SEAL_CARD_MM = 70.0  # side of the square card the seal is pressed into
 SEAL_RADIUS_MM = 24.0
 SEAL_CARD_THICKNESS_MM = 0.3
 MOTIF_GRID = 64  # object-frame samples per side of a motif/design field
-# relief of the original whose all-LED appearance a printed copy reproduces (the real
-# material's `emboss_mm`)
+# relief depth of the embossed originals (their material's `emboss_mm` in synth.MATERIALS),
+# whose all-LED appearance a printed copy reproduces
 PRINTED_RELIEF_MM = {"coin": 0.15, "seal": 0.2}
 
 
@@ -81,6 +81,15 @@ def _sample(field: np.ndarray, u, v, half_extent_mm: tuple[float, float]) -> np.
     return ndimage.map_coordinates(field, [rows, cols], order=1, mode="nearest")
 
 
+def _medallion(field: np.ndarray, u, v, r: float, inner: float, ring: tuple[float, float]):
+    """A round motif of radius r (coin face, seal): the field inside `inner` * r and a ring
+    between ring[0] * r and ring[1] * r, soft-edged."""
+    rho = np.hypot(u, v)
+    band = ((rho > ring[0] * r) & (rho < ring[1] * r)).astype(np.float64)
+    return np.maximum(_sample(field, u, v, (r, r)) * (rho < inner * r),
+                      ndimage.gaussian_filter(band, 0.8))
+
+
 def shape(kind: str, x, y, shape_params: dict, pose: dict):
     """Height field (mm), object mask, and the motif (0..1; the coin's relief pattern or the
     note's ink design) in image coordinates, for one pose."""
@@ -88,22 +97,14 @@ def shape(kind: str, x, y, shape_params: dict, pose: dict):
     u, v = _object_frame(x, y, pose)
     u, v = u / scale, v / scale
     if kind == "coin":
-        r = COIN_RADIUS_MM
-        rho = np.hypot(u, v)
-        mask = rho < r
-        rim = ((rho > 0.86 * r) & mask).astype(np.float64)
-        motif = np.maximum(_sample(shape_params["motif"], u, v, (r, r)) * (rho < 0.8 * r),
-                           ndimage.gaussian_filter(rim, 0.8))
+        mask = np.hypot(u, v) < COIN_RADIUS_MM
+        motif = _medallion(shape_params["motif"], u, v, COIN_RADIUS_MM, 0.8, (0.86, 1.0))
         z = np.where(mask, COIN_THICKNESS_MM, 0.0)
         return z, mask, motif * mask
     if kind == "seal":
         half = SEAL_CARD_MM / 2
         mask = (np.abs(u) < half) & (np.abs(v) < half)
-        r = SEAL_RADIUS_MM
-        rho = np.hypot(u, v)
-        ring = ((rho > 0.88 * r) & (rho < 0.95 * r)).astype(np.float64)
-        motif = np.maximum(_sample(shape_params["motif"], u, v, (r, r)) * (rho < 0.82 * r),
-                           ndimage.gaussian_filter(ring, 0.8))
+        motif = _medallion(shape_params["motif"], u, v, SEAL_RADIUS_MM, 0.82, (0.88, 0.95))
         z = np.where(mask, SEAL_CARD_THICKNESS_MM, 0.0)
         return z, mask, motif * mask
     if kind == "note":

@@ -16,6 +16,7 @@ from lightstage_camera.workers import jobs_type, usable_cores
 from .cluster import DASK_SCHEDULER_ENV, DEFAULT_TIMEOUT_S, scheduler_from_env
 from .data import NOISE_HELP, resolve_noise
 from .greedy import REFINE_TOP
+from .holdout import HOLDOUT_BY
 from .report import DEFAULT_METHODS, METHODS
 
 
@@ -195,7 +196,7 @@ def eval_main(argv: list[str] | None = None) -> int:
     p.add_argument('--holdout', type=float, default=0.25,
                    help='fraction of pose indices (or of physical samples, see --holdout-by) '
                         'held out for testing (default: 0.25)')
-    p.add_argument('--holdout-by', choices=('poses', 'instances'), default='poses',
+    p.add_argument('--holdout-by', choices=HOLDOUT_BY, default=HOLDOUT_BY[0],
                    help='hold out pose indices, the same for every class (default, the '
                         'paper\'s rule: a test object is seen in training in other poses), or '
                         'physical samples with all their poses (objects never seen in '
