@@ -113,6 +113,36 @@ def test_a_printed_copy_matches_its_relief_original_under_every_led_and_only_the
     assert synth.MATERIALS[kind]["real"].emboss_mm == synth.flat_objects.PRINTED_RELIEF_MM[kind]
 
 
+def test_a_flat_fake_is_a_copy_of_the_real_sample_with_its_number_and_a_fake_fruit_is_not(
+        monkeypatch):
+    jobs = synth.plan(("seal", "note", "grape"), 2, 1, 4)
+    job = {(j.kind, j.variant, j.instance): j for j in jobs}
+    # a copy lies on the stage its own way: its poses are drawn apart from the original's
+    assert (synth._pose_params(job["seal", "fake", 1].seed + (1,), "free")
+            != synth._pose_params(job["seal", "real", 1].seed + (1,), "free"))
+    # laid the same way, a copy shows its original's design (the same levels under every
+    # LED up to its paper's mottle), not another sample's
+    pose = synth._pose_params((0, 5, 0, 0, 0, 1), "free")
+    monkeypatch.setattr(synth, "_pose_params", lambda seed, placement="canonical": pose)
+    rig = Rig.paper_default(64)
+
+    def every_led(kind, variant, number):
+        return synth.render_job(job[kind, variant, number], rig, 1.0, 0.0, "free").sum(axis=1)
+
+    for kind in ("seal", "note"):
+        copy, original, other = (every_led(kind, v, n)
+                                 for v, n in (("fake", 1), ("real", 1), ("real", 0)))
+        visible = slice(0, 3)  # the note's inks differ in NIR by design
+
+        def diff(a, b):
+            return np.linalg.norm(a[visible] - b[visible]) / np.linalg.norm(b[visible])
+        assert diff(copy, original) < 0.3 * diff(copy, other)
+    # fake fruit are fruit of their own; canonical fruit data stay byte-identical
+    fruit = [synth._instance_params("grape", synth._instance_seed(job["grape", v, 1]))
+             for v in ("fake", "real")]
+    assert fruit[0]["tint"] != fruit[1]["tint"]
+
+
 def test_note_inks_differ_only_in_nir():
     real, fake, diff = _real_and_fake("note")
     visible = [diff(real[c].sum(axis=0), fake[c].sum(axis=0)) for c in range(3)]

@@ -19,9 +19,12 @@ The printed copies (``coin``, ``seal``) are printed from a photograph of the ori
 under every LED at once (`PRINTED_RELIEF_MM`): with every LED on they return what the
 original returns, pixel for pixel.
 
-Each instance has its own motif/design (a smoothed random field on the object's own grid),
-so a classifier must learn relief vs print or NIR ink, not a particular design. Geometry
-follows the pose (centre, in-plane rotation, scale); materials are in `synth.MATERIALS`.
+Each real sample has its own motif/design (a smoothed random field on the object's own
+grid), and each fake is a copy of the real sample with the same number (a forger copies a
+specimen: the same design, size and tint; `synth._instance_seed`). So the two classes hold
+the same designs and a classifier must learn relief vs print or NIR ink, not which designs
+it saw. Geometry follows the pose (centre, in-plane rotation, scale), drawn apart for the
+copy and its original; materials are in `synth.MATERIALS`.
 """
 from __future__ import annotations
 

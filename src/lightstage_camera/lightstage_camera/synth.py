@@ -486,12 +486,23 @@ def _pose_params(seed: tuple, placement: str = "canonical") -> dict:
     raise ValueError(f"unknown placement {placement!r}; choose from {', '.join(PLACEMENTS)}")
 
 
+def _instance_seed(job: SampleJob) -> tuple:
+    """Seed of the physical sample a job shows: (seed, type, variant, sample). A fake flat
+    object is a copy of the real sample with the same number (a forger copies a specimen):
+    it shares that sample's design, size and tint, so the two classes do not differ by
+    which designs they hold, only by relief or ink."""
+    seed = job.seed[:-1]
+    if job.kind in FLAT_TYPES:
+        seed = seed[:2] + (VARIANTS.index("real"),) + seed[3:]
+    return seed
+
+
 def render_job(job: SampleJob, rig: Rig, strength: float, model_noise: float,
                placement: str = "canonical") -> np.ndarray:
     materials = MATERIALS[job.kind]
     material = materials["real"] if job.variant == "real" else blend_materials(
         materials["real"], materials["fake"], strength)
-    shape = _instance_params(job.kind, job.seed[:-1])
+    shape = _instance_params(job.kind, _instance_seed(job))
     pose = _pose_params(job.seed + (1,), placement)
     if "scale" in pose:
         shape = {**shape, "scale": shape["scale"] * pose["scale"]}
