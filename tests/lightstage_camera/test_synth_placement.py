@@ -137,7 +137,7 @@ def test_a_flat_fake_is_a_copy_of_the_real_sample_with_its_number_and_a_fake_fru
         def diff(a, b):
             return np.linalg.norm(a[visible] - b[visible]) / np.linalg.norm(b[visible])
         assert diff(copy, original) < 0.3 * diff(copy, other)
-    # fake fruit are fruit of their own; canonical fruit data stay byte-identical
+    # fake fruit are fruit of their own (as before: the fruit data do not change)
     fruit = [synth._instance_params("grape", synth._instance_seed(job["grape", v, 1]))
              for v in ("fake", "real")]
     assert fruit[0]["tint"] != fruit[1]["tint"]
