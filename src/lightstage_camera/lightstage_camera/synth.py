@@ -591,7 +591,8 @@ def main(argv: list[str] | None = None) -> int:
                     "light: coin (embossed brass token vs a flat print of it: alike under "
                     "all LEDs, apart under grazing light), note (paper note whose inks are "
                     "NIR-transparent vs a copy whose inks absorb NIR) and seal (a card with a "
-                    "seal pressed 0.2 mm into relief vs a flat print of it). Each flat fake "
+                    f"seal pressed {flat_objects.PRINTED_RELIEF_MM['seal']} mm into relief vs "
+                    "a flat print of it). Each flat fake "
                     "is a copy of the real sample with the same number.")
     parser.add_argument("out_dir", help="folder to write (created if missing)")
     parser.add_argument("--size", type=int, default=DEFAULT_SIZE,

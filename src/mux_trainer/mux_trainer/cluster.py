@@ -213,11 +213,7 @@ def shared_bytes(obj) -> int:
 
 
 def array_nbytes(obj) -> int:
-    """Bytes of the numpy arrays among `obj`'s attributes (also in lists): what an array
-    holder's `__sizeof__` adds, so that Dask's `sizeof` (sys.getsizeof for unknown types), run
-    on the workers that hold the object, counts its arrays and not a few hundred bytes.
-    Through `__sizeof__` rather than a registration with Dask, a worker that only unpickled
-    the object (and imported its module, nothing else) measures it right too."""
+    """Bytes of the numpy arrays among `obj`'s attributes (also in lists)."""
     import numpy as np
     total = 0
     for value in vars(obj).values():
@@ -225,3 +221,14 @@ def array_nbytes(obj) -> int:
             if isinstance(item, np.ndarray):
                 total += item.nbytes
     return total
+
+
+class ArraySized:
+    """Mixin for the array holders a Dask worker keeps (`SearchData`, `ColumnContext`): their
+    `__sizeof__` counts their arrays, so Dask's `sizeof` (sys.getsizeof for unknown types),
+    run on the workers, reports them and not a few hundred bytes. Through `__sizeof__` rather
+    than a registration with Dask, a worker that only unpickled the object (and imported its
+    module, nothing else) measures it right too."""
+
+    def __sizeof__(self) -> int:
+        return object.__sizeof__(self) + array_nbytes(self)

@@ -30,7 +30,7 @@ import numpy as np
 from joblib import Parallel, delayed
 from threadpoolctl import threadpool_limits
 
-from .cluster import active_cluster, array_nbytes
+from .cluster import ArraySized, active_cluster
 from .rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
                         image_features, scoring_features, standard_normal)
 from .split_scoring import make_scorer
@@ -63,7 +63,7 @@ def column_rng(seed: int, column: int, stream: int) -> np.random.Generator:
 
 
 @dataclass
-class ColumnContext:
+class ColumnContext(ArraySized):
     """What a worker needs to score candidates for one new column (picklable)."""
 
     mode: str
@@ -74,9 +74,6 @@ class ColumnContext:
     test_masks: list
     scorer: object
     n_classes: int
-
-    def __sizeof__(self) -> int:  # for a Dask worker's memory accounting
-        return object.__sizeof__(self) + array_nbytes(self)
 
 
 def _score_features(data: SearchData, ctx: ColumnContext, Xc: np.ndarray) -> np.ndarray:

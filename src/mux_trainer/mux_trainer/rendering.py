@@ -23,11 +23,11 @@ from mux_classifier.hog import HogConfig
 
 from lightstage_camera.rig import DEFAULT_DIMMER
 
-from .cluster import array_nbytes
+from .cluster import ArraySized
 
 
 @dataclass
-class SearchData:
+class SearchData(ArraySized):
     """The training set as the search sees it.
 
     basis: float32 `(n_sites, n_channels, n_samples, n_pixels)`, dimmer applied.
@@ -72,9 +72,6 @@ class SearchData:
     @property
     def extractor(self):
         return searchable_extractor(self.features, self.hog_config)
-
-    def __sizeof__(self) -> int:  # for a Dask worker's memory accounting
-        return object.__sizeof__(self) + array_nbytes(self)
 
     @classmethod
     def from_models(cls, models: np.ndarray, labels, pose_index, class_names, *,
