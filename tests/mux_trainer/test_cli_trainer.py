@@ -203,3 +203,20 @@ def test_bad_noise_settings_fail_clearly(capture, tmp_path):
     with pytest.raises(SystemExit, match=r"after the @ give GAIN_DB:EXPOSURE_MS.*not '17\.5'"):
         train_main([str(capture), '--out', out, '--noise', 'noise.yaml@17.5', '--quiet', *TINY])
     assert not (tmp_path / 'a.npz').exists()
+
+
+def test_eval_count_rule_reports_what_each_rule_keeps(capture, capsys):
+    rc = eval_main([str(capture), '--repeats', '6', '--max-images', '3', '--renders', '1',
+                    '--methods', 'greedy,snr_optimal', '--count-rule', 'one_se', '--json', *TINY])
+    assert rc == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc['settings']['count_rule'] == 'one_se'
+    for m in doc['methods'].values():
+        rules = m['by_count_rule']
+        assert m['count_rule'] == 'one_se' and set(rules) == {'max', 'one_se'}
+        assert m['n_images'] == rules['one_se']['n_images'] <= rules['max']['n_images']
+        for r in rules.values():  # each rule's held-out accuracy is that count's
+            assert r['accuracy'] == m['accuracy_by_images'][str(r['n_images'])]
+        assert set(m['search_se_by_images']) == set(m['search_accuracy_by_images'])
+    with pytest.raises(SystemExit):
+        eval_main([str(capture), '--count-rule', 'median', *TINY])

@@ -218,3 +218,19 @@ def test_small_search_selects_the_columns_recorded_before_the_compiled_kernels()
     assert [len(h['refined']) for h in sel.history_] == [16, 16, 16]
     assert [h['scores'].sum() for h in sel.history_] == pytest.approx(
         [68.571875, 73.359375, 47.946875], rel=1e-12)
+
+
+def test_the_count_rule_decides_the_kept_column_count_from_the_same_search(tiny4_data):
+    """'one_se' keeps the fewest columns within one standard error of the best mean split
+    accuracy; 'max' the best mean. Both from the chosen columns' own split accuracies."""
+    from mux_trainer.column_count import split_standard_error
+    sel = GreedyPatternSelector(n_patterns=3, n_repeats=20, seed=11, count_rule='one_se').fit(tiny4_data)
+    acc = sel.accuracy_by_images_
+    assert sorted(sel.split_accuracy_by_images_) == [1, 2, 3]
+    for k, splits in sel.split_accuracy_by_images_.items():
+        assert splits.shape == (20,) and np.mean(splits) == pytest.approx(acc[k])
+    best = max(acc, key=lambda k: (acc[k], -k))
+    se = split_standard_error(sel.split_accuracy_by_images_[best], sel.test_fraction)
+    expected = min(k for k in acc if acc[k] >= acc[best] - se)
+    assert sel.best_n_patterns_ == expected <= best
+    assert sel.set_params(count_rule='max')._best_count() == best

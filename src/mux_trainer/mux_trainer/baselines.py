@@ -32,7 +32,8 @@ class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
     """Classifiers for the first k columns of a fixed pattern matrix, k = 1..m.
 
     Fitted attributes: `patterns_`, `accuracy_by_images_` (split accuracy per column count),
-    `best_n_patterns_`, `classifiers_`, `class_names_`.
+    `split_accuracy_by_images_`, `best_n_patterns_` (by `count_rule`, as the greedy search's),
+    `classifiers_`, `class_names_`.
     """
 
     method_name = 'fixed'
@@ -40,7 +41,7 @@ class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
     def __init__(self, patterns=None, mode='per_colour', n_repeats=400, test_fraction=0.25,
                  inner_classifier='squared_hinge', alpha=0.5, C=1.0, final_classifier='linear_svm',
                  final_C=1.0, final_alpha=0.1, noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None,
-                 seed=0, n_jobs=1, features=DEFAULT_EXTRACTOR):
+                 seed=0, n_jobs=1, features=DEFAULT_EXTRACTOR, count_rule='max'):
         self.patterns = patterns
         self.mode = mode
         self.n_repeats = n_repeats
@@ -57,6 +58,7 @@ class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
         self.seed = seed
         self.n_jobs = n_jobs
         self.features = features
+        self.count_rule = count_rule
 
     def _patterns_for(self, data: SearchData) -> np.ndarray:
         if self.patterns is None:
@@ -76,11 +78,13 @@ class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
         self.evaluator_ = ev
         self.class_names_ = list(data.class_names)
         self.accuracy_by_images_ = {}
+        self.split_accuracy_by_images_ = {}
         with Parallel(n_jobs=1) as parallel:
             for k in range(1, P.shape[1] + 1):
                 ctx = ev.prepare_column(P[:, :k - 1] if k > 1 else None)
                 acc = ev.score(ctx, P[:, k - 1:k], parallel)
                 self.accuracy_by_images_[k] = float(acc.mean())
+                self.split_accuracy_by_images_[k] = acc[0].copy()
         self.patterns_ = P
         self.best_n_patterns_ = self._best_count()
         self.classifiers_ = self._fit_classifiers(ev, P)
@@ -96,12 +100,13 @@ class SnrOptimalClassifier(FixedPatternClassifier):
                  test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5, C=1.0,
                  final_classifier='linear_svm', final_C=1.0, final_alpha=0.1, noise='sigma3',
                  dimmer=DEFAULT_DIMMER, hog_config=None, seed=0, n_jobs=1, start='both',
-                 features=DEFAULT_EXTRACTOR):
+                 features=DEFAULT_EXTRACTOR, count_rule='max'):
         super().__init__(patterns=None, mode=mode, n_repeats=n_repeats,
                          test_fraction=test_fraction, inner_classifier=inner_classifier,
                          alpha=alpha, C=C, final_classifier=final_classifier, final_C=final_C,
                          final_alpha=final_alpha, noise=noise, dimmer=dimmer,
-                         hog_config=hog_config, seed=seed, n_jobs=n_jobs, features=features)
+                         hog_config=hog_config, seed=seed, n_jobs=n_jobs, features=features,
+                         count_rule=count_rule)
         self.n_images = n_images
         self.n_iter = n_iter
         self.start = start
@@ -133,12 +138,13 @@ class NaiveClassifier(FixedPatternClassifier):
     def __init__(self, n_repeats=400, test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5,
                  C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
                  noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None, seed=0, n_jobs=1,
-                 features=DEFAULT_EXTRACTOR):
+                 features=DEFAULT_EXTRACTOR, count_rule='max'):
         super().__init__(patterns=None, mode='joint', n_repeats=n_repeats,
                          test_fraction=test_fraction, inner_classifier=inner_classifier,
                          alpha=alpha, C=C, final_classifier=final_classifier, final_C=final_C,
                          final_alpha=final_alpha, noise=noise, dimmer=dimmer,
-                         hog_config=hog_config, seed=seed, n_jobs=n_jobs, features=features)
+                         hog_config=hog_config, seed=seed, n_jobs=n_jobs, features=features,
+                         count_rule=count_rule)
 
     def _patterns_for(self, data: SearchData) -> np.ndarray:
         return all_leds_on(data.n_sites * data.n_channels)

@@ -13,6 +13,7 @@ from pathlib import Path
 from lightstage_camera.rig import DEFAULT_DIMMER
 from lightstage_camera.workers import jobs_type, usable_cores
 
+from .column_count import COUNT_RULES
 from .cluster import DASK_SCHEDULER_ENV, DEFAULT_TIMEOUT_S, scheduler_from_env
 from .data import NOISE_HELP, resolve_noise
 from .greedy import REFINE_TOP
@@ -49,6 +50,10 @@ def _common(p: argparse.ArgumentParser, capture_optional: bool = False) -> None:
     p.add_argument('--dask-timeout', type=float, default=DEFAULT_TIMEOUT_S, metavar='SECONDS',
                    help='give up on a Dask scheduler that cannot be reached, or that has no '
                         f'connection or no workers, for this long (default: {DEFAULT_TIMEOUT_S:g})')
+    p.add_argument('--count-rule', choices=COUNT_RULES, default='max',
+                   help='how many pattern columns a model keeps: the best mean split accuracy '
+                        '("max", the paper\'s; default) or the fewest columns within one '
+                        'standard error of it ("one_se": steadier where the cue is near the noise)')
     p.add_argument('--json', action='store_true', help='print the results as one JSON document')
     p.add_argument('--quiet', action='store_true', help='no progress on stderr')
     g = p.add_argument_group('features (defaults: the paper\'s HOG, 900 values per image)')
@@ -161,7 +166,7 @@ def train_main(argv: list[str] | None = None) -> int:
                 n_jobs=args.jobs, hog_config=hog_config, fixed_count=args.fixed_count,
                 inner_classifier=args.inner_classifier, final_classifier=args.classifier,
                 beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet,
-                features=features)
+                features=features, count_rule=args.count_rule)
         except ValueError as exc:
             raise SystemExit(f'lightstage train: {exc}') from None
         except ArtifactNotWritten as exc:  # the result is printed all the same
@@ -251,13 +256,15 @@ def eval_main(argv: list[str] | None = None) -> int:
                                      n_renders=args.renders, seed=args.seed, n_jobs=args.jobs,
                                      hog_config=hog_config, beam_width=args.beam_width,
                                      joint_max_images=args.joint_max_images, quiet=args.quiet,
-                                     progress=not args.quiet, holdout_by=args.holdout_by)
+                                     progress=not args.quiet, holdout_by=args.holdout_by,
+                                     count_rule=args.count_rule)
         except ValueError as exc:
             raise SystemExit(f'lightstage eval: {exc}') from None
     results['capture'] = str(Path(args.capture_dir).resolve())
     results['settings'] = {'repeats': args.repeats, 'max_images': args.max_images,
                            'joint_max_images': args.joint_max_images or args.max_images,
                            'holdout': args.holdout, 'holdout_by': args.holdout_by,
+                           'count_rule': args.count_rule,
                            'renders': args.renders, 'seed': args.seed,
                            'methods': methods, 'noise': noises, 'features': features,
                            'dimmer': DEFAULT_DIMMER}

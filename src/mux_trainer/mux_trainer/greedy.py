@@ -95,6 +95,9 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         classifiers use (`mux_classifier.features`; the paper's "hog_grid" by default), used
         when `fit` is given a ModelSet (a SearchData carries its own).
     beam_width, max_lit_leds : joint mode only (see module docstring).
+    count_rule : how many columns the fitted model keeps (`best_n_patterns_`) from the
+        search's split accuracies: 'max' (the highest mean, the paper's) or 'one_se' (the
+        fewest columns within one standard error of it; `column_count`).
     seed, n_jobs, chunk_size, progress : reproducibility and execution.
     callback : None, or a callable given one dict per event of the search, for progress
         reports (the trainer node's action feedback): {'event': 'column_start', 'column'
@@ -105,8 +108,9 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     -----------------
     patterns_ : (8, m) site patterns or (32, m) LED patterns, the selected columns.
     accuracy_by_images_ : {column count: mean split accuracy of the search}.
+    split_accuracy_by_images_ : {column count: the chosen column's split accuracies}.
     improved_ : bool (m,), whether each column improved on the best accuracy before it.
-    best_n_patterns_ : the column count with the highest accuracy.
+    best_n_patterns_ : the column count kept by `count_rule`.
     classifiers_ : {column count: fitted MuxClassifier on that many columns' images}.
     history_ : one dict per column: 'candidates' (rows, c), 'scores' (c,) and 'score_std' (c,)
         of the inner classifier, 'refined' (indices of the re-scored candidates, best screen
@@ -121,7 +125,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
                  alpha=0.5, C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
                  noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None, beam_width=1,
                  max_lit_leds=N_LEDS, seed=0, n_jobs=1, chunk_size=32, progress=False,
-                 callback=None, features=DEFAULT_EXTRACTOR):
+                 callback=None, features=DEFAULT_EXTRACTOR, count_rule='max'):
         self.mode = mode
         self.n_patterns = n_patterns
         self.max_patterns = max_patterns
@@ -148,6 +152,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         self.progress = progress
         self.callback = callback
         self.features = features
+        self.count_rule = count_rule
 
     # ------------------------------------------------------------------ fit
     def fit(self, X, y=None):
@@ -172,6 +177,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         columns = np.zeros((rows, 0), dtype=np.float32)
         self.history_ = []
         self.accuracy_by_images_ = {}
+        self.split_accuracy_by_images_ = {}
         improved = []
         best_so_far = -np.inf
         bar = _progress(int(target), f'greedy {self.mode}', self.progress)
@@ -199,6 +205,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
                 best_so_far = max(best_so_far, acc)
                 columns = np.hstack([columns, record['pattern'][:, None]])
                 self.accuracy_by_images_[columns.shape[1]] = float(acc)
+                self.split_accuracy_by_images_[columns.shape[1]] = record['split_accuracy']
                 if bar is not None:
                     bar.update(1)
                     bar.set_postfix(accuracy=f'{acc:.3f}')
@@ -230,7 +237,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         t0 = time.perf_counter()
         if self.inner_classifier != 'ridge' or int(self.refine_top) == 0:
             best = int(np.argmax(scores))
-            record.update(best=best, accuracy=float(scores[best]))
+            record.update(best=best, accuracy=float(scores[best]), split_accuracy=acc[best].copy())
         else:
             scorer = SquaredHingeSplitScorer(C=self.C)
             order = np.argsort(-scores, kind='stable')
@@ -252,7 +259,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
             best = int(order[pick])
             record.update(refined=order[:k], refined_scores=svm_scores,
                           refined_std=svm.std(axis=1), best=best,
-                          accuracy=float(svm_scores[pick]),
+                          accuracy=float(svm_scores[pick]), split_accuracy=svm[pick].copy(),
                           refine_seconds=time.perf_counter() - t0)
         record['pattern'] = cands[:, best].copy()
         return record

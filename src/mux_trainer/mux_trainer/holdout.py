@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from .column_count import COUNT_RULES, choose_column_count, split_standard_error
 from .data import sample_object_types
 from .evaluation import render
 from .rendering import SearchData, add_noise, image_features, standard_normal
@@ -115,6 +116,17 @@ def method_summary(model, test_data: SearchData, n_renders: int = 4, seed: int =
         'patterns': np.asarray(model.patterns_).astype(int).tolist(),
         'infer_ms_per_sample': res['infer_ms_per_sample'][k],
     }
+    splits = getattr(model, 'split_accuracy_by_images_', None)
+    if splits:
+        # what each column-count rule would have kept, from the same search, side by side
+        out['search_se_by_images'] = {str(c): split_standard_error(a, model.test_fraction)
+                                      for c, a in splits.items()}
+        out['count_rule'] = str(getattr(model, 'count_rule', 'max'))
+        out['by_count_rule'] = {}
+        for rule in COUNT_RULES:
+            kr = choose_column_count(model.accuracy_by_images_, splits, rule, model.test_fraction)
+            out['by_count_rule'][rule] = {'n_images': kr,
+                                          'accuracy': res['accuracy_by_images'][kr]}
     if hasattr(model, 'improved_'):
         out['improved'] = [bool(v) for v in model.improved_]
     if train_seconds is not None:

@@ -12,6 +12,7 @@ from lightstage_camera.rig import N_CHANNELS
 from mux_classifier.artifact import TrainedArtifact
 from mux_classifier.estimator import MuxClassifier
 
+from .column_count import choose_column_count
 from .data import noise_dict, search_data
 from .evaluation import images_per_column
 from .rendering import SearchData
@@ -58,8 +59,11 @@ class PatternModelMixin:
         return dict(zip(counts, clfs))
 
     def _best_count(self) -> int:
-        acc = self.accuracy_by_images_
-        return int(max(acc, key=lambda k: (acc[k], -k)))
+        """The column count kept by the estimator's `count_rule` (`column_count`)."""
+        return choose_column_count(self.accuracy_by_images_,
+                                   getattr(self, 'split_accuracy_by_images_', None),
+                                   rule=getattr(self, 'count_rule', 'max'),
+                                   test_fraction=float(self.test_fraction))
 
     def predict_features(self, X: np.ndarray, n_patterns: int) -> np.ndarray:
         """Class indices from features of the first `n_patterns` columns' images."""
@@ -78,7 +82,8 @@ class PatternModelMixin:
                 'n_repeats': int(self.n_repeats),
                 'accuracy_by_patterns': {str(i): float(self.accuracy_by_images_[i])
                                          for i in range(1, k + 1)},
-                'best_n_patterns': int(self.best_n_patterns_)}
+                'best_n_patterns': int(self.best_n_patterns_),
+                'count_rule': str(getattr(self, 'count_rule', 'max'))}
         prov.update(provenance or {})
         data = self.evaluator_.data
         noise = noise_dict(data.noise_name, data.noise_model)

@@ -62,7 +62,7 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
                            max_images=8, holdout_fraction=0.25, n_renders=4, seed=0,
                            n_jobs=1, hog_config=None, beam_width=1, joint_max_images=None,
                            quiet=False, progress=False, features='hog_grid',
-                           naive_bow=None, holdout_by='poses') -> dict:
+                           naive_bow=None, holdout_by='poses', count_rule='max') -> dict:
     """All requested methods at one noise setting; returns {'methods': {...}, ...}.
 
     joint_max_images: pattern columns of 'greedy_joint' (one exposure each; default
@@ -72,6 +72,8 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     training it again (it does not depend on `features`).
     holdout_by: 'poses' (the paper's rule: pose indices held out, their objects seen in
     other poses) or 'instances' (physical samples held out with all their poses).
+    count_rule: how each method's column count is chosen from its split accuracies
+    (`column_count`); every method's result also reports what each rule would keep.
     """
     unknown = set(methods) - set(METHODS)
     if unknown:
@@ -83,7 +85,7 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     instance = np.asarray(modelset.instance) if holdout_by == 'instances' else None
     train_idx, test_idx = holdout_split(data, holdout_fraction, seed, instance)
     train, test = data.subset(train_idx), data.subset(test_idx)
-    common = dict(n_repeats=n_repeats, seed=seed, n_jobs=n_jobs)
+    common = dict(n_repeats=n_repeats, seed=seed, n_jobs=n_jobs, count_rule=count_rule)
     results: dict = {}
     models: dict = {}
     naive = None

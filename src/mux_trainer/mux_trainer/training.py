@@ -83,7 +83,7 @@ def check_features(features: str) -> None:
 def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8, repeats=400,
                 seed=0, n_jobs=1, hog_config=None, fixed_count=False, inner_classifier=None,
                 final_classifier='linear_svm', beam_width=1, progress=False, callback=None,
-                refine_top=None, features='hog_grid'):
+                refine_top=None, features='hog_grid', count_rule='max'):
     """The unfitted estimator for these options (greedy search or a baseline).
 
     inner_classifier: the classifier of the split accuracies; None = the method's default
@@ -99,7 +99,7 @@ def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8
     check_jobs(n_jobs)
     check_features(features)
     common = dict(n_repeats=repeats, seed=seed, n_jobs=n_jobs, noise=noise, hog_config=hog_config,
-                  final_classifier=final_classifier, features=features)
+                  final_classifier=final_classifier, features=features, count_rule=count_rule)
     if method == 'greedy':
         return GreedyPatternSelector(mode=mode, max_patterns=max_images,
                                      n_patterns=max_images if fixed_count else None,
