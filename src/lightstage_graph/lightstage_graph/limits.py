@@ -1,0 +1,84 @@
+"""The ranges of the camera settings anything may ask for: a pattern of an ApplyPatterns call
+(checked by the driver), a trigger reaching the camera node (checked again: it must never
+die on a value), an artifact's noise setting, a rig.yaml, a noise file, node parameters.
+
+One place, so that a value one of them takes is taken by all the others:
+
+    GAIN_DB        0 .. 48 dB       (NaN where "the camera's default" is meant)
+    EXPOSURE_US    1 .. 10 000 000 us (0 in a pattern: the driver's default)
+    DIMMER         0.001 .. 10
+
+The check functions raise `LimitError` (a ValueError) naming the field, the value and the
+range. No rclpy here.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+
+__all__ = ["GAIN_DB_MIN", "GAIN_DB_MAX", "EXPOSURE_US_MIN", "EXPOSURE_US_MAX", "DIMMER_MIN",
+           "DIMMER_MAX", "LimitError", "check_range", "check_gain_db", "check_exposure_us",
+           "check_dimmer"]
+
+# Machine-vision cameras give 0 .. 24-48 dB of analogue plus digital gain; 48 dB is 251 x.
+GAIN_DB_MIN, GAIN_DB_MAX = 0.0, 48.0
+# 1 us .. 10 s: the firmware's own range (IDENTIFY: 20 .. 2 000 000 us by default) lies inside.
+EXPOSURE_US_MIN, EXPOSURE_US_MAX = 1, 10_000_000
+# The scale of the single-LED images (the authors' 0.45); beyond these nothing is usable.
+DIMMER_MIN, DIMMER_MAX = 0.001, 10.0
+
+
+class LimitError(ValueError):
+    """A setting outside its range or not a number; the message names the field."""
+
+
+def _number(value, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise LimitError(f"{what} must be a number, got {value!r}")
+    try:
+        return float(value)
+    except OverflowError:  # an int beyond float
+        raise LimitError(f"{what} = {value} is far out of range") from None
+
+
+def check_range(value, what: str, lo: float, hi: float, unit: str = "") -> float:
+    """`value` as a float if it is a finite number in [lo, hi]; else LimitError naming
+    `what`, the value and the range."""
+    number = _number(value, what)
+    if not (math.isfinite(number) and lo <= number <= hi):
+        unit = f" {unit}" if unit else ""
+        raise LimitError(f"{what} = {value!r}{unit} is out of range: give {lo:g} .. {hi:g}{unit}")
+    return number
+
+
+def check_gain_db(value, what: str = "gain_db", *, nan_is_default: bool = True) -> float:
+    """A gain in dB within GAIN_DB_MIN .. GAIN_DB_MAX; NaN passes (as NaN) where it means
+    the camera's default gain (`nan_is_default`). inf, -1e6, 1e6 are refused."""
+    number = _number(value, what)
+    if nan_is_default and math.isnan(number):
+        return number
+    try:
+        return check_range(number, what, GAIN_DB_MIN, GAIN_DB_MAX, "dB")
+    except LimitError as exc:
+        if nan_is_default:
+            raise LimitError(f"{exc} (or NaN for the camera's default gain)") from None
+        raise
+
+
+def check_exposure_us(value, what: str = "exposure_us", *, zero_is_default: bool = False) -> float:
+    """An exposure in us within EXPOSURE_US_MIN .. EXPOSURE_US_MAX; 0 passes where it means
+    a default (`zero_is_default`)."""
+    number = _number(value, what)
+    if zero_is_default and number == 0:
+        return 0.0
+    try:
+        return check_range(number, what, EXPOSURE_US_MIN, EXPOSURE_US_MAX, "us")
+    except LimitError as exc:
+        if zero_is_default:
+            raise LimitError(f"{exc} (or 0 for the default exposure)") from None
+        raise
+
+
+def check_dimmer(value, what: str = "dimmer") -> float:
+    """A dimmer (scale of the single-LED images) within DIMMER_MIN .. DIMMER_MAX."""
+    return check_range(value, what, DIMMER_MIN, DIMMER_MAX)
