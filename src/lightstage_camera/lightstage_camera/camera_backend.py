@@ -71,8 +71,8 @@ def check_trigger(trigger: Trigger) -> None:
     in the shared range or NaN (the camera's default), exposure_us in range or 0 (the
     camera's default), 32 LED intensities in [0, 1]. The driver checks requests; a trigger
     from a bag, another publisher or an older driver is checked here again."""
-    check_gain_db(float(trigger.gain_db))
-    check_exposure_us(int(trigger.exposure_us), zero_is_default=True)
+    check_gain_db(trigger.gain_db)
+    check_exposure_us(trigger.exposure_us, zero_is_default=True)
     leds = np.asarray(trigger.led_intensities)
     if leds.shape != (32,):
         raise LimitError(f'intensities must hold 32 LED values, got shape {leds.shape}')

@@ -41,13 +41,21 @@ def _number(value, what: str) -> float:
         raise LimitError(f"{what} = {value} is far out of range") from None
 
 
+def _text(number: float) -> str:
+    """A bound as people write it: 10000000, not 1e+07; 0.001, not 1e-03."""
+    if float(number).is_integer() and abs(number) < 1e15:
+        return str(int(number))
+    return f"{number:g}"
+
+
 def check_range(value, what: str, lo: float, hi: float, unit: str = "") -> float:
     """`value` as a float if it is a finite number in [lo, hi]; else LimitError naming
     `what`, the value and the range."""
     number = _number(value, what)
     if not (math.isfinite(number) and lo <= number <= hi):
         unit = f" {unit}" if unit else ""
-        raise LimitError(f"{what} = {value!r}{unit} is out of range: give {lo:g} .. {hi:g}{unit}")
+        raise LimitError(f"{what} = {value!r}{unit} is out of range: give {_text(lo)} .. "
+                         f"{_text(hi)}{unit}")
     return number
 
 
@@ -58,7 +66,7 @@ def check_gain_db(value, what: str = "gain_db", *, nan_is_default: bool = True) 
     if nan_is_default and math.isnan(number):
         return number
     try:
-        return check_range(number, what, GAIN_DB_MIN, GAIN_DB_MAX, "dB")
+        return check_range(value, what, GAIN_DB_MIN, GAIN_DB_MAX, "dB")
     except LimitError as exc:
         if nan_is_default:
             raise LimitError(f"{exc} (or NaN for the camera's default gain)") from None
@@ -72,7 +80,7 @@ def check_exposure_us(value, what: str = "exposure_us", *, zero_is_default: bool
     if zero_is_default and number == 0:
         return 0.0
     try:
-        return check_range(number, what, EXPOSURE_US_MIN, EXPOSURE_US_MAX, "us")
+        return check_range(value, what, EXPOSURE_US_MIN, EXPOSURE_US_MAX, "us")
     except LimitError as exc:
         if zero_is_default:
             raise LimitError(f"{exc} (or 0 for the default exposure)") from None
