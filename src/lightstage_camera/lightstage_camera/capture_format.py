@@ -26,7 +26,7 @@ from .scene_models import ModelSet, downscale_images
 
 RIG_FILE = "rig.yaml"
 CACHE_DIR = ".cache"
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: the index holds the data's SHA-256
 IMAGE_NAME = re.compile(r"^s(\d+)_([A-Za-z0-9]+)\.png$")
 
 
@@ -222,15 +222,26 @@ def check_equal_poses(modelset: ModelSet, source="capture") -> None:
         "folders out of the capture folder")
 
 
+def _file_digest(path: Path) -> str:
+    """SHA-256 of a file's bytes (hashlib reads it in blocks: ~1-2 GB/s with SHA extensions)."""
+    with open(path, "rb") as fh:
+        return hashlib.file_digest(fh, "sha256").hexdigest()
+
+
 def _read_cache(cache_dir: Path, fingerprint: str, n: int, rig: Rig):
+    """The cached raw images, or None to rebuild: the index must name these files (names,
+    sizes, times) and the data must have the digest written with it -- a cache whose bytes
+    changed with its size kept (zeroed, corrupted on disk) is not trusted."""
     index, data = cache_dir / "index.json", cache_dir / "models_u16.npy"
     try:
         info = json.loads(index.read_text())
         if info.get("version") != CACHE_VERSION or info.get("fingerprint") != fingerprint:
             return None
+        if info.get("sha256") != _file_digest(data):
+            return None
         # memory-mapped: a downscaling load then never holds the full-resolution set
         raw = np.load(data, allow_pickle=False, mmap_mode="r")
-    except (OSError, ValueError):
+    except (OSError, ValueError, AttributeError):
         return None
     if raw.shape != (n, len(CHANNELS), rig.n_sites, *rig.image_size) or raw.dtype != np.uint16:
         return None
@@ -242,9 +253,11 @@ def _write_cache(cache_dir: Path, fingerprint: str, raw: np.ndarray) -> None:
         cache_dir.mkdir(exist_ok=True)
         tmp = cache_dir / f"models_u16.{os.getpid()}.tmp.npy"
         np.save(tmp, raw, allow_pickle=False)
+        digest = _file_digest(tmp)
         os.replace(tmp, cache_dir / "models_u16.npy")
         tmp_index = cache_dir / f"index.{os.getpid()}.tmp"
-        tmp_index.write_text(json.dumps({"version": CACHE_VERSION, "fingerprint": fingerprint}))
+        tmp_index.write_text(json.dumps({"version": CACHE_VERSION, "fingerprint": fingerprint,
+                                         "sha256": digest}))
         os.replace(tmp_index, cache_dir / "index.json")
     except OSError as exc:  # a read-only capture folder still loads, just without a cache
         warnings.warn(f"could not write the capture cache in {cache_dir}: {exc}")
