@@ -10,7 +10,7 @@ from lightstage_camera.camera_node import PARAMETERS as CAMERA
 from lightstage_graph.params import ParameterError, check_values, read_params_file
 from mux_classifier.classifier_node import PARAMETERS as CLASSIFIER
 
-from suite_helpers import fresh_domain_id
+from suite_helpers import REPO, fresh_domain_id
 
 
 @pytest.mark.parametrize('table, values, message', [
@@ -101,3 +101,11 @@ def test_lightstage_up_refuses_a_params_file_with_a_syntax_error(tmp_path, capsy
     path.write_text('camera:\n  ros__parameters:\n    dimmer: [0.45\n')
     assert main(['camera', '--no-record', '--params', str(path)]) == EXIT_USAGE
     assert 'not valid YAML at line' in capsys.readouterr().err
+
+
+def test_the_parameter_tables_of_docs_nodes_md_are_those_the_nodes_declare():
+    """docs/NODES.md's tables are generated from every node's PARAMETERS; they must not drift."""
+    done = subprocess.run([sys.executable, str(REPO / 'scripts' / 'node_parameters_doc.py'),
+                           '--check', '--doc', str(REPO / 'docs' / 'NODES.md')],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr

@@ -177,6 +177,41 @@ def params_files_of(args) -> list[str]:
     return [args[i + 1] for i, a in enumerate(args[:-1]) if a == '--params-file']
 
 
+def _doc_number(value) -> str:
+    number = float(value)
+    return str(int(number)) if number.is_integer() and abs(number) < 1e15 else f'{number:g}'
+
+
+def markdown_table(table: ParameterTable, defaults: dict | None = None) -> str:
+    """The parameters of a node as a Markdown table: name, type, default, range (or the
+    allowed values), read-only, description. `defaults` overrides how a default is written
+    (e.g. one that depends on the machine)."""
+    rows = ['| parameter | type | default | range | description |',
+            '| --- | --- | --- | --- | --- |']
+    for name, (default, d) in table.items():
+        kind = _TYPE_NAMES.get(d.type, '?').split(' (')[0]
+        if d.dynamic_typing:
+            kind = 'a string or a number'
+        limits = _number_range(d)
+        if limits:
+            span = f'{_doc_number(limits[0])} .. {_doc_number(limits[1])}'
+        else:
+            span = d.additional_constraints or ('true / false' if d.type == ParameterType.PARAMETER_BOOL
+                                               else 'any')
+        if defaults and name in defaults:
+            shown = defaults[name]
+        elif not isinstance(default, (bool, int, float, str)):
+            shown = 'unset'
+        elif isinstance(default, bool):
+            shown = f'`{str(default).lower()}`'
+        else:
+            shown = f'`{default!r}`' if isinstance(default, str) else f'`{default}`'
+        text = (d.description.replace('|', '\\|').replace('<', '\\<')
+                + (' (read-only)' if d.read_only else ''))
+        rows.append(f'| `{name}` | {kind} | {shown} | {span} | {text} |')
+    return '\n'.join(rows)
+
+
 class Parameters:
     """A node's declared parameters; ``params(name)`` is the current value."""
 
