@@ -54,3 +54,19 @@ def test_the_memory_estimate_names_the_largest_size_that_fits():
     with pytest.raises(ValueError, match=r"needs about 0\.0205 GiB .* use a size up to 95 px"):
         synth.check_render_memory(100, 2, available=20_000_000)
     synth.check_render_memory(90, 2, available=20_000_000)
+
+
+@pytest.mark.parametrize("settings, message", [
+    (dict(gain_db=1e6), "gain_db = 1000000.0 dB is out of range: give 0 .. 48 dB"),
+    (dict(gain_db=float("nan")), "gain_db = nan dB is out of range"),
+    (dict(exposure_us=10**12), "exposure_us = 1000000000000 us is out of range"),
+    (dict(exposure_us=2.5), "exposure_us must be a whole number of microseconds, got 2.5"),
+])
+def test_capture_and_calibration_settings_are_those_a_rig_yaml_can_record(settings, message):
+    """A capture records its setting in rig.yaml: one rig.yaml would refuse is refused first."""
+    from lightstage_camera.acquisition import CaptureSettings
+    from lightstage_camera.calibration import CalibrationSettings
+    for kind in (CaptureSettings, CalibrationSettings):
+        with pytest.raises(ValueError) as exc:
+            kind(**settings)
+        assert message in str(exc.value)

@@ -18,7 +18,7 @@ import numbers
 
 __all__ = ["GAIN_DB_MIN", "GAIN_DB_MAX", "EXPOSURE_US_MIN", "EXPOSURE_US_MAX", "DIMMER_MIN",
            "DIMMER_MAX", "LimitError", "check_range", "check_gain_db", "check_exposure_us",
-           "check_dimmer"]
+           "check_dimmer", "check_camera_setting"]
 
 # Machine-vision cameras give 0 .. 24-48 dB of analogue plus digital gain; 48 dB is 251 x.
 GAIN_DB_MIN, GAIN_DB_MAX = 0.0, 48.0
@@ -90,3 +90,12 @@ def check_exposure_us(value, what: str = "exposure_us", *, zero_is_default: bool
 def check_dimmer(value, what: str = "dimmer") -> float:
     """A dimmer (scale of the single-LED images) within DIMMER_MIN .. DIMMER_MAX."""
     return check_range(value, what, DIMMER_MIN, DIMMER_MAX)
+
+
+def check_camera_setting(exposure_us, gain_db) -> None:
+    """A camera setting a capture or calibration runs at (and records in rig.yaml / a noise
+    file): a whole number of microseconds in range and a gain in range, no defaults."""
+    if isinstance(exposure_us, float) and math.isfinite(exposure_us) and not exposure_us.is_integer():
+        raise LimitError(f"exposure_us must be a whole number of microseconds, got {exposure_us}")
+    check_exposure_us(exposure_us)
+    check_gain_db(gain_db, nan_is_default=False)
