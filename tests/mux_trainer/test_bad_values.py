@@ -1,34 +1,16 @@
 """Issue 23, the trainer's rows: `train --out` over a file that is not an artifact, noise
 specs and files out of range, --seed and --repeats bounds, Dask addresses refused at once.
 Each refused before any work, naming the option or key."""
-import numpy as np
 import pytest
 import yaml
-from lightstage_camera.capture_format import write_capture
 from lightstage_camera.noise import NoiseModel, load_noise_file, save_noise_file
 from lightstage_camera.errors import NoiseFileError
 
-import mux_trainer.cli as cli
 from mux_trainer.cli import eval_main, train_main
 from mux_trainer.cluster import ClusterUnavailable, DaskCluster
 from mux_trainer.data import resolve_noise
 
-TINY = ['--image-size', '24', '--cell-px', '6', '--block-cells', '4']
-
-
-@pytest.fixture(scope='module')
-def capture(tmp_path_factory):
-    from trainer_helpers import make_modelset
-    path = tmp_path_factory.mktemp('capture') / 'tiny'
-    write_capture(path, make_modelset(n_poses=8))
-    return path
-
-
-@pytest.fixture
-def no_work(monkeypatch):
-    def load(*_a, **_k):
-        raise AssertionError('the capture was loaded although the options are refused')
-    monkeypatch.setattr(cli, '_load', load)
+from trainer_helpers import TINY
 
 
 def _refused(main, argv, capsys=None):

@@ -59,32 +59,34 @@ def check_range(value, what: str, lo: float, hi: float, unit: str = "") -> float
     return number
 
 
+def _check_or_default(value, what, lo, hi, unit, is_default, default_text) -> float:
+    """check_range, except that a value `is_default` accepts passes as it is (and the
+    message of a refusal says so)."""
+    number = _number(value, what)
+    if is_default is not None and is_default(number):
+        return number
+    try:
+        return check_range(value, what, lo, hi, unit)
+    except LimitError as exc:
+        if is_default is None:
+            raise
+        raise LimitError(f"{exc} (or {default_text})") from None
+
+
 def check_gain_db(value, what: str = "gain_db", *, nan_is_default: bool = True) -> float:
     """A gain in dB within GAIN_DB_MIN .. GAIN_DB_MAX; NaN passes (as NaN) where it means
     the camera's default gain (`nan_is_default`). inf, -1e6, 1e6 are refused."""
-    number = _number(value, what)
-    if nan_is_default and math.isnan(number):
-        return number
-    try:
-        return check_range(value, what, GAIN_DB_MIN, GAIN_DB_MAX, "dB")
-    except LimitError as exc:
-        if nan_is_default:
-            raise LimitError(f"{exc} (or NaN for the camera's default gain)") from None
-        raise
+    return _check_or_default(value, what, GAIN_DB_MIN, GAIN_DB_MAX, "dB",
+                             math.isnan if nan_is_default else None,
+                             "NaN for the camera's default gain")
 
 
 def check_exposure_us(value, what: str = "exposure_us", *, zero_is_default: bool = False) -> float:
     """An exposure in us within EXPOSURE_US_MIN .. EXPOSURE_US_MAX; 0 passes where it means
     a default (`zero_is_default`)."""
-    number = _number(value, what)
-    if zero_is_default and number == 0:
-        return 0.0
-    try:
-        return check_range(value, what, EXPOSURE_US_MIN, EXPOSURE_US_MAX, "us")
-    except LimitError as exc:
-        if zero_is_default:
-            raise LimitError(f"{exc} (or 0 for the default exposure)") from None
-        raise
+    return _check_or_default(value, what, EXPOSURE_US_MIN, EXPOSURE_US_MAX, "us",
+                             (lambda number: number == 0) if zero_is_default else None,
+                             "0 for the default exposure")
 
 
 def check_dimmer(value, what: str = "dimmer") -> float:
