@@ -18,8 +18,8 @@ from suite_helpers import REPO, fresh_domain_id
                                        '0.1 .. 600'),
     (CAMERA, {'dimmer': -1.0}, 'dimmer: -1.0 is out of range: give a number in 0.001 .. 10'),
     (CAMERA, {'exposure_us': 1.0e12}, 'exposure_us: 1000000000000.0 is out of range: give a '
-                                      'number in 1 .. 1e+07'),
-    (CAMERA, {'seed': 'abc'}, "seed: must be a whole number in -1 .. 2.14748e+09, got 'abc'"),
+                                      'number in 1 .. 10000000'),
+    (CAMERA, {'seed': 'abc'}, "seed: must be a whole number in -1 .. 2147483647, got 'abc'"),
     (CAMERA, {'frame_id': 5}, 'frame_id: must be a string (quote it in YAML)'),
     (CAMERA, {'exposure': 30000}, 'exposure: node has no such parameter (did you mean '
                                   'exposure_us?)'),

@@ -41,7 +41,7 @@ def _number(value, what: str) -> float:
         raise LimitError(f"{what} = {value} is far out of range") from None
 
 
-def _text(number: float) -> str:
+def number_text(number: float) -> str:
     """A bound as people write it: 10000000, not 1e+07; 0.001, not 1e-03."""
     if float(number).is_integer() and abs(number) < 1e15:
         return str(int(number))
@@ -54,8 +54,8 @@ def check_range(value, what: str, lo: float, hi: float, unit: str = "") -> float
     number = _number(value, what)
     if not (math.isfinite(number) and lo <= number <= hi):
         unit = f" {unit}" if unit else ""
-        raise LimitError(f"{what} = {value!r}{unit} is out of range: give {_text(lo)} .. "
-                         f"{_text(hi)}{unit}")
+        raise LimitError(f"{what} = {value!r}{unit} is out of range: give {number_text(lo)} .. "
+                         f"{number_text(hi)}{unit}")
     return number
 
 

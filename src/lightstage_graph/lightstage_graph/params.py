@@ -9,8 +9,9 @@ Values given at start-up (a params file, `-p name:=value`, `parameter_overrides`
 before they are declared, every problem named at once (`ParameterError`): a value out of
 its range, of the wrong type, or a parameter the node does not have (with the closest
 names). An integer where a float belongs is taken as that float (`exposure_us: 30000`).
-`check_params_file` reads a params YAML and names the line of a syntax error; `lightstage
-up` and `init_node` run it before anything starts.
+`read_params_file` reads a params YAML and names the line of a syntax error; `lightstage
+up` and `init_node` run it before anything starts. `markdown_table` writes a table as
+docs/NODES.md shows it.
 """
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ from typing import Any
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 ParameterType)
+
+from .limits import number_text
 
 ParameterTable = dict[str, tuple[Any, ParameterDescriptor]]
 
@@ -91,7 +94,7 @@ def check_value(name: str, value, descriptor: ParameterDescriptor):
     kind = descriptor.type
     wanted = _TYPE_NAMES.get(kind, 'another type')
     limits = _number_range(descriptor)
-    span = f' in {limits[0]:g} .. {limits[1]:g}' if limits else ''
+    span = f' in {number_text(limits[0])} .. {number_text(limits[1])}' if limits else ''
     if descriptor.dynamic_typing or kind == ParameterType.PARAMETER_NOT_SET:
         return value
     if kind == ParameterType.PARAMETER_DOUBLE and isinstance(value, int) and not isinstance(value, bool):
@@ -177,11 +180,6 @@ def params_files_of(args) -> list[str]:
     return [args[i + 1] for i, a in enumerate(args[:-1]) if a == '--params-file']
 
 
-def _doc_number(value) -> str:
-    number = float(value)
-    return str(int(number)) if number.is_integer() and abs(number) < 1e15 else f'{number:g}'
-
-
 def markdown_table(table: ParameterTable, defaults: dict | None = None) -> str:
     """The parameters of a node as a Markdown table: name, type, default, range (or the
     allowed values), read-only, description. `defaults` overrides how a default is written
@@ -194,7 +192,7 @@ def markdown_table(table: ParameterTable, defaults: dict | None = None) -> str:
             kind = 'a string or a number'
         limits = _number_range(d)
         if limits:
-            span = f'{_doc_number(limits[0])} .. {_doc_number(limits[1])}'
+            span = f'{number_text(limits[0])} .. {number_text(limits[1])}'
         else:
             span = d.additional_constraints or ('true / false' if d.type == ParameterType.PARAMETER_BOOL
                                                else 'any')
