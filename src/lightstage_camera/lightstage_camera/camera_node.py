@@ -16,6 +16,11 @@ naming the cause; it is also logged, counted and reported on ``/diagnostics``, a
 is reopened after a fault without restarting the node. The topics are relative, in the
 camera's namespace as ROS camera drivers put them, and remappable.
 
+A trigger whose values no camera takes (a gain outside 0 .. 48 dB other than NaN, an
+exposure out of range, LED values that are not in 0 .. 1: `lightstage_graph.limits`), or
+that the backend fails on, is a lost frame too, with the reason naming the field
+(`camera_backend.hand_trigger`): no value a request carries stops the node.
+
 Backend ``sim`` (`sim_camera.SimCameraBackend`) renders the sample "on the stage" (parameter
 ``sample``, changeable at run time) from a capture folder. A missing capture folder or an
 unknown sample leaves the node up, logging the error and reporting it on ``/diagnostics``.
