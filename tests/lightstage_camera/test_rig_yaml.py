@@ -106,3 +106,30 @@ def test_unequal_pose_counts_are_named(tmp_path):
                                                  r"\(2 pose\(s\): fruit1-fake; 3 pose\(s\): "
                                                  r"fruit0-real\)"):
         check_equal_poses(uneven, "cap")
+
+
+@pytest.mark.parametrize("key,value,message", [
+    ("exposure_us", -30000, "camera.exposure_us = -30000.0 us is out of range: give 1 .. 10000000 us"),
+    ("exposure_us", 0, "camera.exposure_us = 0.0 us is out of range"),
+    ("frames_averaged", 0, "camera.frames_averaged = 0 is out of range: give 1 .. 100000 frames"),
+    ("frames_averaged", -5, "camera.frames_averaged = -5 is out of range"),
+    ("gain_db", 1e300, "camera.gain_db = 1e+300 dB is out of range: give 0 .. 48 dB"),
+    ("field_of_view_mm", -10, "camera.field_of_view_mm = -10.0 mm is out of range"),
+    ("height_mm", 0, "camera.height_mm = 0.0 mm is out of range"),
+])
+def test_issue_23_camera_values_out_of_range_are_refused_naming_the_key(root, key, value, message):
+    _with(root, "camera", key, value)
+    _refused(root, message)
+
+
+def test_issue_23_unknown_keys_are_refused_with_the_closest_known_one(root):
+    """A typo `frames_averged: 64` silently became the default 1."""
+    data = yaml.safe_load((root / "rig.yaml").read_text())
+    data["camera"]["frames_averged"] = 64
+    (root / "rig.yaml").write_text(yaml.safe_dump(data))
+    _refused(root, "unknown key 'camera.frames_averged' (did you mean 'camera.frames_averaged'?)"
+             .replace("'camera.frames_averaged' (", "'camera.frames_averged' ("))
+    del data["camera"]["frames_averged"]
+    data["cammera"] = {}
+    (root / "rig.yaml").write_text(yaml.safe_dump(data))
+    _refused(root, "unknown key 'cammera' (did you mean 'camera'?)")

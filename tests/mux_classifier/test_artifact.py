@@ -1,4 +1,5 @@
 """Trained-classifier artifact: round trip, file safety and clear errors."""
+import math
 import json
 import os
 import re
@@ -303,10 +304,19 @@ def test_paths_that_are_not_regular_files_are_refused(tmp_path):
 @pytest.mark.parametrize("header", [
     b'{"format": "lightstage.mux_classifier", "format_version": NaN}',
     b'{"format": "lightstage.mux_classifier", "format_version": 1e400}',
+    b'{"format": "lightstage.mux_classifier", "format_version": -Infinity}',
+])
+def test_nan_and_huge_header_numbers_are_refused_naming_the_field(header, tmp_path):
+    np.savez(tmp_path / "h.npz", header=np.frombuffer(header, np.uint8))
+    with pytest.raises(ArtifactError, match="header field 'format_version' is not a finite number"):
+        TrainedArtifact.load(tmp_path / "h.npz")
+
+
+@pytest.mark.parametrize("header", [
     b'[' * 100_000,
     b'\xff\xfe',
 ])
-def test_headers_with_nan_huge_numbers_deep_nesting_or_bad_utf8_are_refused(header, tmp_path):
+def test_headers_with_deep_nesting_or_bad_utf8_are_refused(header, tmp_path):
     np.savez(tmp_path / "h.npz", header=np.frombuffer(header, np.uint8))
     with pytest.raises(ArtifactError, match="header is not valid JSON"):
         TrainedArtifact.load(tmp_path / "h.npz")
@@ -326,13 +336,29 @@ def test_header_array_of_another_type_is_refused(tmp_path):
     ("has_site_patterns", "yes", "'has_site_patterns' must be true or false"),
     ("provenance", [1], "'provenance' must be an object"),
     ("noise", {"name": "x", "sigma_p2": 1, "sigma_r2": 1, "gain_db": 0, "exposure_ms": -1},
-     "exposure_ms must be a finite number >= 0, got -1.0"),
+     "header field 'noise.exposure_ms' = -1 ms is out of range: give 0.001 .. 10000 ms"),
     ("noise", {"name": "x", "sigma_p2": "a", "sigma_r2": 1, "gain_db": 0, "exposure_ms": 1},
-     "sigma_p2 must be a number or null"),
+     "header field 'noise.sigma_p2' must be a number or null"),
+    # issue 23: a gain no camera has killed the camera node on the next classify
+    ("noise", {"name": "x", "sigma_p2": 1, "sigma_r2": 1, "gain_db": 1e6, "exposure_ms": 30},
+     "header field 'noise.gain_db' = 1000000.0 dB is out of range: give 0 .. 48 dB"),
+    ("noise", {"name": "x", "sigma_p2": 1, "sigma_r2": 1e300, "gain_db": 15, "exposure_ms": 30},
+     "header field 'noise.sigma_r2' = 1e+300 is out of range"),
+    ("noise", {"name": "x", "sigma_p2": 1, "sigma_r2": 1, "gain_db": 15, "exposure_ms": 30, "y": 1},
+     "header field 'noise' has unknown keys ['y']"),
     ("dimmer", None, "'dimmer' must be a positive number"),
     ("dimmer", True, "dimmer must be a positive number, got True"),
-    ("dimmer", -0.45, "dimmer must be a positive number, got -0.45"),
-    ("dimmer", 0, "dimmer must be a positive number, got 0"),
+    ("dimmer", -0.45, "header field 'dimmer' = -0.45 is out of range: give 0.001 .. 10"),
+    ("dimmer", 0, "header field 'dimmer' = 0 is out of range"),
+    ("dimmer", 1e6, "header field 'dimmer' = 1000000.0 is out of range"),
+    ("hog_config", {"image_size": 1e9}, "header field 'hog_config.image_size' must be a whole number"),
+    ("hog_config", {"image_size": 10**9}, "header field 'hog_config.image_size' = 1000000000 is out of range"),
+    ("hog_config", {"orientations": -3}, "header field 'hog_config.orientations' = -3 is out of range"),
+    ("class_names", ["a"], "header field 'class_names' must list 2 .. 10000 classes, got 1"),
+    ("class_names", ["a", ""], "header field 'class_names[1]' must be 1 .. 200 characters"),
+    ("n_images", [], "header field 'n_images' lists no image count"),
+    ("n_images", [10**12], "header field 'n_images[0]' = 1000000000000 is out of range"),
+    ("mode", "sideways", "header field 'mode' must be one of"),
 ])
 def test_malformed_header_fields_are_named(artifact, tmp_path, field, value, message):
     artifact.save(tmp_path / "a.npz")
@@ -387,3 +413,48 @@ def test_fuzz_malformed_files_raise_only_artifact_error(artifact_bytes, tmp_path
     size = loaded.hog_config.image_size
     prediction = loaded.predict_stack(np.zeros((loaded.n_images[-1], size, size), np.float32))
     assert prediction.label in loaded.class_names
+
+
+BAD_HEADER_VALUES = [math.nan, math.inf, -math.inf, -1, -1e6, 0, 1e6, 1e300, 10**12, -(10**12),
+                     "text", "", True, False, None, [], [1, 2, 3], [math.nan], {"x": 1}]
+
+
+def _header_fields(header: dict) -> list[tuple[str, ...]]:
+    """Every field of the header: top level, and each key of the noise setting and HOG
+    configuration."""
+    fields = []
+    for key, value in header.items():
+        fields.append((key,))
+        if isinstance(value, dict) and key != "provenance":
+            fields += [(key, sub) for sub in value]
+    return fields
+
+
+def test_fuzz_every_header_field_out_of_range_is_refused_naming_it(artifact, tmp_path):
+    """Issue 23: every header field, set to NaN, inf, negative, huge, another type or a list
+    of another length: the file loads (the value is one the format allows) and classifies,
+    or is refused with an ArtifactError naming the field."""
+    artifact.save(tmp_path / "a.npz")
+    with np.load(tmp_path / "a.npz") as npz:
+        header = json.loads(npz["header"].tobytes().decode())
+    checked, unnamed = 0, []
+    for path in _header_fields(header):
+        for value in BAD_HEADER_VALUES:
+            def change(h, path=path, value=value):
+                target = h
+                for key in path[:-1]:
+                    target = target[key]
+                target[path[-1]] = value
+            _rewrite(tmp_path / "a.npz", tmp_path / "b.npz", change_header=change)
+            try:
+                loaded = TrainedArtifact.load(tmp_path / "b.npz")
+            except ArtifactError as exc:
+                if path[-1] not in str(exc):
+                    unnamed.append((path, value, str(exc).split(" file: ", 1)[-1]))
+                checked += 1
+                continue
+            size = loaded.hog_config.image_size
+            images = np.zeros((loaded.n_images[-1], size, size), np.float32)
+            assert loaded.predict_stack(images).label in loaded.class_names, (path, value)
+    assert not unnamed, "\n".join(map(str, unnamed))
+    assert checked > len(_header_fields(header)) * len(BAD_HEADER_VALUES) // 2

@@ -1,4 +1,5 @@
 import pytest
+from lightstage_camera.capture_format import write_capture
 
 from trainer_helpers import make_search_data
 
@@ -13,3 +14,23 @@ def tiny_data():
 def tiny4_data():
     """The same kind of data with 4 sites only: 14 site patterns per column."""
     return make_search_data(n_sites=4, seed=1)
+
+
+@pytest.fixture(scope='module')
+def capture(tmp_path_factory):
+    """A tiny capture folder (4 classes x 8 poses, 24 px) for the CLI tests."""
+    from trainer_helpers import make_modelset
+    path = tmp_path_factory.mktemp('capture') / 'tiny'
+    write_capture(path, make_modelset(n_poses=8))
+    return path
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Fail the test if the capture is loaded: refused options and paths are refused before."""
+    import mux_trainer.cli as cli
+
+    def load(*_a, **_k):
+        raise AssertionError('the capture was loaded although the command should have been '
+                             'refused before')
+    monkeypatch.setattr(cli, '_load', load)

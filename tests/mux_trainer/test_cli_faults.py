@@ -14,35 +14,17 @@ import sys
 
 import numpy as np
 import pytest
-from lightstage_camera.capture_format import write_capture
 from lightstage_camera.workers import usable_cores
 from mux_classifier.artifact import TrainedArtifact
 
-import mux_trainer.cli as cli
 import mux_trainer.report as report
 import mux_trainer.training as training
 from mux_trainer.cli import eval_main, train_main
 
-TINY = ['--image-size', '24', '--cell-px', '6', '--block-cells', '4']
+from trainer_helpers import TINY
 TRAIN = ['--repeats', '6', '--max-images', '2', '--fixed-count', *TINY]
 EVAL = ['--repeats', '4', '--max-images', '1', '--renders', '1', '--methods', 'naive,greedy',
         '--no-plots', *TINY]
-
-
-@pytest.fixture(scope='module')
-def capture(tmp_path_factory):
-    from trainer_helpers import make_modelset
-    path = tmp_path_factory.mktemp('capture') / 'tiny'
-    write_capture(path, make_modelset(n_poses=8))
-    return path
-
-
-@pytest.fixture
-def no_work(monkeypatch):
-    """Fail the test if the capture is loaded: a refused path must be refused before that."""
-    def load(*_a, **_k):
-        raise AssertionError('the capture was loaded although the output path is unusable')
-    monkeypatch.setattr(cli, '_load', load)
 
 
 def _immutable(path):

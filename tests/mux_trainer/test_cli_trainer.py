@@ -9,15 +9,7 @@ from mux_classifier.artifact import TrainedArtifact
 
 from mux_trainer.cli import eval_main, train_main
 
-TINY = ['--image-size', '24', '--cell-px', '6', '--block-cells', '4']
-
-
-@pytest.fixture(scope='module')
-def capture(tmp_path_factory):
-    from trainer_helpers import make_modelset
-    path = tmp_path_factory.mktemp('capture') / 'tiny'
-    write_capture(path, make_modelset(n_poses=8))
-    return path
+from trainer_helpers import TINY
 
 
 def test_train_json_and_artifact(capture, tmp_path, capsys):

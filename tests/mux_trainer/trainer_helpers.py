@@ -14,6 +14,7 @@ from mux_classifier.hog import HogConfig
 from mux_trainer.rendering import SearchData
 
 TINY_HOG = HogConfig(image_size=24, cell_px=6, block_cells=4)
+TINY = ['--image-size', '24', '--cell-px', '6', '--block-cells', '4']  # the CLI options of TINY_HOG
 
 
 def make_models(n_types=2, n_poses=8, size=24, n_sites=8, seed=0, signal=60.0):

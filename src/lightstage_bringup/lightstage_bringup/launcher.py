@@ -30,6 +30,7 @@ from pathlib import Path
 
 from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 from lightstage_graph.exits import describe_exit
+from lightstage_graph.params import read_params_file
 from lightstage_graph.names import (ACQUISITION_NODE, CAMERA_NODE, CLASSIFIER_NODE, DRIVER_NODE,
                                     PLAYER_NODE, RECORDER_NODE, TRAINER_NODE)
 from lightstage_graph.ros_env import apply_ros_environment, ros_environment
@@ -295,6 +296,11 @@ def main(argv: list[str] | None = None) -> int:
         if not params.is_file():
             print(f'lightstage up: params file {args.params} does not exist; give a ROS parameters '
                   f'YAML (e.g. src/lightstage_bringup/config/lightstage.yaml)', file=err)
+            return EXIT_USAGE
+        try:  # a syntax error is named with its line here, not in every node's traceback
+            read_params_file(params)
+        except ValueError as e:
+            print(f'lightstage up: {e}', file=err)
             return EXIT_USAGE
     if args.timeout_s <= 0:
         print('lightstage up: --timeout-s must be > 0', file=err)

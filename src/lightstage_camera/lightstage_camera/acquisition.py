@@ -24,13 +24,13 @@ from the driver's ApplyPatterns and `frames.ImageMatcher`.
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
+from lightstage_graph.limits import check_camera_setting
 
 from .capture_destination import (Destination, capture_rig, check_destination, folder_rig,
                                   write_model)
@@ -86,12 +86,7 @@ class CaptureSettings:
     max_saturated_fraction: float = 0.0
 
     def __post_init__(self) -> None:
-        if isinstance(self.exposure_us, bool) or int(self.exposure_us) != self.exposure_us \
-                or self.exposure_us < 1:
-            raise ValueError(f"exposure_us must be a whole number of microseconds >= 1, got "
-                             f"{self.exposure_us}")
-        if not math.isfinite(self.gain_db):
-            raise ValueError(f"gain_db must be a finite number of dB, got {self.gain_db}")
+        check_camera_setting(self.exposure_us, self.gain_db)  # LimitError (a ValueError)
         if int(self.frames) != self.frames or self.frames < 1:
             raise ValueError(f"frames must be >= 1, got {self.frames}")
         if not 8 <= int(self.bit_depth) <= 16:

@@ -22,6 +22,7 @@ import time
 from datetime import datetime, timezone
 
 from lightstage_graph.errors import StageError
+from lightstage_graph.limits import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from lightstage_graph.names import ACQUISITION_NODE, CALIBRATE_ACTION, CAPTURE_ACTION
 from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
 from lightstage_graph.spin import init_node, spin_until_stopped
@@ -35,16 +36,17 @@ from rclpy.node import Node
 from .acquisition import CaptureCancelled, CaptureSettings, DestinationError, acquire_pose
 from .calibration import CalibrationSettings, calibrate_noise
 from .calibration_outputs import check_calibration_outputs, write_calibration_outputs
-from .rig import N_SITES, Rig
+from .rig import MAX_FRAMES_AVERAGED, N_SITES, Rig
 START_HINT = 'lightstage up driver camera acquisition'
 
 PARAMETERS = {
     'exposure_us': (30000, integer('model capture: exposure per frame [us] for goals with '
-                                   'exposure_us 0 (long: models should be low-noise)', 1, 10_000_000)),
+                                   'exposure_us 0 (long: models should be low-noise)',
+                                   EXPOSURE_US_MIN, EXPOSURE_US_MAX)),
     'gain_db': (15.0, floating('model capture: camera gain [dB] for goals with gain_db NaN',
-                               0.0, 48.0)),
+                               GAIN_DB_MIN, GAIN_DB_MAX)),
     'frames_averaged': (16, integer('model capture: frames averaged per single-LED image for '
-                                    'goals with frames_averaged 0', 1, 100_000)),
+                                    'goals with frames_averaged 0', 1, MAX_FRAMES_AVERAGED)),
     'max_saturated_fraction': (0.0, floating(
         'model capture: the exposure preview (one frame per LED) refuses the capture when an LED '
         'image has more than this fraction of its pixels at the camera\'s maximum', 0.0, 1.0)),
@@ -57,9 +59,9 @@ PARAMETERS = {
         'paper\'s stage for a new folder')),
     'calibration_exposure_us': (30000, integer('noise calibration: exposure per frame [us] for '
                                                'goals with exposure_us 0 (the paper: 30 ms)',
-                                               1, 10_000_000)),
+                                               EXPOSURE_US_MIN, EXPOSURE_US_MAX)),
     'calibration_gain_db': (15.0, floating('noise calibration: gain [dB] for goals with gain_db '
-                                           'NaN (the paper: 15 dB)', 0.0, 48.0)),
+                                           'NaN (the paper: 15 dB)', GAIN_DB_MIN, GAIN_DB_MAX)),
     'calibration_frames': (120, integer('noise calibration: frames per illumination level for '
                                         'goals with frames_per_level 0 (the paper: 120; >= 3: '
                                         'the fit splits them in two halves)', 3, 100_000)),

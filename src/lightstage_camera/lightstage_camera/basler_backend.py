@@ -72,8 +72,9 @@ class BaslerBackend(TriggeredBackend):
         creator, devices = self._devices(pylon)
         serials = [d.GetSerialNumber() for d in devices]
         where = f' on transport layer {self.transport_layer}' if self.transport_layer else ''
+        asked = f' (looking for serial number {self.serial_number!r})' if self.serial_number else ''
         if not devices:
-            raise CameraError(f'no Basler camera found{where}: is it plugged in and powered '
+            raise CameraError(f'no Basler camera found{where}{asked}: is it plugged in and powered '
                               '(USB3: a USB 3 port; GigE: same subnet, jumbo frames)?')
         if self.serial_number and self.serial_number not in serials:
             raise CameraError(f'no Basler camera with serial number {self.serial_number}{where}; '

@@ -9,12 +9,12 @@ and fitted (`noise_fit`). No rclpy: the acquisition node's CalibrateNoise action
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
+from lightstage_graph.limits import check_camera_setting
 
 from .acquisition import MAX_FRAMES_PER_REQUEST
 from lightstage_graph.frames import mono16_to_gray
@@ -68,11 +68,7 @@ class CalibrationSettings:
     frames_per_request: int = 16
 
     def __post_init__(self) -> None:
-        if int(self.exposure_us) != self.exposure_us or self.exposure_us < 1:
-            raise ValueError(f"exposure_us must be a whole number of microseconds >= 1, got "
-                             f"{self.exposure_us}")
-        if not math.isfinite(self.gain_db):
-            raise ValueError(f"gain_db must be a finite number of dB, got {self.gain_db}")
+        check_camera_setting(self.exposure_us, self.gain_db)  # LimitError (a ValueError)
         if int(self.frames_per_level) < MIN_FRAMES_PER_LEVEL:
             raise ValueError(f"frames_per_level must be >= {MIN_FRAMES_PER_LEVEL}, got "
                              f"{self.frames_per_level}: {MIN_FRAMES_REASON}")

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from lightstage_graph.limits import LimitError, check_exposure_us, check_gain_db
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,36 @@ class LostFrame:
 
 class CameraError(RuntimeError):
     """The camera cannot be used (missing, unplugged, refused a setting); says what to do."""
+
+
+def check_trigger(trigger: Trigger) -> None:
+    """Refuse a trigger whose values no camera can take (LimitError naming the field): gain_db
+    in the shared range or NaN (the camera's default), exposure_us in range or 0 (the
+    camera's default), 32 LED intensities in [0, 1]. The driver checks requests; a trigger
+    from a bag, another publisher or an older driver is checked here again."""
+    check_gain_db(trigger.gain_db)
+    check_exposure_us(trigger.exposure_us, zero_is_default=True)
+    leds = np.asarray(trigger.led_intensities)
+    if leds.shape != (32,):
+        raise LimitError(f'intensities must hold 32 LED values, got shape {leds.shape}')
+    if not (np.isfinite(leds).all() and leds.min() >= 0 and leds.max() <= 1):
+        raise LimitError('intensities must be numbers in 0 .. 1, got '
+                         f'{leds[~(np.isfinite(leds) & (leds >= 0) & (leds <= 1))][:3].tolist()}')
+
+
+def hand_trigger(backend: 'CameraBackend', trigger: Trigger) -> str:
+    """Give `trigger` to `backend`: '' if it took it, else why not. Nothing a trigger holds
+    may stop the camera, so no exception gets out: values out of range are refused naming the
+    field, and whatever else the backend trips over is the reason."""
+    try:
+        check_trigger(trigger)
+    except LimitError as exc:
+        return f'bad trigger values: {exc}'
+    try:
+        backend.trigger(trigger)
+    except Exception as exc:  # noqa: BLE001 - one trigger's failure must not end the node
+        return str(exc) if isinstance(exc, (ValueError, CameraError)) else f'{type(exc).__name__}: {exc}'
+    return ''
 
 
 def to_mono16(image: np.ndarray, bit_depth: int) -> np.ndarray:

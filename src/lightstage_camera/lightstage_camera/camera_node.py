@@ -16,6 +16,11 @@ naming the cause; it is also logged, counted and reported on ``/diagnostics``, a
 is reopened after a fault without restarting the node. The topics are relative, in the
 camera's namespace as ROS camera drivers put them, and remappable.
 
+A trigger whose values no camera takes (a gain outside 0 .. 48 dB other than NaN, an
+exposure out of range, LED values that are not in 0 .. 1: `lightstage_graph.limits`), or
+that the backend fails on, is a lost frame too, with the reason naming the field
+(`camera_backend.hand_trigger`): no value a request carries stops the node.
+
 Backend ``sim`` (`sim_camera.SimCameraBackend`) renders the sample "on the stage" (parameter
 ``sample``, changeable at run time) from a capture folder. A missing capture folder or an
 unknown sample leaves the node up, logging the error and reporting it on ``/diagnostics``.
@@ -28,6 +33,8 @@ from dataclasses import replace
 
 import numpy as np
 from lightstage_graph.diagnostics import ERROR, OK, WARN, DiagnosticsPublisher, Report
+from lightstage_graph.limits import (DIMMER_MIN, DIMMER_MAX, EXPOSURE_US_MAX, EXPOSURE_US_MIN,
+                                     GAIN_DB_MAX, GAIN_DB_MIN)
 from lightstage_graph.names import (CAMERA_INFO_TOPIC, CAMERA_NODE, FRAME_LOST_TOPIC,
                                     ILLUMINATION_TOPIC, IMAGE_TOPIC)
 from lightstage_graph.params import declare_parameters, floating, integer, string
@@ -39,7 +46,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
-from .camera_backend import CameraBackend, Frame, LostFrame, Trigger
+from .camera_backend import CameraBackend, Frame, LostFrame, Trigger, hand_trigger
 from .camera_info import Calibration, load_calibration
 from .noise import PAPER_CALIBRATION, NoiseModel, load_noise_file
 from .rig import DEFAULT_DIMMER
@@ -70,9 +77,9 @@ PARAMETERS = {
     'seed': (-1, integer('noise seed; -1 = fresh entropy', -1, 2**31 - 1)),
     'frame_id': ('camera', string('frame_id of the published images')),
     'dimmer': (DEFAULT_DIMMER, floating('scale of the single-LED images before multiplexing '
-                                        f'(the authors\' {DEFAULT_DIMMER})', 0.001, 10.0)),
+                                        f'(the authors\' {DEFAULT_DIMMER})', DIMMER_MIN, DIMMER_MAX)),
     'default_gain_db': (15.0, floating('gain [dB] for triggers that ask for the camera default '
-                                       '(gain_db NaN)', 0.0, 48.0)),
+                                       '(gain_db NaN)', GAIN_DB_MIN, GAIN_DB_MAX)),
     # ---- real cameras (basler, aravis)
     'serial_number': ('', string('camera to open: basler: serial number; aravis: device id, serial '
                                  'or IP address (opened by address: no discovery); empty = the '
@@ -87,10 +94,10 @@ PARAMETERS = {
                                       constraints='one of: ' + ', '.join(PIXEL_FORMATS))),
     'exposure_us': (30000.0, floating('exposure [us] for triggers that carry none; the camera\'s '
                                       'value is read back and reported as exposure_us_actual on '
-                                      '/diagnostics', 1.0, 10_000_000.0)),
+                                      '/diagnostics', EXPOSURE_US_MIN, EXPOSURE_US_MAX)),
     'gain_db': (15.0, floating('gain [dB] for triggers that ask for the camera default (gain_db '
                                'NaN); read back and reported as gain_db_actual on /diagnostics',
-                               0.0, 48.0)),
+                               GAIN_DB_MIN, GAIN_DB_MAX)),
     'camera_info_url': ('', string('camera calibration (the YAML camera_calibration writes): '
                                    'file:///path/camera.yaml, a path or package://pkg/path; '
                                    'empty = uncalibrated camera_info')),
@@ -329,13 +336,9 @@ class CameraNode(Node):
                                       throttle_duration_sec=5.0)
             self._publish_lost(trigger, self.error)
             return
-        try:
-            self.backend.trigger(trigger)
-        except ValueError as exc:
-            self.dropped += 1
-            self.error = f'trigger {msg.sequence} not imaged: {exc}'
-            self.get_logger().error(self.error)
-            self._publish_lost(trigger, str(exc))
+        reason = hand_trigger(self.backend, trigger)
+        if reason:
+            self._on_lost(LostFrame(trigger, reason))
 
     def _publish_frame(self, frame: Frame) -> None:
         image = image_message(frame, self.p('frame_id'))

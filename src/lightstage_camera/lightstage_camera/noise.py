@@ -11,7 +11,28 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from lightstage_graph.limits import (EXPOSURE_US_MAX, EXPOSURE_US_MIN, check_gain_db,
+                                     check_range)
+
 from .errors import NoiseFileError
+
+# The largest noise any file, artifact or setting may describe: a standard deviation of the
+# whole 16-bit range (read noise), or of it at full scale (photon noise). Far above any
+# camera (the paper's 0.7 and 66 at 15 dB); 1e300 is a typo, not a camera.
+MAX_SIGMA_P2 = 65535.0
+MAX_SIGMA_R2 = 65535.0 ** 2
+EXPOSURE_MS_RANGE = (EXPOSURE_US_MIN / 1000.0, EXPOSURE_US_MAX / 1000.0)
+
+
+def check_noise_coefficients(sigma_p2, sigma_r2, gain_db, exposure_ms, what: str = "{}") -> None:
+    """Refuse a noise model's values out of range (ValueError naming the field as
+    `what.format(name)`): sigma_p2 0 .. MAX_SIGMA_P2, sigma_r2 0 .. MAX_SIGMA_R2, gain_db
+    in the shared gain range, exposure_ms in the shared exposure range."""
+    check_range(sigma_p2, what.format("sigma_p2"), 0.0, MAX_SIGMA_P2)
+    check_range(sigma_r2, what.format("sigma_r2"), 0.0, MAX_SIGMA_R2)
+    check_gain_db(gain_db, what.format("gain_db"), nan_is_default=False)
+    check_range(exposure_ms, what.format("exposure_ms"), *EXPOSURE_MS_RANGE, "ms")
+
 
 def gain_ratio(gain_db: float, reference_gain_db: float) -> float:
     """Linear amplitude gain ratio G/G0 of two gains given in dB."""
@@ -198,15 +219,40 @@ def load_noise_file(path) -> NoiseModel:
         raise NoiseFileError(f"{path}: noise file version {doc.get('version')!r}, this "
                              f"version reads {NOISE_FILE_VERSION}")
     m = doc.get("noise_model")
+    keys = ("sigma_p2", "sigma_r2", "gain_db", "exposure_ms")
+    if not isinstance(m, dict):
+        raise NoiseFileError(f"{path}: it has no noise_model mapping ({', '.join(keys)}); "
+                             "write the file with `lightstage calibrate`")
+    missing = [k for k in keys if k not in m]
+    unknown = sorted(set(m) - {*keys, "max_level"})
+    if missing or unknown:
+        raise NoiseFileError(f"{path}: noise_model needs {', '.join(keys)} (and may give "
+                             f"max_level); {'missing ' + ', '.join(missing) if missing else ''}"
+                             f"{'; ' if missing and unknown else ''}"
+                             f"{'unknown ' + ', '.join(unknown) if unknown else ''}")
     try:
-        return NoiseModel(float(m["sigma_p2"]), float(m["sigma_r2"]), gain_db=float(m["gain_db"]),
-                          exposure_ms=float(m["exposure_ms"]),
-                          max_level=int(m.get("max_level", 1023)))
-    except (TypeError, KeyError) as exc:
-        raise NoiseFileError(f"{path}: noise_model needs sigma_p2, sigma_r2, gain_db, "
-                             f"exposure_ms (missing {exc})") from None
+        check_noise_coefficients(*(_yaml_float(m[k], f"noise_model.{k}") for k in keys),
+                                 what="noise_model.{}")
+        max_level = m.get("max_level", 1023)
+        if isinstance(max_level, bool) or not isinstance(max_level, int) or not 1 <= max_level <= 65535:
+            raise ValueError(f"noise_model.max_level must be a whole number 1 .. 65535, got "
+                             f"{max_level!r}")
+        return NoiseModel(*(float(m[k]) for k in ("sigma_p2", "sigma_r2")),
+                          gain_db=float(m["gain_db"]), exposure_ms=float(m["exposure_ms"]),
+                          max_level=max_level)
     except ValueError as exc:
         raise NoiseFileError(f"{path}: {exc}") from None
+
+
+def _yaml_float(value, what: str) -> float:
+    """A number of a YAML file (YAML 1.1 reads 3e4 as a string: taken); ValueError naming
+    `what` for anything else (`gain_db: loud`)."""
+    if not isinstance(value, bool):
+        try:
+            return float(value)
+        except (TypeError, ValueError, OverflowError):
+            pass
+    raise ValueError(f"{what} must be a number, got {value!r}")
 
 
 def noise_setting(spec) -> NoiseModel | None:

@@ -7,12 +7,15 @@ and the authors' `DEFAULT_DIMMER`.
 """
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import yaml
+from lightstage_graph.limits import (EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN,
+                                     check_range)
 
 CHANNELS: tuple[str, ...] = ("red", "green", "blue", "nir")
 WAVELENGTHS_NM: dict[str, float] = {"red": 615.0, "green": 515.0, "blue": 460.0, "nir": 850.0}
@@ -80,6 +83,28 @@ def _yaml_number(value, key: str, source: str, whole: bool = False) -> float | i
                      f"got {value!r}")
 
 
+MAX_FRAMES_AVERAGED = 100_000
+MAX_IMAGE_SIDE = 16_384
+# (field, lo, hi, unit): the camera values of a rig, as rig.yaml's camera section gives them
+RIG_RANGES = (("exposure_us", EXPOSURE_US_MIN, EXPOSURE_US_MAX, "us"),
+              ("gain_db", GAIN_DB_MIN, GAIN_DB_MAX, "dB"),
+              ("camera_height_mm", 1.0, 100_000.0, "mm"),
+              ("field_of_view_mm", 0.1, 100_000.0, "mm"))
+RIG_KEYS = ("sites", "channels", "camera")
+CAMERA_KEYS = ("bit_depth", "image_height", "image_width", "exposure_us", "gain_db",
+               "frames_averaged", "height_mm", "field_of_view_mm")
+
+
+def _unknown_keys(mapping: dict, known, where: str, source: str) -> None:
+    """ValueError naming keys of `mapping` that are not `known` (a typo must not silently
+    become a default), with the closest known key."""
+    for key in mapping:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1)
+            hint = f"did you mean '{where}{close[0]}'?" if close else f"known: {', '.join(known)}"
+            raise ValueError(f"{source}: unknown key '{where}{key}' ({hint})")
+
+
 @dataclass(frozen=True)
 class Site:
     """One illumination site: a diffused cluster of the four LEDs, position in mm.
@@ -124,6 +149,14 @@ class Rig:
             raise ValueError(f"image_size must be positive, got {self.image_size}")
         if not self.sites:
             raise ValueError("a rig needs at least one illumination site")
+        for name, lo, hi, unit in RIG_RANGES:
+            setattr(self, name, check_range(getattr(self, name), name, lo, hi, unit))
+        if not 1 <= self.frames_averaged <= MAX_FRAMES_AVERAGED:
+            raise ValueError(f"frames_averaged = {self.frames_averaged} is out of range: give "
+                             f"1 .. {MAX_FRAMES_AVERAGED} frames")
+        if max(self.image_size) > MAX_IMAGE_SIDE:
+            raise ValueError(f"image_size {self.image_size} is out of range: give 1 .. "
+                             f"{MAX_IMAGE_SIDE} px per side")
 
     @property
     def n_sites(self) -> int:
@@ -214,9 +247,11 @@ class Rig:
                              f"channels must be {list(CHANNELS)}")
         wavelengths = {name: number(c, "wavelength_nm", f"channels[{i}].")
                        for i, (name, c) in enumerate(zip(names, channel_entries))}
+        _unknown_keys(data, RIG_KEYS, "", source)
         cam = need(data, "camera", "")
         if not isinstance(cam, dict):
             raise ValueError(f"{source}: 'camera' must be a mapping of camera settings, got {cam!r}")
+        _unknown_keys(cam, CAMERA_KEYS, "camera.", source)
         try:
             return cls(
                 sites=sites, channels=names, wavelengths_nm=wavelengths,
@@ -231,6 +266,11 @@ class Rig:
             )
         except ValueError as exc:  # range checks of __post_init__
             message = str(exc)
+            for name, key in (("camera_height_mm", "height_mm"), ("exposure_us", "exposure_us"),
+                              ("gain_db", "gain_db"), ("frames_averaged", "frames_averaged"),
+                              ("field_of_view_mm", "field_of_view_mm")):
+                if message.startswith(f"{name} "):  # the key as rig.yaml spells it
+                    message = f"camera.{key}{message[len(name):]}"
             raise ValueError(message if message.startswith(source) else f"{source}: {message}") \
                 from None
 

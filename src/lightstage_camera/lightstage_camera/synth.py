@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass, replace
@@ -177,6 +178,61 @@ MATERIALS: dict[str, dict[str, Material]] = {
                    ink_contrast=(0.30, 0.35, 0.40, 0.30)),
     },
 }
+
+
+# the physical range of each material property: fractions in 0..1, lengths and the
+# Blinn-Phong exponent >= 0 (a fake blended past the tabled one must stay a material)
+FRACTION_FIELDS = ("albedo", "pigment_contrast", "specular", "sss", "print_contrast",
+                   "ink_contrast")
+MAX_STRENGTH = 10.0
+# peak memory of rendering one pose, per pixel (measured: ~1.0 kB at 120 and 240 px, any type)
+RENDER_BYTES_PER_PIXEL = 1100
+
+
+def check_strength(strength: float, object_types) -> None:
+    """Refuse a --strength that gives some class a material no object has (a reflectance
+    below 0 or above 1, a negative length): ValueError naming the class and property."""
+    if not (math.isfinite(strength) and 0 <= strength <= MAX_STRENGTH):
+        raise ValueError(f"strength must be 0 .. {MAX_STRENGTH:g} (0 = identical real and fake "
+                         f"materials, 1 = as tabled), got {strength}")
+    for kind in object_types:
+        materials = MATERIALS[kind]
+        blended = blend_materials(materials["real"], materials["fake"], strength)
+        for name in Material.__dataclass_fields__:
+            values = getattr(blended, name)
+            values = values if isinstance(values, tuple) else (values,)
+            hi = 1.0 if name in FRACTION_FIELDS else math.inf
+            if not all(0.0 <= v <= hi for v in values):
+                raise ValueError(f"strength {strength:g} makes the fake {kind}'s {name} "
+                                 f"{[round(v, 3) for v in values]}, outside "
+                                 f"{'0 .. 1' if hi == 1 else '>= 0'}; use a smaller strength")
+
+
+def available_memory_bytes() -> int | None:
+    """MemAvailable of /proc/meminfo (None where there is none)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def check_render_memory(image_size: int, n_jobs: int, available: int | None = None) -> None:
+    """Refuse an image size whose rendering (n_jobs poses at once) needs more memory than
+    this machine has available, with the estimate and the largest size that fits."""
+    available = available_memory_bytes() if available is None else available
+    if available is None:
+        return
+    n_jobs = max(1, int(n_jobs))
+    need = RENDER_BYTES_PER_PIXEL * image_size ** 2 * n_jobs
+    if need > available:
+        fits = int(math.sqrt(available / (RENDER_BYTES_PER_PIXEL * n_jobs)))
+        raise ValueError(f"size {image_size} px needs about {need / 2**30:.3g} GiB of memory to "
+                         f"render ({RENDER_BYTES_PER_PIXEL} bytes per pixel per pose x {n_jobs} "
+                         f"parallel job(s)); {available / 2**30:.3g} GiB are available: use a "
+                         f"size up to {fits} px (or fewer --jobs)")
 
 
 def blend_materials(real: Material, fake: Material, strength: float) -> Material:
@@ -557,6 +613,8 @@ def generate(out_dir, image_size: int = DEFAULT_SIZE, n_samples_per_class: int =
     if placement not in PLACEMENTS:
         raise ValueError(f"unknown placement {placement!r}; choose from {', '.join(PLACEMENTS)}")
     object_types = tuple(object_types)
+    check_strength(strength, object_types)
+    check_render_memory(image_size, n_jobs if n_jobs > 0 else (os.cpu_count() or 1))
     out_dir = Path(out_dir)
     if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
         raise ValueError(f"{out_dir} is not empty; choose a new folder or pass overwrite "

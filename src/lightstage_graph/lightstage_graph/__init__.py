@@ -8,6 +8,8 @@ Pure (no rclpy; usable anywhere):
     frames        mono16 decoding and ImageMatcher (images matched to trigger stamps)
     diagnostics   a DiagnosticArray publisher handed a node (as diagnostic_updater)
     exits         how a process ended, in words
+    limits        the ranges of gain, exposure and dimmer every package checks against
+    output        printing to a pipe whose reader may go away (`| head -1`)
     ros_env       the project's ROS environment (`python -m lightstage_graph.ros_env`)
 ROS (rclpy):
     qos           the image and illumination QoS profiles

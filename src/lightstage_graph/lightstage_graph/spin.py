@@ -18,6 +18,7 @@ import rclpy.logging
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
+from .params import ParameterError, params_files_of, read_params_file
 from .ros_env import apply_node_environment
 
 
@@ -25,6 +26,11 @@ def init_node(args: list[str] | None = None) -> None:
     """`rclpy.init(args=args)` after giving this process the project's ROS environment
     (LOCALHOST discovery, the Fast DDS profile: `ros_env`); logs what that changed."""
     message = apply_node_environment()
+    for path in params_files_of(args):  # rcl's own parse error is a traceback without the line
+        try:
+            read_params_file(path)
+        except ValueError as exc:
+            raise ParameterError(str(exc)) from None
     rclpy.init(args=args)
     if message:
         rclpy.logging.get_logger('ros_env').info(message)

@@ -16,6 +16,7 @@ import json
 import sys
 from pathlib import Path
 
+from lightstage_graph.output import print_out
 from lightstage_graph.ros_env import apply_ros_environment
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
@@ -163,6 +164,10 @@ def play_main(argv: list[str] | None = None) -> int:
     if rc is not None:
         return rc
     from . import player_node
+    if args.remap:
+        rc = _check_remaps(prog, args)
+        if rc is not None:
+            return rc
     values = {'bag': str(Path(args.bag)), 'topics': args.topics, 'exclude_regex': args.exclude,
               'rate': float(args.rate), 'start_offset_s': float(args.start_offset_s),
               'loop': bool(args.loop), 'wait_for_subscribers': args.wait_for,
@@ -170,6 +175,26 @@ def play_main(argv: list[str] | None = None) -> int:
     remap = [a for rule in args.remap for a in ('-r', rule)]
     return player_node.run(args=['lightstage-play', *(['--ros-args', *remap] if remap else [])],
                            parameter_overrides=_params(values))
+
+
+def _check_remaps(prog: str, args) -> int | None:
+    """EXIT_USAGE with a message for --remap rules the bag cannot be played with (before a
+    node exists: rcl would answer with a traceback), else None."""
+    from .exceptions import BagError
+    from .player_node import PlayerError, check_remaps
+    from .reader import BagReader
+    from .recording import DEFAULT_PLAY_EXCLUDE, select_play_topics
+    try:
+        info = BagReader(args.bag).info()
+        types = {name: t.type for name, t in info.topics.items()}
+        played = select_play_topics(info.topics, args.topics,
+                                    args.exclude if args.exclude is not None
+                                    else DEFAULT_PLAY_EXCLUDE)
+        check_remaps(args.remap, types, played)
+    except (BagError, PlayerError, ValueError) as exc:
+        print(f'{prog}: {exc}', file=sys.stderr)
+        return EXIT_USAGE
+    return None
 
 
 # ----------------------------------------------------------------------------- bag
@@ -251,13 +276,14 @@ def bag_main(argv: list[str] | None = None) -> int:
     try:
         if args.command == 'info':
             info = BagReader(args.bag).info(verify=args.verify)
-            print(json.dumps(info.to_json(), indent=2) if args.json else format_info(info, args.verbose))
+            print_out(json.dumps(info.to_json(), indent=2) if args.json
+                      else format_info(info, args.verbose))
             return EXIT_OK if info.complete else EXIT_FAILED
         src = Path(args.bag)
         dst = Path(args.output) if args.output else src.with_name(src.name.removesuffix('.mcap')
                                                                   + '_recovered')
         result = recover_bag(src, dst)
-        print(format_recovery(result))
+        print_out(format_recovery(result))
         if result.error:
             print(f'{prog}: the copy stopped midway (see RECOVERY STOPPED above); what it '
                   f'copied is in {dst}', file=sys.stderr)

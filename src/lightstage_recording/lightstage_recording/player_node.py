@@ -40,6 +40,60 @@ class PlayerError(Exception):
     """A bag that cannot be played as asked; the message says what to change."""
 
 
+# the topics every node publishes itself: a remap onto one with another type would fail in rcl
+NODE_OWN_TOPICS = {'/rosout': 'rcl_interfaces/msg/Log',
+                   '/parameter_events': 'rcl_interfaces/msg/ParameterEvent'}
+
+
+def check_remaps(rules: list[str], types: dict[str, str], played: list[str]) -> dict[str, str]:
+    """The --remap rules FROM:=TO of a playback as {bag topic: topic it is published on};
+    PlayerError naming the rule for: a name that is not a ROS topic name, a FROM the bag does
+    not hold or that is not played, a FROM remapped twice, two topics onto one, and a topic
+    onto another of a different type (played from the bag, or every node's own)."""
+    import difflib
+
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.validate_topic_name import validate_topic_name
+    remapped: dict[str, str] = {}
+    for rule in rules:
+        source, sep, target = rule.partition(':=')
+        if not sep or not source or not target:
+            raise PlayerError(f'--remap {rule!r}: write FROM:=TO, e.g. '
+                              '/image_raw:=/camera/image_raw')
+        for name in (source, target):
+            try:
+                validate_topic_name(name)
+            except InvalidTopicNameException as exc:
+                raise PlayerError(f'--remap {rule!r}: {name!r} is not a ROS topic name '
+                                  f'({str(exc).splitlines()[0]}); use letters, digits, _ and /')                     from None
+        source, target = ('/' + n.lstrip('/') for n in (source, target))
+        if source not in types:
+            close = difflib.get_close_matches(source, list(types), n=1)
+            hint = f'did you mean {close[0]}?' if close else f'it has {", ".join(sorted(types))}'
+            raise PlayerError(f'--remap {rule!r}: the bag has no topic {source} ({hint})')
+        if source not in played:
+            raise PlayerError(f'--remap {rule!r}: {source} is not played (playing: '
+                              f'{", ".join(played)}); add it to --topics')
+        if source in remapped and remapped[source] != target:
+            raise PlayerError(f'--remap {rule!r}: {source} is already remapped to '
+                              f'{remapped[source]}; give one rule per topic')
+        remapped[source] = target
+    destination = {t: remapped.get(t, t) for t in played}
+    onto: dict[str, str] = {}
+    for topic, target in destination.items():
+        if target in onto:
+            raise PlayerError(f'--remap: {onto[target]} and {topic} would both be published on '
+                              f'{target}; remap one of them elsewhere')
+        onto[target] = topic
+        # every node's own topics, and those the recorded graph had: a topic of another type
+        # there fails in rcl (one process) or never matches (another)
+        other = NODE_OWN_TOPICS.get(target, types.get(target))
+        if other is not None and other != types[topic]:
+            raise PlayerError(f'--remap: {topic} ({types[topic]}) onto {target}, which carries '
+                              f'{other}; choose another topic')
+    return destination
+
+
 PARAMETERS = {
     'bag': ('', string('bag directory (metadata.yaml + .mcap) or .mcap file to play',
                        read_only=True)),
@@ -93,7 +147,12 @@ class PlayerNode(Node):
             except ImportError as exc:
                 raise PlayerError(f'cannot play {topic}: {exc}') from None
             qos = playback_qos(t.offered_qos, self.p('qos_depth'))
-            self.publishers_by_topic[topic] = self.create_publisher(cls, topic, to_rclpy_qos(qos))
+            try:
+                self.publishers_by_topic[topic] = self.create_publisher(cls, topic,
+                                                                        to_rclpy_qos(qos))
+            except Exception as exc:  # noqa: BLE001 - rcl's refusal, e.g. a remap onto another type
+                raise PlayerError(f'cannot publish {topic} ({t.type}) where it is remapped to: '
+                                  f'{str(exc).splitlines()[0]}') from None
         self.stop = threading.Event()
         self.played = 0
 
@@ -156,8 +215,13 @@ def run(args: list[str] | None = None, parameter_overrides: list[Parameter] | No
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
     own_signals = threading.current_thread() is threading.main_thread()
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if own_signals
-               else SignalHandlerOptions.ALL)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if own_signals
+                   else SignalHandlerOptions.ALL)
+    except Exception as exc:  # noqa: BLE001 - rcl's parse error of a remap rule, a traceback else
+        print(f'player: bad ROS arguments {args[1:]}: {str(exc).splitlines()[0]}',
+              file=sys.stderr, flush=True)
+        return 2
     try:
         node = PlayerNode(parameter_overrides=parameter_overrides or [])
     except (PlayerError, InvalidParameterValueException) as exc:

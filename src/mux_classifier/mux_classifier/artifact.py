@@ -22,7 +22,9 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from lightstage_camera.noise import check_noise_coefficients
 from lightstage_camera.rig import DEFAULT_DIMMER, N_LEDS, site_to_led_patterns
+from lightstage_graph.limits import DIMMER_MAX, DIMMER_MIN, LimitError, check_range
 from sklearn.utils.validation import check_is_fitted
 
 from .estimator import MuxClassifier
@@ -44,6 +46,8 @@ FORMAT_VERSION = 3
 READABLE_VERSIONS = (1, 2, 3)
 UNRECORDED_DIMMER = DEFAULT_DIMMER
 MODES = ("per_colour", "joint", "naive")
+MAX_IMAGES = 4096  # images of one classification: far beyond any search (16 in the paper)
+DIMMER_RANGE = (DIMMER_MIN, DIMMER_MAX)
 
 
 class ArtifactError(ValueError):
@@ -88,9 +92,19 @@ def noise_to_dict(noise, name: str | None = None) -> dict:
         except (TypeError, ValueError, OverflowError):
             raise ArtifactError(f"noise setting {k} must be a number or null, got "
                                 f"{reprlib.repr(v)}") from None
-        if not math.isfinite(result[k]) or (k != "gain_db" and result[k] < 0):
+        if isinstance(v, bool) or not math.isfinite(result[k]) or (k != "gain_db" and result[k] < 0):
             raise ArtifactError(f"noise setting {k} must be a finite number"
-                                f"{'' if k == 'gain_db' else ' >= 0'}, got {result[k]}")
+                                f"{'' if k == 'gain_db' else ' >= 0'}, got {reprlib.repr(v)}")
+    given = [k for k in keys if result[k] is not None]
+    if given and len(given) != len(keys):
+        raise ArtifactError(f"noise setting: give all of {', '.join(keys)} or none of them "
+                            f"(noise-free), got only {', '.join(given)}")
+    if given:
+        try:
+            check_noise_coefficients(result["sigma_p2"], result["sigma_r2"], result["gain_db"],
+                                     result["exposure_ms"], what="noise setting {}")
+        except ValueError as exc:
+            raise ArtifactError(str(exc)) from None
     return result
 
 
@@ -352,7 +366,8 @@ class TrainedArtifact:
         version = header.get("format_version")
         if isinstance(version, bool) or version not in READABLE_VERSIONS:
             raise ArtifactError(
-                f"{path!r} is classifier format version {reprlib.repr(version)}; this lightstage "
+                f"{path!r}: its header field 'format_version' gives classifier format version "
+                f"{reprlib.repr(version)}; this lightstage "
                 f"reads version {FORMAT_VERSION} and the older "
                 f"{', '.join(str(v) for v in READABLE_VERSIONS if v != FORMAT_VERSION)}. "
                 "Retrain with this version (`lightstage train`) or use the lightstage release "
@@ -382,6 +397,7 @@ class TrainedArtifact:
                 raise ArtifactError(f"array {name!r} holds {a.dtype} values, not real numbers")
             return a
 
+        _check_header_ranges(header)
         n_images = field_of("n_images", list, "a list of image counts")
         if not all(isinstance(k, int) and not isinstance(k, bool) for k in n_images):
             raise ArtifactError(f"header field 'n_images' must list integers, got "
@@ -403,13 +419,20 @@ class TrainedArtifact:
             noise=field_of("noise", dict, "an object (the noise setting)"),
             hog_config=HogConfig.from_dict(field_of("hog_config", dict, "an object")),
             mode=field_of("mode", str, f"one of {MODES}"),
-            site_patterns=(array("site_patterns")
+            site_patterns=(_site_patterns(arrays, array)
                            if field_of("has_site_patterns", bool, "true or false") else None),
             provenance=dict(field_of("provenance", (dict, type(None)), "an object") or {}),
             dimmer=dimmer,
             dimmer_recorded=recorded,
             features=features,
         )
+
+
+def _site_patterns(arrays: dict, array) -> np.ndarray:
+    if "site_patterns" not in arrays:
+        raise ArtifactError("header field 'has_site_patterns' is true but it has no array "
+                            "'site_patterns'; retrain to get a new file")
+    return array("site_patterns")
 
 
 def _positive_dimmer(value, what: str) -> float:
@@ -419,7 +442,10 @@ def _positive_dimmer(value, what: str) -> float:
         dimmer = math.nan
     if isinstance(value, bool) or not (math.isfinite(dimmer) and dimmer > 0):
         raise ArtifactError(f"{what} must be a positive number, got {reprlib.repr(value)}")
-    return dimmer
+    try:
+        return check_range(dimmer, what, DIMMER_MIN, DIMMER_MAX)
+    except LimitError as exc:
+        raise ArtifactError(str(exc)) from None
 
 
 def check_dimmer(artifact_dimmer: float, camera_dimmer: float) -> None:
@@ -470,15 +496,106 @@ def _read_npz(path: str, what: str) -> dict:
     return arrays
 
 
-def _finite_json_number(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value):
-        raise ValueError(f"number {text} is out of range")
-    return value
+# The range of every header field the loader reads, beyond its type: (lo, hi) of a number, or
+# of a list's length / a string's length. A field out of range is refused naming it.
+MAX_CLASSES = 10_000
+MAX_NAME_CHARS = 200
+HOG_RANGES = {"image_size": (4, 2048), "cell_px": (1, 2048), "block_cells": (1, 2048),
+              "orientations": (1, 360), "batch_size": (1, 4096)}
 
 
-def _no_json_constant(name: str):
-    raise ValueError(f"{name} is not allowed")
+def _non_finite_field(value, path: str = "") -> str | None:
+    """The path ('noise.gain_db', 'n_images[2]') of the first NaN or infinite number in a
+    parsed header, or None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return path
+    children = (value.items() if isinstance(value, dict)
+                else enumerate(value) if isinstance(value, list) else ())
+    for key, child in children:
+        where = f"{path}[{key}]" if isinstance(key, int) else (f"{path}.{key}" if path else str(key))
+        found = _non_finite_field(child, where)
+        if found is not None:
+            return found
+    return None
+
+
+def _check_header_ranges(header: dict) -> None:
+    """Refuse, naming the field, a header value out of its range (the types are checked where
+    each field is read; NaN and inf are refused by `_read_header`): the noise setting's coefficients,
+    gain and exposure, the dimmer, the HOG configuration, the class names and image counts."""
+    def within(path, value, lo, hi, unit=""):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            try:
+                check_range(value, f"header field {path!r}", lo, hi, unit)
+            except LimitError as exc:
+                raise ArtifactError(str(exc)) from None
+
+    noise = header.get("noise")
+    if isinstance(noise, dict):
+        unknown = sorted(set(noise) - {"name", "sigma_p2", "sigma_r2", "gain_db", "exposure_ms"})
+        if unknown:
+            raise ArtifactError(f"header field 'noise' has unknown keys {unknown}")
+        if not isinstance(noise.get("name"), str):
+            raise ArtifactError(f"header field 'noise.name' must be a string, got "
+                                f"{reprlib.repr(noise.get('name'))}")
+        for key in ("sigma_p2", "sigma_r2", "gain_db", "exposure_ms"):
+            value = noise.get(key)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+                raise ArtifactError(f"header field 'noise.{key}' must be a number or null, got "
+                                    f"{reprlib.repr(value)}")
+        if all(isinstance(noise.get(k), (int, float)) for k in ("sigma_p2", "sigma_r2", "gain_db",
+                                                                "exposure_ms")):
+            try:
+                check_noise_coefficients(noise["sigma_p2"], noise["sigma_r2"], noise["gain_db"],
+                                         noise["exposure_ms"], what="header field 'noise.{}'")
+            except ValueError as exc:
+                raise ArtifactError(str(exc)) from None
+    hog = header.get("hog_config")
+    if isinstance(hog, dict):
+        unknown = sorted(set(hog) - set(HogConfig.__dataclass_fields__))
+        if unknown:
+            raise ArtifactError(f"header field 'hog_config' has unknown keys {unknown}")
+        for key, (lo, hi) in HOG_RANGES.items():
+            value = hog.get(key)
+            if key in hog and (isinstance(value, bool) or not isinstance(value, int)):
+                raise ArtifactError(f"header field 'hog_config.{key}' must be a whole number in "
+                                    f"{lo} .. {hi}, got {reprlib.repr(value)}")
+            within(f"hog_config.{key}", value, lo, hi)
+    if "dimmer" in header:
+        within("dimmer", header["dimmer"], DIMMER_RANGE[0], DIMMER_RANGE[1])
+    names = header.get("class_names")
+    if isinstance(names, list):
+        if not 2 <= len(names) <= MAX_CLASSES:
+            raise ArtifactError(f"header field 'class_names' must list 2 .. {MAX_CLASSES} "
+                                f"classes, got {len(names)}")
+        for i, name in enumerate(names):
+            if isinstance(name, str) and not 1 <= len(name) <= MAX_NAME_CHARS:
+                raise ArtifactError(f"header field 'class_names[{i}]' must be 1 .. "
+                                    f"{MAX_NAME_CHARS} characters, got {reprlib.repr(name)}")
+    counts = header.get("n_images")
+    if isinstance(counts, list):
+        if not counts:
+            raise ArtifactError("header field 'n_images' lists no image count; the artifact "
+                                "holds no classifier")
+        for i, k in enumerate(counts):
+            within(f"n_images[{i}]", k, 1, MAX_IMAGES)
+    features = header.get("features")
+    if isinstance(features, str):
+        try:
+            searchable_extractor(features)
+        except ValueError as exc:
+            raise ArtifactError(f"header field 'features': {exc}") from None
+    mode = header.get("mode")
+    if isinstance(mode, str) and mode not in MODES:
+        raise ArtifactError(f"header field 'mode' must be one of {MODES}, got {reprlib.repr(mode)}")
+
+
+def _json_number(text: str) -> float:
+    return float(text)  # 1e400 is inf: refused naming its field (_check_header_ranges)
+
+
+def _json_constant(name: str) -> float:
+    return float(name.replace("Infinity", "inf"))  # NaN, Infinity: refused naming the field
 
 
 def _read_header(arrays: dict, what: str) -> dict:
@@ -490,12 +607,16 @@ def _read_header(arrays: dict, what: str) -> dict:
         raise ArtifactError(f"{what}: its header is a {raw.dtype} array of shape {raw.shape}, "
                             "not the bytes of a JSON document (uint8, 1-D)")
     try:
-        header = json.loads(raw.tobytes().decode("utf-8"), parse_float=_finite_json_number,
-                            parse_constant=_no_json_constant)
+        header = json.loads(raw.tobytes().decode("utf-8"), parse_float=_json_number,
+                            parse_constant=_json_constant)
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise ArtifactError(f"{what}: its header is not valid JSON ({exc})") from exc
     found = header.get("format") if isinstance(header, dict) else header
     if found != FORMAT_NAME or not isinstance(header, dict):
         raise ArtifactError(f"{what}: header format is {reprlib.repr(found)}, expected "
                             f"{FORMAT_NAME!r}")
+    bad = _non_finite_field(header)
+    if bad is not None:
+        raise ArtifactError(f"{what}: its header field {bad!r} is not a finite number (NaN, "
+                            "infinite or beyond a float); retrain to get a new file")
     return header

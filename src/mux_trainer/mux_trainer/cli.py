@@ -84,10 +84,17 @@ def _feature_names(prog: str, value: str, several: bool) -> list[str]:
 
 
 def _positive(args, *names):
+    from .training import check_repeats, check_seed
     for name in names:
         if getattr(args, name) < 1:
             raise SystemExit(f'lightstage: --{name.replace("_", "-")} must be >= 1, '
                              f'got {getattr(args, name)}')
+    for option, check, value in (('--repeats', check_repeats, args.repeats),
+                                 ('--seed', check_seed, args.seed)):
+        try:
+            check(value)
+        except ValueError as exc:
+            raise SystemExit(f'lightstage: {option}: {exc}') from None
 
 
 def _on_cluster(prog: str, args):
@@ -125,7 +132,11 @@ def train_main(argv: list[str] | None = None) -> int:
         description='Learn illumination patterns and a classifier per image count from a '
                     'capture folder; write the trained artifact (.npz).')
     _common(p)
-    p.add_argument('--out', required=True, metavar='ARTIFACT', help='artifact file to write (.npz)')
+    p.add_argument('--out', required=True, metavar='ARTIFACT',
+                   help='artifact file to write (.npz); an existing artifact is replaced, any '
+                        'other existing file only with --force')
+    p.add_argument('--force', action='store_true',
+                   help='replace --out even if it is an existing file that is not an artifact')
     p.add_argument('--method', choices=('greedy', 'snr_optimal', 'naive'), default='greedy')
     p.add_argument('--mode', choices=('per_colour', 'joint'), default='per_colour',
                    help='greedy only: 8-site patterns per colour (paper) or 32-LED patterns')
@@ -153,7 +164,7 @@ def train_main(argv: list[str] | None = None) -> int:
     features = _feature_names('lightstage train', args.features, several=False)[0]
     from .training import ArtifactNotWritten, check_artifact_path, train_modelset
     try:  # before the capture is loaded: a run must not end in an unwritable path
-        check_artifact_path(args.out)
+        check_artifact_path(args.out, args.force)
     except ValueError as exc:
         raise SystemExit(f'lightstage train: {exc}') from None
     not_written = None
@@ -166,7 +177,7 @@ def train_main(argv: list[str] | None = None) -> int:
                 n_jobs=args.jobs, hog_config=hog_config, fixed_count=args.fixed_count,
                 inner_classifier=args.inner_classifier, final_classifier=args.classifier,
                 beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet,
-                features=features, count_rule=args.count_rule)
+                features=features, count_rule=args.count_rule, force=args.force)
         except ValueError as exc:
             raise SystemExit(f'lightstage train: {exc}') from None
         except ArtifactNotWritten as exc:  # the result is printed all the same

@@ -65,6 +65,35 @@ def dask_cluster(address: str | None, timeout_s: float = DEFAULT_TIMEOUT_S):
         cluster.close()
 
 
+def probe_scheduler(address: str, timeout_s: float) -> None:
+    """Refuse at once an address that is not one (`not a url`) or a TCP port that refuses
+    connections (nothing listens: no need to wait `timeout_s`); ClusterUnavailable naming
+    it. Anything else (no answer yet, another protocol) is left to the Client's timeout."""
+    import socket
+
+    from distributed.comm.addressing import parse_address, parse_host_port
+    hint = ('give the address `dask scheduler` prints, tcp://HOST:PORT (e.g. '
+            'tcp://10.0.0.5:8786), or train locally without --dask-scheduler / '
+            f'{DASK_SCHEDULER_ENV}')
+    try:
+        protocol, location = parse_address(address.strip())
+        if protocol not in ('tcp', 'tls'):
+            return
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise ClusterUnavailable(f'{address!r} is not a Dask scheduler address ({exc}); '
+                                 f'{hint}') from None
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout_s):
+            pass
+    except ConnectionRefusedError:
+        raise ClusterUnavailable(f'the Dask scheduler {address} refused the connection: nothing '
+                                 f'listens on port {port} of {host}; start `dask scheduler` '
+                                 f'there or {hint[0].lower()}{hint[1:]}') from None
+    except OSError:
+        return  # unresolvable, unreachable, slow: the Client says so within its timeout
+
+
 class DaskCluster:
     """A connection to a Dask scheduler that runs chunks of candidate evaluations."""
 
@@ -78,6 +107,9 @@ class DaskCluster:
                                      f'`distributed` package is missing ({exc})') from None
         self.address = address
         self.timeout_s = float(timeout_s)
+        # before a Client exists: a Client that fails in its constructor still closes itself
+        # when collected, and prints "Exception ignored in Client.__del__" after the message
+        probe_scheduler(address, self.timeout_s)
         try:
             self.client = Client(address, timeout=self.timeout_s, set_as_default=False)
         except (OSError, TimeoutError, ValueError, TypeError) as exc:

@@ -1,12 +1,11 @@
 """From a capture (ModelSet) to the arrays the search works on, at the feature resolution."""
 from __future__ import annotations
 
-import re
-
 import numpy as np
-from lightstage_camera.noise import NoiseModel, load_noise_file, noise_setting
+from lightstage_camera.noise import EXPOSURE_MS_RANGE, NoiseModel, load_noise_file, noise_setting
 from lightstage_camera.rig import DEFAULT_DIMMER
 from lightstage_camera.scene_models import object_type_of
+from lightstage_graph.limits import check_gain_db, check_range
 from mux_classifier.features import DEFAULT_EXTRACTOR
 from mux_classifier.hog import HogConfig
 
@@ -17,7 +16,6 @@ NOISE_HELP = ('sigma1|sigma2|sigma3|none, or a noise file written by `lightstage
               '(NOISE.yaml: its model at the gain and exposure it was measured at; '
               'NOISE.yaml@GAIN_DB:EXPOSURE_MS: generalized to that setting, e.g. '
               'noise.yaml@17.5:22.5)')
-_AT = re.compile(r'^(?P<path>.+\.ya?ml)@(?P<gain>[-+]?[\d.]+):(?P<exposure>[\d.]+)$', re.I)
 
 
 def resolve_noise(spec) -> tuple[str, NoiseModel | None]:
@@ -33,20 +31,36 @@ def resolve_noise(spec) -> tuple[str, NoiseModel | None]:
     text = str(spec).strip()
     if text.lower() in NOISE_SETTINGS:
         return text.lower(), noise_setting(text.lower())
-    at = _AT.match(text)
-    if at:
-        model = load_noise_file(at['path'])
-        try:
-            return text, model.at(float(at['gain']), float(at['exposure']))
-        except ValueError as exc:
-            raise ValueError(f'noise {text!r}: {exc}') from None
     if text.lower().endswith(('.yaml', '.yml')):
         return text, noise_setting(text)
     path, sep, setting = text.rpartition('@')
     if sep and path.lower().endswith(('.yaml', '.yml')):
+        gain_db, exposure_ms = _setting_at(text, path, setting)
+        return text, load_noise_file(path).at(gain_db, exposure_ms)
+    raise ValueError(f'unknown noise setting {text!r}; use {NOISE_HELP}')
+
+
+def _setting_at(text: str, path: str, setting: str) -> tuple[float, float]:
+    """GAIN_DB:EXPOSURE_MS after the @ of a noise spec, each in the camera's range; ValueError
+    naming which one is wrong."""
+    parts = setting.split(':')
+    numbers = []
+    for part in parts:
+        try:
+            numbers.append(float(part))
+        except ValueError:
+            numbers.append(None)
+    if len(parts) != 2 or None in numbers:
         raise ValueError(f'noise {text!r}: after the @ give GAIN_DB:EXPOSURE_MS, two numbers '
                          f'(e.g. {path}@17.5:22.5), not {setting!r}')
-    raise ValueError(f'unknown noise setting {text!r}; use {NOISE_HELP}')
+    gain_db, exposure_ms = numbers
+    try:
+        check_gain_db(gain_db, 'the gain (GAIN_DB, before the colon)', nan_is_default=False)
+        check_range(exposure_ms, 'the exposure (EXPOSURE_MS, after the colon)',
+                    *EXPOSURE_MS_RANGE, 'ms')
+    except ValueError as exc:
+        raise ValueError(f'noise {text!r}: {exc}') from None
+    return gain_db, exposure_ms
 
 
 def search_data(modelset, noise='sigma3', *, hog_config: HogConfig | None = None,

@@ -32,6 +32,29 @@ SITE_CANDIDATES = 254  # per-colour mode: patterns with 1..7 of 8 sites lit
 MAX_JOBS = 256
 
 
+PARAMETERS = {
+    # 1..256: a range cannot hold -1 ("all cores") without 0, which means nothing to
+    # joblib; the default is all the cores this process may use
+    'n_jobs': (min(usable_cores(), MAX_JOBS), integer(
+        'joblib worker processes for candidate evaluation (default: the cores this '
+        'process may use)', 1, MAX_JOBS)),
+    'refine_top': (REFINE_TOP, integer(
+        'greedy: candidates per column re-scored with the exact linear SVM after the '
+        'ridge screen (0 = the screen picks)', 0, SITE_CANDIDATES)),
+    'features': (DEFAULT_EXTRACTOR, string(
+        'feature extractor the search scores with and the trained classifier uses: '
+        'hog_grid (the paper\'s), intensity_stats (objects placed any way), pooled_hog, '
+        'pooled_hog_stats or pose_hog (docs/SEARCH.md); a bad name aborts the goal',
+        constraints=', '.join(n for n, c in EXTRACTORS.items() if c.searchable))),
+    'dask_scheduler': ('', string(
+        'address of an existing Dask scheduler to evaluate the candidates on, e.g. '
+        'tcp://HOST:8786 (empty = locally, with n_jobs processes); same results')),
+    'dask_timeout_s': (DEFAULT_TIMEOUT_S, floating(
+        'a goal aborts when the Dask scheduler cannot be reached, or has no connection '
+        'or no workers, for this long', 1.0, 3600.0)),
+}
+
+
 class _Cancelled(Exception):
     pass
 
@@ -48,27 +71,7 @@ def goal_options(goal, n_jobs: int, refine_top: int = REFINE_TOP,
 class TrainerNode(Node):
     def __init__(self, node_name: str = TRAINER_NODE, **kwargs):
         super().__init__(node_name, **kwargs)
-        self.p = declare_parameters(self, {
-            # 1..256: a range cannot hold -1 ("all cores") without 0, which means nothing to
-            # joblib; the default is all the cores this process may use
-            'n_jobs': (min(usable_cores(), MAX_JOBS), integer(
-                'joblib worker processes for candidate evaluation (default: the cores this '
-                'process may use)', 1, MAX_JOBS)),
-            'refine_top': (REFINE_TOP, integer(
-                'greedy: candidates per column re-scored with the exact linear SVM after the '
-                'ridge screen (0 = the screen picks)', 0, SITE_CANDIDATES)),
-            'features': (DEFAULT_EXTRACTOR, string(
-                'feature extractor the search scores with and the trained classifier uses: '
-                'hog_grid (the paper\'s), intensity_stats (objects placed any way), pooled_hog, '
-                'pooled_hog_stats or pose_hog (docs/SEARCH.md); a bad name aborts the goal',
-                constraints=', '.join(n for n, c in EXTRACTORS.items() if c.searchable))),
-            'dask_scheduler': ('', string(
-                'address of an existing Dask scheduler to evaluate the candidates on, e.g. '
-                'tcp://HOST:8786 (empty = locally, with n_jobs processes); same results')),
-            'dask_timeout_s': (DEFAULT_TIMEOUT_S, floating(
-                'a goal aborts when the Dask scheduler cannot be reached, or has no connection '
-                'or no workers, for this long', 1.0, 3600.0)),
-        })
+        self.p = declare_parameters(self, PARAMETERS)
         self._busy = threading.Lock()
         self._server = ActionServer(self, Train, TRAIN_ACTION, execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,

@@ -18,15 +18,40 @@ METHODS = ('greedy', 'snr_optimal', 'naive')
 MODES = ('per_colour', 'joint')
 
 
-def check_options(method: str, mode: str, noise: str, max_images: int, repeats: int) -> None:
+# Random splits per candidate: the paper's 400 take ~3 min for the default search on 2 cores
+# and the time grows in proportion; far beyond MAX_REPEATS a run would take days.
+PAPER_REPEATS = 400
+MAX_REPEATS = 10_000
+MAX_SEED = 2**32 - 1  # numpy's seeds
+
+
+def check_repeats(repeats: int) -> None:
+    """ValueError for a split count out of 1 .. MAX_REPEATS, with what it would cost."""
+    if not 1 <= repeats <= MAX_REPEATS:
+        cost = (f'; the search time grows in proportion: {repeats} would take about '
+                f'{repeats / PAPER_REPEATS:.3g} x the time of the paper\'s {PAPER_REPEATS}'
+                if repeats > MAX_REPEATS else '')
+        raise ValueError(f'repeats (random splits per candidate) must be 1 .. {MAX_REPEATS}, got '
+                         f'{repeats}{cost}')
+
+
+def check_seed(seed: int) -> None:
+    if not 0 <= seed <= MAX_SEED:
+        raise ValueError(f'seed must be 0 .. {MAX_SEED} (a numpy seed), got {seed}')
+
+
+def check_options(method: str, mode: str, noise: str, max_images: int, repeats: int,
+                  seed: int = 0) -> None:
     """Raise ValueError naming the first bad option and the allowed values."""
     if method not in METHODS:
         raise ValueError(f'unknown method {method!r}; use one of {", ".join(METHODS)}')
     if mode not in MODES:
         raise ValueError(f'unknown mode {mode!r}; use one of {", ".join(MODES)}')
     resolve_noise(noise)  # ValueError naming the problem (unknown preset, bad noise file)
-    if max_images < 1 or repeats < 1:
-        raise ValueError(f'max_images and repeats must be >= 1, got {max_images} and {repeats}')
+    if max_images < 1:
+        raise ValueError(f'max_images must be >= 1, got {max_images}')
+    check_repeats(repeats)
+    check_seed(seed)
 
 
 class ArtifactNotWritten(OSError):
@@ -39,16 +64,27 @@ class ArtifactNotWritten(OSError):
         self.summary = summary
 
 
-def check_artifact_path(out_path) -> Path:
+def check_artifact_path(out_path, force: bool = False) -> Path:
     """Refuse, before any work, an artifact path that cannot take the file: a folder, a path
     under a regular file, a folder this user cannot create files in (checked by creating
-    one). Raises ValueError naming the path and what to do."""
+    one), and an existing file that is not a trained artifact (a capture's rig.yaml, any user
+    file) unless `force`; an artifact is replaced (retraining). Raises ValueError naming the
+    path and what to do."""
     from lightstage_camera.errors import DestinationError
     from lightstage_camera.output_files import check_output_file
     try:
-        return check_output_file(out_path, overwrite=True)
+        path = check_output_file(out_path, overwrite=True)
     except DestinationError as exc:
         raise ValueError(f'cannot write the artifact {out_path}: {exc}') from None
+    if not force and (path.exists() or path.is_symlink()):
+        from mux_classifier.artifact import ArtifactError, TrainedArtifact
+        try:
+            TrainedArtifact.load(path)
+        except ArtifactError as exc:
+            raise ValueError(f'{out_path} exists and is not a trained artifact ({exc}); '
+                             'training would replace it: give another --out, or --force to '
+                             'replace it all the same') from None
+    return path
 
 
 def _save_artifact(artifact, out: Path, summary: dict) -> None:
@@ -139,7 +175,7 @@ def train_from_capture(capture_dir, out_path, *, image_size: int = 120, dask_sch
         image_size = hog_config.image_size
     check_options(options.get('method', 'greedy'), options.get('mode', 'per_colour'),
                   options.get('noise', 'sigma3'), options.get('max_images', 8),
-                  options.get('repeats', 400))
+                  options.get('repeats', 400), options.get('seed', 0))
     check_jobs(options.get('n_jobs', 1))
     check_features(options.get('features', 'hog_grid'))
     check_artifact_path(out_path)
@@ -148,15 +184,16 @@ def train_from_capture(capture_dir, out_path, *, image_size: int = 120, dask_sch
         return train_modelset(modelset, out_path, capture=capture_dir, **options)
 
 
-def train_modelset(modelset, out_path, *, capture=None, **options) -> dict:
+def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **options) -> dict:
     """Fit `build_model(**options)` on a ModelSet and save its artifact to `out_path`.
 
     Returns a JSON-ready summary: method, mode, noise, artifact path, class names, patterns,
     images per pattern, split accuracy by column count, best column count, seconds. The
     artifact path is checked first; an artifact that cannot be written at the end after all
-    is kept in a rescue folder (ArtifactNotWritten, an OSError, says where).
+    is kept in a rescue folder (ArtifactNotWritten, an OSError, says where). `force`: replace
+    an existing file that is not an artifact.
     """
-    out = check_artifact_path(out_path)
+    out = check_artifact_path(out_path, force)
     model = build_model(**options)
     t0 = time.perf_counter()
     model.fit(modelset)

@@ -138,7 +138,7 @@ def test_noise_file_round_trip_and_errors(tmp_path):
     (tmp_path / 'bad.yaml').write_text('kind: lightstage-noise-calibration\nversion: 1\n'
                                        'noise_model: {sigma_p2: -1, sigma_r2: 3, gain_db: 1, '
                                        'exposure_ms: 2}\n')
-    with pytest.raises(NoiseFileError, match='sigma_p2 must be'):
+    with pytest.raises(NoiseFileError, match=r'noise_model.sigma_p2 = -1.0 is out of range'):
         load_noise_file(tmp_path / 'bad.yaml')
 
 

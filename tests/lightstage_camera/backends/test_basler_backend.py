@@ -219,3 +219,13 @@ def test_hardware_triggered_frames_pair_with_triggers_announced_after_them(backe
     assert lost.trigger.sequence == 3
     assert lost.reason.startswith('the frame was taken at 6.00 dB, the trigger asked for 12.00 dB')
     assert b.actual_gain_db == pytest.approx(12.0, abs=0.01)   # set for the next triggers
+
+
+def test_no_camera_at_all_names_the_serial_number_asked_for(monkeypatch):
+    """Issue 23: `serial_number: NOT-A-SERIAL` with no camera said `no Basler camera found`."""
+    from types import SimpleNamespace
+    stub = SimpleNamespace(serial_number='NOT-A-SERIAL', transport_layer='',
+                           _devices=lambda pylon: (None, []))
+    with pytest.raises(CameraError, match="no Basler camera found \\(looking for serial number "
+                                          "'NOT-A-SERIAL'\\): is it plugged in"):
+        BaslerBackend._device_open(stub)
