@@ -24,7 +24,6 @@
 enum { IDLE, RUNNING, FINISHED };
 
 static volatile uint8_t state;
-static volatile uint8_t rearm; /* the compare-A interrupt left the next edge to arm */
 static schedule_t schedule;
 static uint8_t next_step;           /* the step the chain holds the word of */
 static uint32_t start_ticks;        /* 32-bit tick of the rising edge */
@@ -95,18 +94,22 @@ static inline void end_edges(void)
 }
 
 /* Latch every edge due within `window` ticks (interrupts disabled), each on its exact
- * tick; returns 1 when the end has been latched, else 0 with the next edge further away. */
+ * tick; returns 1 when the end has been latched, else 0 with the next edge further away.
+ * window 0: every edge up to the end (a synchronous exposure: no clock reads, whose time
+ * the shortest exposure cannot spare). */
 static void arm_next(void);
 
 static uint8_t run_edges(uint32_t window)
 {
     for (;;) {
-        uint32_t ovf;
-        uint16_t tcnt;
-        clock_read_wide_unlocked(&ovf, &tcnt);
         uint32_t at = next_edge();
-        if ((int32_t)(at - ((ovf << 16) | tcnt)) > (int32_t)window)
-            return 0;
+        if (window) {
+            uint32_t ovf;
+            uint16_t tcnt;
+            clock_read_wide_unlocked(&ovf, &tcnt);
+            if ((int32_t)(at - ((ovf << 16) | tcnt)) > (int32_t)window)
+                return 0;
+        }
         if (next_step >= schedule.steps) {
             end_edges();
             return 1;
@@ -162,7 +165,7 @@ void exposure_start(const uint8_t *levels, uint32_t word, uint32_t exposure_us)
     shift_next();
 
     state = RUNNING;
-    if (run_edges(exposure_ticks <= SYNC_MAX_TICKS ? SYNC_MAX_TICKS : 2 * EARLY_TICKS))
+    if (run_edges(exposure_ticks <= SYNC_MAX_TICKS ? 0 : 2 * EARLY_TICKS))
         state = FINISHED;
     else
         arm_next();
@@ -170,11 +173,12 @@ void exposure_start(const uint8_t *levels, uint32_t word, uint32_t exposure_us)
 }
 
 /* Compare A EARLY_TICKS before the next edge (interrupts disabled; the edge is more than
- * 2 * EARLY_TICKS ahead). */
+ * 2 * EARLY_TICKS ahead).  A stale OCF1A flag is not cleared: it costs one early interrupt
+ * that finds nothing due, while writing TIFR1 lost a pending overflow flag under simavr
+ * (the 32-bit clock then ran a 65536-tick round behind). */
 static void arm_next(void)
 {
     OCR1A = (uint16_t)((uint16_t)next_edge() - EARLY_TICKS);
-    TIFR1 = _BV(OCF1A);
     TIMSK1 |= _BV(OCIE1A);
 }
 
@@ -186,10 +190,7 @@ ISR(TIMER1_COMPA_vect)
         TIMSK1 &= (uint8_t)~_BV(OCIE1A);
         state = FINISHED;
     } else if (next_step) {
-        /* after a graded step the next compare is armed from the main loop
-         * (exposure_poll): rewriting OCR1A inside this interrupt missed matches under simavr */
-        TIMSK1 &= (uint8_t)~_BV(OCIE1A);
-        rearm = 1;
+        arm_next();
     }
 }
 
@@ -204,10 +205,9 @@ uint8_t exposure_poll(void)
     clock_read_wide_unlocked(&ovf, &tcnt);
     int32_t left = (int32_t)(next_edge() - ((ovf << 16) | tcnt));
     /* The main loop stays awake within 2 ms of an edge and latches it itself if the
-     * compare interrupt has not (a safety net: simavr was seen to miss a compare match
-     * after OCR1A was rewritten, which would have cost a whole 32.8 ms timer round). */
-    if (rearm || left <= (int32_t)(2 * EARLY_TICKS)) {
-        rearm = 0;
+     * compare interrupt has not come (a safety net: a missed match would cost a whole
+     * 32.8 ms timer round). */
+    if (left <= (int32_t)(2 * EARLY_TICKS)) {
         if (run_edges(2 * EARLY_TICKS)) {
             TIMSK1 &= (uint8_t)~_BV(OCIE1A);
             state = FINISHED;
@@ -246,7 +246,6 @@ void exposure_abort_all_off(void)
     TIMSK1 &= (uint8_t)~_BV(OCIE1A);
     PIN_LOW(PIN_TRIGGER);
     state = IDLE;
-    rearm = 0;
     SREG = sreg;
     chain_show(0);
 }

@@ -19,9 +19,9 @@ void exposure_init(void);
  * lights `word` for the whole exposure.  Short exposures finish before this returns. */
 void exposure_start(const uint8_t *levels, uint32_t word, uint32_t exposure_us);
 uint8_t exposure_running(void);
-/* Main-loop side of a running exposure: arms the next edge of a graded one when its
- * interrupt asked for it, and latches an edge that is due; returns 1 while an edge is
- * less than 2 ms away (the main loop then stays awake). */
+/* Main-loop side of a running exposure: latches an edge that is due if its compare
+ * interrupt has not; returns 1 while an edge is less than 2 ms away (the main loop then
+ * stays awake). */
 uint8_t exposure_poll(void);
 /* Nonzero when an exposure has ended and exposure_take_finished() has not been called. */
 uint8_t exposure_finished(void);

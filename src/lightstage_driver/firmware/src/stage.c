@@ -174,8 +174,8 @@ static uint8_t exposure_in_range(uint32_t us)
 static void set_armed_word(uint32_t word)
 {
     armed = word;
-    for (uint8_t i = 0; i < LED_COUNT; i++)
-        armed_levels[i] = (word >> i) & 1 ? LEVEL_FULL : 0;
+    for (uint8_t i = 0; i < LED_COUNT; i++, word >>= 1)
+        armed_levels[i] = word & 1 ? LEVEL_FULL : 0;
 }
 
 static void sequence_finish(uint8_t status)
@@ -228,11 +228,12 @@ static void do_set_pattern(void)
     uint8_t flags = frame.payload[0];
     if (flags & (uint8_t)~FLAG_SHOW_NOW)
         return nak(NAK_BAD_FLAGS, flags, 1);
-    set_armed_word(get_u32(frame.payload + 1));
+    uint32_t word = get_u32(frame.payload + 1);
     if (flags & FLAG_SHOW_NOW) {
-        chain_show(armed);
-        lit = armed;
+        chain_show(word);
+        lit = word;
     }
+    set_armed_word(word);
     reply_u32(clock_us());
 }
 
