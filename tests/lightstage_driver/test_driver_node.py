@@ -192,10 +192,10 @@ def test_bad_request_is_refused_and_nothing_is_sent(rig):
     bad[6] = 1.7
     response = client.apply([eye(1), bad])
     assert not response.success
-    assert 'pattern 1, LED 6 (site 1, channel 2) is above 1: 1.7' in response.message
+    assert 'patterns[1].intensities[6] (site 1, channel 2) is above 1: 1.7;' in response.message
     assert 'nothing was sent' in response.message
     response = client.apply([eye(1)], exposure_us=5)
-    assert not response.success and 'exposure_us of pattern 0 5 us is outside' in response.message
+    assert not response.success and 'patterns[0].exposure_us 5 us is outside' in response.message
     time.sleep(0.1)
     assert backend.led_words() == [] and backend.trigger_pulses() == []
 
