@@ -36,9 +36,12 @@ def check_request(patterns, default_exposure_us: int, min_exposure_us: int, max_
     for k, pattern in enumerate(patterns):
         field = f'patterns[{k}]'
         try:
-            row = np.asarray(pattern.intensities, dtype=np.float64).reshape(-1)
+            row = np.asarray(pattern.intensities, dtype=np.float64)
         except (TypeError, ValueError) as exc:
             raise PatternError(f'{field}.intensities must be {LED_COUNT} numbers: {exc}') from exc
+        if row.ndim != 1:
+            raise PatternError(f'{field}.intensities must be a flat list of {LED_COUNT} numbers, got shape '
+                               f'{row.shape}')
         if row.shape != (LED_COUNT,):
             raise PatternError(f'{field}.intensities has {row.size} values; it needs exactly {LED_COUNT} '
                                f'(site-major, led = site * 4 + channel)')
