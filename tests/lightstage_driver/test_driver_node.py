@@ -192,7 +192,7 @@ def test_bad_request_is_refused_and_nothing_is_sent(rig):
     bad[6] = 1.7
     response = client.apply([eye(1), bad])
     assert not response.success
-    assert 'patterns[1].intensities[6] (site 1, channel 2) is above 1: 1.7;' in response.message
+    assert 'patterns[1].intensities[6]: pattern 1, LED 6 (site 1, channel 2) is above 1: 1.7;' in response.message
     assert 'nothing was sent' in response.message
     response = client.apply([eye(1)], exposure_us=5)
     assert not response.success and 'patterns[0].exposure_us 5 us is outside' in response.message
@@ -405,6 +405,7 @@ def test_every_bad_request_field_is_refused_by_name_and_the_node_serves_on(rig):
     range, graded drives on this on/off board: each refused naming the field, nothing sent."""
     backend, proc, client = rig
     assert client.apply([eye(0)], trigger=False).success
+    assert wait_until(lambda: backend.current_word() == 1, 2.0)    # its latch reported
     backend.reset_observations()
 
     def send(intensities=None, exposure_us=1000, gain_db=12.0):
@@ -421,10 +422,10 @@ def test_every_bad_request_field_is_refused_by_name_and_the_node_serves_on(rig):
         pattern[led] = value
         return pattern
 
-    cases = [(dict(intensities=with_led(3, np.nan)), 'patterns[0].intensities[3] (site 0, channel 3) is NaN'),
-             (dict(intensities=with_led(4, np.inf)), 'patterns[0].intensities[4] (site 1, channel 0) is infinite'),
-             (dict(intensities=with_led(5, -1.0)), 'patterns[0].intensities[5] (site 1, channel 1) is negative'),
-             (dict(intensities=with_led(6, 3e38)), 'patterns[0].intensities[6] (site 1, channel 2) is above 1'),
+    cases = [(dict(intensities=with_led(3, np.nan)), 'patterns[0].intensities[3]: pattern 0, LED 3 (site 0, channel 3) is NaN'),
+             (dict(intensities=with_led(4, np.inf)), 'patterns[0].intensities[4]: pattern 0, LED 4 (site 1, channel 0) is infinite'),
+             (dict(intensities=with_led(5, -1.0)), 'patterns[0].intensities[5]: pattern 0, LED 5 (site 1, channel 1) is negative'),
+             (dict(intensities=with_led(6, 3e38)), 'patterns[0].intensities[6]: pattern 0, LED 6 (site 1, channel 2) is above 1'),
              (dict(exposure_us=2**32 - 1), 'patterns[0].exposure_us 4294967295 us is outside the firmware range'),
              (dict(exposure_us=19), 'patterns[0].exposure_us 19 us is outside'),
              (dict(gain_db=float('inf')), 'patterns[0].gain_db inf is outside 0..48 dB'),

@@ -71,10 +71,10 @@ def test_every_field_is_checked_and_a_refusal_names_it(request_patterns):
 def test_each_field_names_itself():
     good = dict(intensities=[0.5] * 32, exposure_us=1000, gain_db=math.nan)
     cases = [({'intensities': [0.5] * 31}, 'patterns[0].intensities has 31 values'),
-             ({'intensities': [math.nan] + [0.0] * 31}, 'patterns[0].intensities[0] (site 0, channel 0) is NaN'),
-             ({'intensities': [0.0] * 31 + [math.inf]}, 'patterns[0].intensities[31] (site 7, channel 3) is infinite'),
-             ({'intensities': [0.0, -0.1] + [0.0] * 30}, 'patterns[0].intensities[1] (site 0, channel 1) is negative'),
-             ({'intensities': [0.0] * 5 + [1.5] + [0.0] * 26}, 'intensities[5] (site 1, channel 1) is above 1'),
+             ({'intensities': [math.nan] + [0.0] * 31}, 'patterns[0].intensities[0]: pattern 0, LED 0 (site 0, channel 0) is NaN'),
+             ({'intensities': [0.0] * 31 + [math.inf]}, 'patterns[0].intensities[31]: pattern 0, LED 31 (site 7, channel 3) is infinite'),
+             ({'intensities': [0.0, -0.1] + [0.0] * 30}, 'patterns[0].intensities[1]: pattern 0, LED 1 (site 0, channel 1) is negative'),
+             ({'intensities': [0.0] * 5 + [1.5] + [0.0] * 26}, 'LED 5 (site 1, channel 1) is above 1'),
              ({'exposure_us': 2**32 - 1}, 'patterns[0].exposure_us 4294967295 us is outside the firmware range'),
              ({'exposure_us': 5}, 'patterns[0].exposure_us 5 us is outside'),
              ({'gain_db': math.inf}, 'patterns[0].gain_db inf is outside 0..48 dB'),

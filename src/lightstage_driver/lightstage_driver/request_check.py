@@ -49,7 +49,7 @@ def check_request(patterns, default_exposure_us: int, min_exposure_us: int, max_
                           ('above 1', row > 1)):
             if bad.any():
                 led = int(np.flatnonzero(bad)[0])
-                raise PatternError(f'{field}.intensities[{led}] (site {led // 4}, channel {led % 4}) is '
+                raise PatternError(f'{field}.intensities[{led}]: pattern {k}, LED {led} (site {led // 4}, channel {led % 4}) is '
                                    f'{what}: {row[led]:.7g}; LED drives must be in [0, 1]')
         rows.append(row)
         exposure = pattern.exposure_us
