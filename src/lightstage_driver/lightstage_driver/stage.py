@@ -167,9 +167,10 @@ class LightStage:
 
     def _send_pattern(self, pattern: np.ndarray, show_now: bool) -> p.Reply:
         ident = self.identity
-        if ident.pwm_bits:
+        if ident.pwm_bits and ((pattern != 0) & (pattern != 1)).any():
             payload = p.pack_set_levels(pattern_levels(pattern, ident.pwm_bits), show_now)
             return self.link.transact(p.Command.SET_LEVELS, payload)
+        # on/off patterns take the short SET_PATTERN on any board
         return self.link.transact(p.Command.SET_PATTERN, p.pack_set_pattern(pattern_word(pattern), show_now))
 
     def set_pattern(self, pattern, show_now: bool = True) -> int:
