@@ -1,11 +1,21 @@
 #include "schedule.h"
 
+/* x / 255 for x < 65535, without a division */
+static inline uint16_t div255(uint16_t x)
+{
+    return (uint16_t)(x + 1 + (x >> 8)) >> 8;
+}
+
+/* round(level * ticks / 255) without a 40-bit product, ticks = q * 255 + r */
+static inline uint32_t off_tick(uint8_t level, uint32_t q, uint16_t r)
+{
+    return level * q + div255((uint16_t)(level * r + LEVEL_FULL / 2));
+}
+
 uint32_t schedule_off_tick(uint8_t level, uint32_t ticks)
 {
-    /* round(level * ticks / 255) without a 40-bit product: ticks = q * 255 + r */
     uint32_t q = ticks / LEVEL_FULL;
-    uint16_t r = (uint16_t)(ticks - q * LEVEL_FULL);
-    return level * q + (uint16_t)(level * r + LEVEL_FULL / 2) / LEVEL_FULL;
+    return off_tick(level, q, (uint16_t)(ticks - q * LEVEL_FULL));
 }
 
 /* Drop `mask` from the word latched last (the rising edge's when there is no step yet). */
@@ -39,14 +49,20 @@ void schedule_build(schedule_t *s, const uint8_t *levels, uint32_t ticks)
     }
     s->rise_word = word;
     s->steps = 0;
+    uint32_t q = ticks / LEVEL_FULL; /* the one 32-bit division */
+    uint16_t r = (uint16_t)(ticks - q * LEVEL_FULL);
     uint32_t last = 0; /* tick of the last latch (0: the rising edge) */
     uint8_t i = 0;
+    uint32_t t_i = n ? off_tick(levels[order[0]], q, r) : 0; /* off-instant of order[i] */
     while (i < n) {
         /* one group: every LED whose off-instant is this tick */
-        uint32_t t = schedule_off_tick(levels[order[i]], ticks);
+        uint32_t t = t_i;
         uint32_t mask = 0;
-        while (i < n && schedule_off_tick(levels[order[i]], ticks) == t)
+        while (i < n && t_i == t) {
             mask |= 1UL << order[i++];
+            if (i < n)
+                t_i = off_tick(levels[order[i]], q, r);
+        }
         if (t >= ticks)
             break; /* these go dark with the trigger */
         uint32_t next = last + SHIFT_TICKS; /* the earliest next latch */
