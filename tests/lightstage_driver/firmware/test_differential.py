@@ -4,6 +4,7 @@ the same way: a seeded random script of valid, invalid, malformed and retried co
 the replies, events, LED words on the pins and each LED's on-time in each trigger pulse
 are compared (timestamps aside, which depend on when things happened)."""
 import struct
+import time
 
 import numpy as np
 import pytest
@@ -126,6 +127,11 @@ def play(backend, script):
             transcript += [normalise(f) for f in wire.frames if isinstance(f, p.Frame)]
             wire.frames.clear()
         wire.call(C.ALL_OFF)
+        # the observations come on their own channel (stdout): let the last ones in
+        counts = None
+        while counts != (len(backend.led_words()), len(backend.trigger_pulses())):
+            counts = (len(backend.led_words()), len(backend.trigger_pulses()))
+            time.sleep(0.2)
         words, pulses = backend.led_words(), backend.trigger_pulses()
         return transcript, [w.word for w in words], len(pulses), on_times_us(words, pulses)
     finally:
