@@ -26,7 +26,9 @@ FIRMWARE_VERSION = (1, 1, 0)
 
 @dataclass
 class FirmwareLimits:
-    """What the firmware reports in IDENTIFY (the AVR firmware's values by default)."""
+    """What the firmware reports in IDENTIFY: the AVR firmware's values by default, except
+    pwm_bits (0, an on/off board, as the authors' original rig; the AVR firmware from 1.1
+    reports 8: `sim://?pwm_bits=8`)."""
     pwm_bits: int = 0
     min_exposure_us: int = 20
     max_exposure_us: int = 2_000_000
