@@ -28,7 +28,7 @@ FIRE_EXPOSURE_US = 20     # shortest exposure: the figures are about the link, n
 def make_backend(kind: str, emulate_baud: int):
     if kind == 'python':
         from lightstage_driver.sim_backend import PythonSimBackend
-        return PythonSimBackend(emulate_baud=emulate_baud)
+        return PythonSimBackend(emulate_baud=emulate_baud, pwm_bits=8)   # graded, as the AVR firmware
     from lightstage_driver.simavr_backend import SimavrBackend
     return SimavrBackend()
 
@@ -60,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     backend.start()
     rng = np.random.default_rng(0)
     patterns = (rng.random((args.n, 32)) > 0.5).astype(float)
+    # graded: every LED at a level of its own (0..255 / 255)
+    graded = rng.integers(0, 256, size=(args.n, 32)) / 255.0
     try:
         with LightStage(backend.port, baud=args.baud, timeout_s=0.5) as stage:
             ident = stage.identity
@@ -85,6 +87,19 @@ def main(argv: list[str] | None = None) -> int:
                         + seq_len * FIRE_EXPOSURE_US / 1e3)
             rows.append((f'sequence of {seq_len} (RUN_SEQUENCE)',
                          timed(lambda i: stage.apply(seq_patterns, FIRE_EXPOSURE_US), n_seq), seq_line, seq_len))
+            rows.append(('graded apply (SET_LEVELS + FIRE)',
+                         timed(lambda i: stage.apply(graded[i], FIRE_EXPOSURE_US), args.n),
+                         line_ms(1 + 2 * 32, 4, args.baud) + line_ms(4, 8, args.baud, FIRE_EXPOSURE_US), 1))
+            # the table in 4-row frames, then RUN_LEVEL_SEQUENCE + reply + events
+            table_frames = -(-seq_len // p.TABLE_ROWS_PER_FRAME)
+            graded_line = (table_frames * line_ms(1 + 32 * p.TABLE_ROWS_PER_FRAME, 2, args.baud)
+                           + line_ms(5 + 5 * seq_len, 1, args.baud)
+                           + seq_len * p.line_seconds(p.frame_bytes(9), args.baud) * 1e3
+                           + p.line_seconds(p.frame_bytes(2), args.baud) * 1e3
+                           + seq_len * FIRE_EXPOSURE_US / 1e3)
+            rows.append((f'graded sequence of {seq_len} (level table)',
+                         timed(lambda i: stage.apply(graded[(i % (args.n // seq_len)) * seq_len:][:seq_len], FIRE_EXPOSURE_US),
+                               n_seq), graded_line, seq_len))
             stats = stage.link.stats
     finally:
         if hasattr(backend, 'close'):

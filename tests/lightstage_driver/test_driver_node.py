@@ -192,10 +192,10 @@ def test_bad_request_is_refused_and_nothing_is_sent(rig):
     bad[6] = 1.7
     response = client.apply([eye(1), bad])
     assert not response.success
-    assert 'pattern 1, LED 6 (site 1, channel 2) is above 1: 1.7' in response.message
+    assert 'patterns[1].intensities[6]: pattern 1, LED 6 (site 1, channel 2) is above 1: 1.7;' in response.message
     assert 'nothing was sent' in response.message
     response = client.apply([eye(1)], exposure_us=5)
-    assert not response.success and 'exposure_us of pattern 0 5 us is outside' in response.message
+    assert not response.success and 'patterns[0].exposure_us 5 us is outside' in response.message
     time.sleep(0.1)
     assert backend.led_words() == [] and backend.trigger_pulses() == []
 
@@ -398,3 +398,47 @@ def test_a_crashed_driver_does_not_leave_the_leds_on():
         client.close()
         stop_node(proc)
         backend.close()
+
+
+def test_every_bad_request_field_is_refused_by_name_and_the_node_serves_on(rig):
+    """Issue 23: NaN, infinite, negative, above-1 drives, exposures out of range, gains out of
+    range, graded drives on this on/off board: each refused naming the field, nothing sent."""
+    backend, proc, client = rig
+    assert client.apply([eye(0)], trigger=False).success
+    assert wait_until(lambda: backend.current_word() == 1, 2.0)    # its latch reported
+    backend.reset_observations()
+
+    def send(intensities=None, exposure_us=1000, gain_db=12.0):
+        request = ApplyPatterns.Request(trigger=True)
+        msg = Pattern()
+        msg.intensities = np.asarray(eye(1) if intensities is None else intensities, dtype=np.float32)
+        msg.exposure_us = exposure_us
+        msg.gain_db = gain_db
+        request.patterns.append(msg)
+        return client.call(client.apply_client, request)
+
+    def with_led(led, value):
+        pattern = eye(1)
+        pattern[led] = value
+        return pattern
+
+    cases = [(dict(intensities=with_led(3, np.nan)), 'patterns[0].intensities[3]: pattern 0, LED 3 (site 0, channel 3) is NaN'),
+             (dict(intensities=with_led(4, np.inf)), 'patterns[0].intensities[4]: pattern 0, LED 4 (site 1, channel 0) is infinite'),
+             (dict(intensities=with_led(5, -1.0)), 'patterns[0].intensities[5]: pattern 0, LED 5 (site 1, channel 1) is negative'),
+             (dict(intensities=with_led(6, 3e38)), 'patterns[0].intensities[6]: pattern 0, LED 6 (site 1, channel 2) is above 1'),
+             (dict(exposure_us=2**32 - 1), 'patterns[0].exposure_us 4294967295 us is outside the firmware range'),
+             (dict(exposure_us=19), 'patterns[0].exposure_us 19 us is outside'),
+             (dict(gain_db=float('inf')), 'patterns[0].gain_db inf is outside 0..48 dB'),
+             (dict(gain_db=-1.0), 'patterns[0].gain_db -1.0 is outside'),
+             (dict(gain_db=3e38), 'is outside 0..48 dB'),
+             (dict(intensities=with_led(9, 0.7)), 'is 0.699999988079071, a graded level, but the board')]
+    for fields, expected in cases:
+        response = send(**fields)
+        assert not response.success and expected in response.message, (fields, response.message)
+        assert 'nothing was sent' in response.message
+    time.sleep(0.1)
+    assert backend.led_words() == [] and backend.trigger_pulses() == []
+    # the camera default gain (NaN) and the driver default exposure (0) are fine
+    response = send(exposure_us=0, gain_db=float('nan'))
+    assert response.success, response.message
+    assert proc.poll() is None

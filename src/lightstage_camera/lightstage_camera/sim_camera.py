@@ -8,6 +8,10 @@ a Basler camera delivers 10-bit data: value << 6).
 
 As in the authors' released simulator the *mean* image does not depend on gain and
 exposure (exposure is taken to scale as 1/gain); gain and exposure change only the noise.
+With ``exposure_scales_light`` the mean is the light integrated over the exposure instead:
+the render times exposure_us / the rig's exposure_us (the exposure the models were captured
+at), so an LED at drive 0.5 for 10 ms gives the image of drive 1.0 for 5 ms, as a graded
+stage lights an LED for its level's fraction of the exposure.
 Noise is drawn at the model's full resolution, as a real camera's would be.
 """
 from __future__ import annotations
@@ -82,11 +86,14 @@ class SimCamera:
         Gain used when a capture asks for the camera default (NaN); None: the capture's.
     seed : int or None
         Noise seed (None: fresh entropy).
+    exposure_scales_light : bool
+        Scale the mean image by exposure_us / the rig's exposure_us (off: the authors'
+        exposure-independent mean).
     """
 
     def __init__(self, modelset: ModelSet, sample=0, noise='auto', dimmer: float = DEFAULT_DIMMER,
                  calibration: NoiseModel = PAPER_CALIBRATION, default_gain_db: float | None = None,
-                 seed: int | None = None):
+                 seed: int | None = None, exposure_scales_light: bool = False):
         if not isinstance(modelset, ModelSet):
             raise TypeError(f'SimCamera needs a ModelSet, got {type(modelset).__name__}')
         if not (math.isfinite(dimmer) and dimmer > 0):
@@ -98,6 +105,7 @@ class SimCamera:
         self.noise = parse_noise(noise)
         self.rng = np.random.default_rng(seed)
         self.sample_index = resolve_sample(modelset, sample)
+        self.exposure_scales_light = bool(exposure_scales_light)
 
     # ---- what is on the stage
     @property
@@ -145,6 +153,8 @@ class SimCamera:
     def capture_gray(self, led_intensities, exposure_us: float, gain_db: float = math.nan) -> np.ndarray:
         """One noisy frame in gray levels (float32, clipped, not quantised)."""
         mean = self.render(led_intensities)
+        if self.exposure_scales_light:
+            mean *= np.float32(exposure_us / self.modelset.rig.exposure_us)
         model = self.noise_model(exposure_us, gain_db)
         if model is None:
             return np.clip(mean, 0, self.modelset.max_level, out=mean)

@@ -40,6 +40,7 @@ from rclpy.qos import qos_profile_services_default
 from rclpy.service_introspection import ServiceIntrospectionState
 
 from .errors import DisconnectedError, FirmwareMismatchError, LightStageError, PatternError
+from .request_check import check_request, rounding_note
 from .sim_backend import backend_from_url, is_sim_url
 from .stage import LightStage, Trigger
 
@@ -361,12 +362,16 @@ class LightStageDriverNode(LifecycleNode):
             response.message = (f'the link to the stage is down ({self.link_down}); nothing was sent; '
                                 f'{self._recovery_plan()}: retry when /diagnostics reports "armed"')
             return response
-        if not request.patterns:
-            response.message = 'no patterns in the request: send at least one Pattern'
+        try:
+            ident = self.stage.identity
+            intensities, exposures = check_request(request.patterns, self.p('default_exposure_us'),
+                                                   ident.min_exposure_us, ident.max_exposure_us)
+        except PatternError as exc:
+            response.message = f'rejected, nothing was sent: {exc}'
             return response
-        intensities = np.array([np.asarray(pt.intensities, dtype=np.float64) for pt in request.patterns])
-        default = self.p('default_exposure_us')
-        exposures = [int(pt.exposure_us) or default for pt in request.patterns]
+        except Exception as exc:  # noqa: BLE001 (no request may take the node down)
+            response.message = f'rejected, nothing was sent: the request could not be read ({type(exc).__name__}: {exc})'
+            return response
         self.request_id += 1
         response.request_id = self.request_id
         published: list[Trigger] = []
@@ -408,8 +413,10 @@ class LightStageDriverNode(LifecycleNode):
             response.message = f'{len(triggers)} triggers but {len(published)} published'
             return response
         response.success = True
+        applied = [t.applied for t in triggers if t.applied is not None]
         response.message = f'{len(request.patterns)} pattern(s) applied' + \
-            (f', {len(triggers)} trigger(s)' if request.trigger else ' (no trigger)')
+            (f', {len(triggers)} trigger(s)' if request.trigger else ' (no trigger)') + \
+            rounding_note(intensities, applied, self.stage.identity.pwm_bits)
         return response
 
     def _ros_stamp(self, trigger: Trigger) -> Time:
@@ -428,9 +435,9 @@ class LightStageDriverNode(LifecycleNode):
         msg.request_id = self.request_id
         msg.index_in_request = trigger.index
         msg.count_in_request = count
-        # what was actually lit (on/off rigs threshold the requested drive)
-        if self.stage.identity.pwm_bits:
-            msg.intensities = np.asarray(pattern.intensities, dtype=np.float32)
+        # what the board applied: the drives rounded to its level steps (0/1 on an on/off board)
+        if trigger.applied is not None:
+            msg.intensities = np.asarray(trigger.applied, dtype=np.float32)
         else:
             msg.intensities = np.array([(trigger.word >> i) & 1 for i in range(32)], dtype=np.float32)
         msg.exposure_us = trigger.exposure_us

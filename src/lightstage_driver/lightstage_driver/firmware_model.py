@@ -7,7 +7,8 @@ real time; tests can drive it with a fake clock.
 
 The model's hardware timer is exact: a trigger pulse is exactly the requested exposure
 on the firmware clock (the real AVR firmware is tested for that to within one timer
-tick under simavr). Its outputs are reported through `on_latch(t_s, word)` and
+tick under simavr). Graded levels are on-times within the exposure, latched on the same
+schedule as the AVR firmware's (`schedule.build`). Its outputs are reported through `on_latch(t_s, word)` and
 `on_pulse(t_start_s, width_us)` on the firmware clock (seconds since boot).
 """
 from __future__ import annotations
@@ -16,15 +17,18 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from . import protocol as p
+from . import schedule as sched
 from .errors import PayloadError
 
 FIRMWARE_NAME = 'lightstage-pysim'
-FIRMWARE_VERSION = (1, 0, 0)
+FIRMWARE_VERSION = (1, 1, 0)
 
 
 @dataclass
 class FirmwareLimits:
-    """What the firmware reports in IDENTIFY (the AVR firmware's values by default)."""
+    """What the firmware reports in IDENTIFY: the AVR firmware's values by default, except
+    pwm_bits (0, an on/off board, as the authors' original rig; the AVR firmware from 1.1
+    reports 8: `sim://?pwm_bits=8`)."""
     pwm_bits: int = 0
     min_exposure_us: int = 20
     max_exposure_us: int = 2_000_000
@@ -58,6 +62,8 @@ class FirmwareModel:
         self.decoder = p.FrameDecoder()
         self.watchdog_ms = p.DEFAULT_WATCHDOG_MS
         self.armed_levels: tuple[int, ...] = (0,) * p.LED_COUNT
+        self.level_table = [(0,) * p.LED_COUNT for _ in range(self.limits.max_sequence)]
+        self._steps: list[tuple[float, int]] = []   # graded re-latches of the running exposure
         self.lit_word = 0
         self.trigger_high = False
         self.rx_errors = 0      # frames NAKed for a bad CRC (length / timeout drops: decoder)
@@ -191,7 +197,7 @@ class FirmwareModel:
         if cmd in (p.Command.SET_PATTERN, p.Command.SET_LEVELS):
             if cmd == p.Command.SET_PATTERN:
                 flags, word = p.unpack_set_pattern(payload)
-                levels = tuple(self.full_scale if word >> i & 1 else 0 for i in range(p.LED_COUNT))
+                levels = self._word_levels(word)
             else:
                 if not lim.pwm_bits:
                     return [self._nak(frame.seq, cmd, p.NakReason.UNSUPPORTED, cmd)]
@@ -209,19 +215,40 @@ class FirmwareModel:
             exposure = p.unpack_u32(payload, 'FIRE')
             if not lim.min_exposure_us <= exposure <= lim.max_exposure_us:
                 return [self._nak(frame.seq, cmd, p.NakReason.EXPOSURE_RANGE, exposure)]
-            self._start_exposure(now, self.armed_word)
+            self._start_exposure(now, self.armed_levels, exposure)
             self._fire = (frame.seq, cmd, now, now + exposure / 1e6)
             return []
-        if cmd == p.Command.RUN_SEQUENCE:
+        if cmd == p.Command.SET_LEVEL_TABLE:
+            if lim.pwm_bits != p.TABLE_LEVEL_BITS:
+                return [self._nak(frame.seq, cmd, p.NakReason.UNSUPPORTED, cmd)]
+            first, rows = p.unpack_level_table(payload)
+            if first + len(rows) > lim.max_sequence:
+                return [self._nak(frame.seq, cmd, p.NakReason.ROW_RANGE, first + len(rows) - 1)]
+            self.level_table[first:first + len(rows)] = rows
+            return [self._reply(frame, bytes((first, len(rows))))]
+        if cmd in (p.Command.RUN_SEQUENCE, p.Command.RUN_LEVEL_SEQUENCE):
+            graded = cmd == p.Command.RUN_LEVEL_SEQUENCE
+            if graded and lim.pwm_bits != p.TABLE_LEVEL_BITS:
+                return [self._nak(frame.seq, cmd, p.NakReason.UNSUPPORTED, cmd)]
             gap_us, count = p.unpack_sequence_header(payload)
             if not 1 <= count <= lim.max_sequence:
                 return [self._nak(frame.seq, cmd, p.NakReason.SEQUENCE_LENGTH, count)]
-            entries = p.unpack_sequence_entries(payload, count)
+            if graded:
+                raw = p.unpack_level_sequence_entries(payload, count)
+            else:
+                raw = p.unpack_sequence_entries(payload, count)
             if gap_us > p.MAX_GAP_US:
                 return [self._nak(frame.seq, cmd, p.NakReason.GAP_RANGE, gap_us)]
-            for entry in entries:
+            if graded:
+                for entry in raw:
+                    if entry.row >= lim.max_sequence:
+                        return [self._nak(frame.seq, cmd, p.NakReason.ROW_RANGE, entry.row)]
+            for entry in raw:
                 if not lim.min_exposure_us <= entry.exposure_us <= lim.max_exposure_us:
                     return [self._nak(frame.seq, cmd, p.NakReason.EXPOSURE_RANGE, entry.exposure_us)]
+            # every entry as (levels, exposure): on/off words are levels of 0 or full scale
+            entries = [(self.level_table[e.row] if graded else self._word_levels(e.word), e.exposure_us)
+                       for e in raw]
             self._seq = {'seq': frame.seq, 'entries': entries, 'gap_s': gap_us / 1e6, 'index': 0,
                          'exposing': False, 'next_time': now, 't_start': now}
             out = [self._reply(frame, bytes((count,)))]
@@ -242,12 +269,26 @@ class FirmwareModel:
             return [self._reply(frame, payload)]
         return [self._nak(frame.seq, cmd, p.NakReason.UNKNOWN_COMMAND, cmd)]
 
+    def _word_levels(self, word: int) -> tuple[int, ...]:
+        return tuple(self.full_scale if word >> i & 1 else 0 for i in range(p.LED_COUNT))
+
     # ------------------------------------------------------------------ timed work
-    def _start_exposure(self, now: float, word: int) -> None:
-        self._latch(now, word)
+    def _start_exposure(self, now: float, levels, exposure_us: int) -> None:
+        schedule = sched.build(levels, exposure_us * sched.TICKS_PER_US, self.full_scale)
+        self._latch(now, schedule.rise_word)
+        # the LED word stays "lit" until the end (as the firmware's HEARTBEAT reports it);
+        # the re-latches are reported when they are due (`_emit_steps`)
+        self.lit_word = levels_to_word(levels)
+        self._steps = [(now + at / (sched.TICKS_PER_US * 1e6), word) for at, word in schedule.steps]
         self.trigger_high = True
 
+    def _emit_steps(self, until: float) -> None:
+        while self._steps and self._steps[0][0] < until:
+            t, word = self._steps.pop(0)
+            self.on_latch(self._fw_s(t), word)
+
     def _end_exposure(self, t_start: float, t_end: float) -> None:
+        self._emit_steps(t_end)
         self.trigger_high = False
         self._latch(t_end, 0)
         self.on_pulse(self._fw_s(t_start), (t_end - t_start) * 1e6)
@@ -258,6 +299,8 @@ class FirmwareModel:
         if self._seq is not None:
             seq = self._seq
             if seq['exposing']:
+                self._emit_steps(now)
+                self._steps = []
                 self.trigger_high = False
                 self.on_pulse(self._fw_s(seq['t_start']), (now - seq['t_start']) * 1e6)
             out.append(p.encode_frame(seq['seq'], p.Event.SEQUENCE_DONE,
@@ -283,14 +326,14 @@ class FirmwareModel:
             out += self._handle_items(pending, now)
         while self._seq is not None and now >= self._seq['next_time']:
             seq = self._seq
-            entry = seq['entries'][seq['index']]
+            levels, exposure_us = seq['entries'][seq['index']]
             if not seq['exposing']:
                 # times are kept on the ideal (hardware timer) schedule, not the poll time
                 t_start = seq['next_time']
-                self._start_exposure(t_start, entry.word)
+                self._start_exposure(t_start, levels, exposure_us)
                 seq['t_start'] = t_start
                 seq['exposing'] = True
-                seq['next_time'] = t_start + entry.exposure_us / 1e6
+                seq['next_time'] = t_start + exposure_us / 1e6
                 continue
             t_end = seq['next_time']
             self._end_exposure(seq['t_start'], t_end)

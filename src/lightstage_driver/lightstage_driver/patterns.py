@@ -1,9 +1,11 @@
 """Checking LED patterns and exposures before anything is sent to the stage.
 
 An LED pattern is a length-32 vector of relative drives in [0, 1], site-major
-(`led = site * 4 + channel`). On an on/off rig a drive above 0.5 is on (as in
-lightstage_interfaces/msg/Pattern.msg); with PWM it is scaled to the firmware's levels.
-Every check raises `PatternError` naming the offending value; nothing is sent on error.
+(`led = site * 4 + channel`). A board with graded levels (`pwm_bits` > 0) gets them
+rounded to its steps (level = round(drive * (2^pwm_bits - 1)), an on-time of level /
+full scale of the exposure); an on/off board takes only 0 and 1 and refuses anything in
+between (`check_on_off`) rather than thresholding it. Every check raises `PatternError`
+naming the offending value; nothing is sent on error.
 """
 from __future__ import annotations
 
@@ -40,6 +42,25 @@ def validate_patterns(patterns, led_count: int = LED_COUNT) -> np.ndarray:
             raise PatternError(f'pattern {k}, LED {led} (site {led // 4}, channel {led % 4}) is {what}: '
                                f'{float(array[k, led])!r}; LED drives must be in [0, 1]')
     return array
+
+
+def check_on_off(array: np.ndarray, board: str) -> None:
+    """Refuse graded drives for an on/off board (pwm_bits 0): every value must be 0 or 1."""
+    graded = (array != 0) & (array != 1)
+    if graded.any():
+        k, led = map(int, np.argwhere(graded)[0])
+        raise PatternError(f'pattern {k}, LED {led} (site {led // 4}, channel {led % 4}) is '
+                           f'{float(array[k, led])!r}, a graded level, but {board} switches LEDs '
+                           f'on/off only (pwm_bits 0): send 0 or 1, or use firmware with graded '
+                           f'levels (pwm_bits 8, firmware 1.1 or later)')
+
+
+def applied_drives(pattern: np.ndarray, pwm_bits: int) -> np.ndarray:
+    """The drives a board actually applies: rounded to its level steps (0/1 when on/off)."""
+    if not pwm_bits:
+        return np.asarray(pattern > ON_THRESHOLD, dtype=np.float64)
+    full = (1 << pwm_bits) - 1
+    return np.array(pattern_levels(pattern, pwm_bits), dtype=np.float64) / full
 
 
 def pattern_word(pattern: np.ndarray) -> int:

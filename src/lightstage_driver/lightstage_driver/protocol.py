@@ -28,6 +28,8 @@ MAX_GAP_US = 1_000_000
 WATCHDOG_RANGE_MS = (50, 60000)
 DEFAULT_WATCHDOG_MS = 1000
 SHOW_NOW = 0x01
+TABLE_LEVEL_BITS = 8        # SET_LEVEL_TABLE carries 8-bit levels (firmware with pwm_bits 8)
+TABLE_ROWS_PER_FRAME = (MAX_PAYLOAD - 1) // LED_COUNT   # 4
 NAME_MAX = 16
 
 
@@ -40,6 +42,8 @@ class Command(enum.IntEnum):
     RUN_SEQUENCE = 0x06
     ALL_OFF = 0x07
     SET_WATCHDOG = 0x08
+    SET_LEVEL_TABLE = 0x09
+    RUN_LEVEL_SEQUENCE = 0x0A
 
 
 class Event(enum.IntEnum):
@@ -61,6 +65,7 @@ class NakReason(enum.IntEnum):
     WATCHDOG_RANGE = 9
     BAD_FLAGS = 10
     GAP_RANGE = 11
+    ROW_RANGE = 12
 
 
 class SequenceStatus(enum.IntEnum):
@@ -81,6 +86,7 @@ NAK_EXPLANATIONS = {
     NakReason.WATCHDOG_RANGE: 'watchdog timeout outside 50..60000 ms',
     NakReason.BAD_FLAGS: 'reserved flag bits were set',
     NakReason.GAP_RANGE: 'sequence gap_us above 1000000',
+    NakReason.ROW_RANGE: 'a level-table row outside 0..max_sequence - 1',
 }
 
 # CRC-16/CCITT-FALSE, table-driven (poly 0x1021, init 0xFFFF, no reflection, no xorout)
@@ -411,6 +417,37 @@ def unpack_sequence_header(payload: bytes) -> tuple[int, int]:
 def unpack_sequence_entries(payload: bytes, count: int) -> list[SequenceEntry]:
     _expect(payload, 5 + 8 * count, 'RUN_SEQUENCE')
     return [SequenceEntry(*struct.unpack_from('<II', payload, 5 + 8 * i)) for i in range(count)]
+
+
+@dataclass(frozen=True)
+class LevelSequenceEntry:
+    row: int             # row of the level table (SET_LEVEL_TABLE)
+    exposure_us: int
+
+
+def pack_level_table(first: int, rows) -> bytes:
+    """SET_LEVEL_TABLE: `first` row, then 1..4 rows of 32 levels 0..255."""
+    rows = [bytes(row) for row in rows]
+    if not 1 <= len(rows) <= TABLE_ROWS_PER_FRAME or any(len(r) != LED_COUNT for r in rows):
+        raise PayloadError(f'SET_LEVEL_TABLE takes 1..{TABLE_ROWS_PER_FRAME} rows of {LED_COUNT} levels')
+    return bytes((first,)) + b''.join(rows)
+
+
+def unpack_level_table(payload: bytes) -> tuple[int, list[tuple[int, ...]]]:
+    n = len(payload) - 1
+    if n < LED_COUNT or n % LED_COUNT:
+        raise PayloadError(f'SET_LEVEL_TABLE payload must be 1 + 32 x rows bytes, got {len(payload)}')
+    return payload[0], [tuple(payload[1 + k:1 + k + LED_COUNT]) for k in range(0, n, LED_COUNT)]
+
+
+def pack_level_sequence(gap_us: int, entries: list[LevelSequenceEntry]) -> bytes:
+    out = struct.pack('<IB', gap_us, len(entries))
+    return out + b''.join(struct.pack('<BI', e.row, e.exposure_us) for e in entries)
+
+
+def unpack_level_sequence_entries(payload: bytes, count: int) -> list[LevelSequenceEntry]:
+    _expect(payload, 5 + 5 * count, 'RUN_LEVEL_SEQUENCE')
+    return [LevelSequenceEntry(*struct.unpack_from('<BI', payload, 5 + 5 * i)) for i in range(count)]
 
 
 def frame_bytes(payload_len: int) -> int:

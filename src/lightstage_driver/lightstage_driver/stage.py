@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -16,7 +16,8 @@ from . import protocol as p
 from .clock import FirmwareClock
 from .errors import LinkError, PatternError, ProtocolError
 from .link import DEFAULT_BAUD, SerialLink
-from .patterns import lit_word, pattern_levels, pattern_word, validate_exposure, validate_patterns
+from .patterns import (applied_drives, check_on_off, lit_word, pattern_levels, pattern_word,
+                       validate_exposure, validate_patterns)
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,7 @@ class Trigger:
     firmware_us: int           # unwrapped firmware time of the trigger edge
     host_time_s: float         # the same instant on the host's time.monotonic() clock
     uncertainty_s: float       # half the best clock-probe round trip
+    applied: tuple[float, ...] | None = None   # the drives the board applied (rounded levels)
 
 
 class LightStage:
@@ -46,7 +48,7 @@ class LightStage:
         self._seq_events: list[p.TriggerEvent] = []
         self._seq_done: p.SequenceDone | None = None
         self._running_seq = -1
-        self._seq_entries: list[p.SequenceEntry] = []
+        self._seq_entries: list[tuple[int, int, tuple[float, ...]]] = []   # word, exposure, applied
         self._seq_first = 0
         self._seq_on_trigger: Callable[[Trigger], None] | None = None
 
@@ -86,9 +88,9 @@ class LightStage:
                 event = p.TriggerEvent.unpack(frame.payload)
                 self._seq_events.append(event)
                 if self._seq_on_trigger is not None and event.index < len(self._seq_entries):
-                    entry = self._seq_entries[event.index]
-                    self._seq_on_trigger(self._trigger(self._seq_first + event.index, entry.word,
-                                                       entry.exposure_us, event.t_trigger_us))
+                    word, exposure, applied = self._seq_entries[event.index]
+                    self._seq_on_trigger(self._trigger(self._seq_first + event.index, word,
+                                                       exposure, event.t_trigger_us, applied))
             elif frame.cmd == p.Event.SEQUENCE_DONE and frame.seq == self._running_seq:
                 self._seq_done = p.SequenceDone.unpack(frame.payload)
             elif frame.cmd == p.Event.WATCHDOG:
@@ -159,13 +161,16 @@ class LightStage:
                                f'exposure per pattern (or a single one for all)')
         checked = [validate_exposure(e, ident.min_exposure_us, ident.max_exposure_us,
                                      f'exposure_us of pattern {k}') for k, e in enumerate(exposures_us)]
+        if not ident.pwm_bits:
+            check_on_off(array, f'the board ({ident.name} {ident.version_string})')
         return array, checked
 
     def _send_pattern(self, pattern: np.ndarray, show_now: bool) -> p.Reply:
         ident = self.identity
-        if ident.pwm_bits:
+        if ident.pwm_bits and ((pattern != 0) & (pattern != 1)).any():
             payload = p.pack_set_levels(pattern_levels(pattern, ident.pwm_bits), show_now)
             return self.link.transact(p.Command.SET_LEVELS, payload)
+        # on/off patterns take the short SET_PATTERN on any board
         return self.link.transact(p.Command.SET_PATTERN, p.pack_set_pattern(pattern_word(pattern), show_now))
 
     def set_pattern(self, pattern, show_now: bool = True) -> int:
@@ -173,6 +178,8 @@ class LightStage:
         array = validate_patterns(pattern, self.identity.led_count)
         if len(array) != 1:
             raise PatternError(f'set_pattern takes one pattern, got {len(array)}')
+        if not self.identity.pwm_bits:
+            check_on_off(array, f'the board ({self.identity.name} {self.identity.version_string})')
         reply = self._send_pattern(array[0], show_now)
         self._add_probe(reply, p.unpack_u32(reply.frame.payload, 'SET_PATTERN reply'))
         return lit_word(array[0], self.identity.pwm_bits)
@@ -189,11 +196,13 @@ class LightStage:
             on_trigger(trigger)
         return trigger
 
-    def _trigger(self, index: int, word: int, exposure: int, raw_us: int) -> Trigger:
+    def _trigger(self, index: int, word: int, exposure: int, raw_us: int,
+                 applied: tuple[float, ...] | None = None) -> Trigger:
         if not self.clock.synced:
             self.heartbeat()
         host = self.clock.to_host(raw_us)
-        return Trigger(index, word, exposure, self.clock.unwrap(raw_us), host, self.clock.uncertainty_s)
+        return Trigger(index, word, exposure, self.clock.unwrap(raw_us), host, self.clock.uncertainty_s,
+                       applied)
 
     def apply(self, patterns, exposures_us, trigger: bool = True, gap_us: int = 0,
               on_trigger: Callable[[Trigger], None] | None = None) -> list[Trigger]:
@@ -207,36 +216,84 @@ class LightStage:
             for pattern in array:
                 self.set_pattern(pattern, show_now=True)
             return []
-        if self.identity.pwm_bits:
-            # sequences carry on/off words only: dimmed patterns go one FIRE at a time
+        ident = self.identity
+        applied = [tuple(float(v) for v in applied_drives(pattern, ident.pwm_bits)) for pattern in array]
+        chunk = ident.max_sequence
+        graded = any(0 < v < 1 for drives in applied for v in drives)
+        if graded and ident.pwm_bits == p.TABLE_LEVEL_BITS and len(array) > 1:
+            # the patterns' levels go to the board's level table, then one sequence per chunk
+            out: list[Trigger] = []
+            for start in range(0, len(array), chunk):
+                out += self.run_level_sequence(array[start:start + chunk], exposures[start:start + chunk],
+                                               gap_us, first_index=start, on_trigger=on_trigger)
+            return out
+        if graded:
+            # no level table (12-bit levels) or a single pattern: SET_LEVELS + FIRE each
             out = []
             for k, pattern in enumerate(array):
                 self._send_pattern(pattern, show_now=False)
-                out.append(self.fire(exposures[k], k, lit_word(pattern, self.identity.pwm_bits), on_trigger))
+                trig = self.fire(exposures[k], k, lit_word(pattern, ident.pwm_bits))
+                out.append(replace(trig, applied=applied[k]))
+                if on_trigger is not None:
+                    on_trigger(out[-1])
             return out
         words = [pattern_word(pattern) for pattern in array]
         if len(words) == 1:
             self.link.transact(p.Command.SET_PATTERN, p.pack_set_pattern(words[0], False))
-            return [self.fire(exposures[0], 0, words[0], on_trigger)]
-        out: list[Trigger] = []
-        chunk = self.identity.max_sequence
+            trig = replace(self.fire(exposures[0], 0, words[0]), applied=applied[0])
+            if on_trigger is not None:
+                on_trigger(trig)
+            return [trig]
+        out = []
         for start in range(0, len(words), chunk):
             out += self.run_sequence(words[start:start + chunk], exposures[start:start + chunk],
                                      gap_us, first_index=start, on_trigger=on_trigger)
         return out
 
+    def run_level_sequence(self, patterns: np.ndarray, exposures_us: Sequence[int], gap_us: int = 0,
+                           first_index: int = 0, on_trigger: Callable[[Trigger], None] | None = None
+                           ) -> list[Trigger]:
+        """Run up to max_sequence checked graded patterns as one firmware sequence: their
+        distinct level vectors go to the level table (SET_LEVEL_TABLE, 4 rows a frame), the
+        sequence names a row per trigger (RUN_LEVEL_SEQUENCE)."""
+        bits = self.identity.pwm_bits
+        full = (1 << bits) - 1
+        rows: list[tuple[int, ...]] = []
+        row_of: list[int] = []
+        for pattern in patterns:
+            levels = tuple(pattern_levels(pattern, bits))
+            if levels not in rows:
+                rows.append(levels)
+            row_of.append(rows.index(levels))
+        for first in range(0, len(rows), p.TABLE_ROWS_PER_FRAME):
+            self.link.transact(p.Command.SET_LEVEL_TABLE,
+                               p.pack_level_table(first, rows[first:first + p.TABLE_ROWS_PER_FRAME]))
+        entries = [p.LevelSequenceEntry(row, int(e)) for row, e in zip(row_of, exposures_us)]
+        words = [sum(1 << i for i, level in enumerate(rows[row]) if level) for row in row_of]
+        applied = [tuple(level / full for level in rows[row]) for row in row_of]
+        return self._run_sequence(p.Command.RUN_LEVEL_SEQUENCE, p.pack_level_sequence(int(gap_us), entries),
+                                  words, list(exposures_us), gap_us, first_index, on_trigger, applied)
+
     def run_sequence(self, words: Sequence[int], exposures_us: Sequence[int], gap_us: int = 0,
                      first_index: int = 0, on_trigger: Callable[[Trigger], None] | None = None) -> list[Trigger]:
         """Run one firmware sequence (checked words and exposures) and wait for its triggers."""
         entries = [p.SequenceEntry(int(w), int(e)) for w, e in zip(words, exposures_us)]
+        applied = [tuple(float(w >> i & 1) for i in range(p.LED_COUNT)) for w in words]
+        return self._run_sequence(p.Command.RUN_SEQUENCE, p.pack_sequence(int(gap_us), entries),
+                                  [e.word for e in entries], [e.exposure_us for e in entries], gap_us,
+                                  first_index, on_trigger, applied)
+
+    def _run_sequence(self, cmd: p.Command, payload: bytes, words: list[int], exposures_us: list[int],
+                      gap_us: int, first_index: int, on_trigger, applied: list[tuple[float, ...]]
+                      ) -> list[Trigger]:
+        entries = [(w, e, a) for w, e, a in zip(words, exposures_us, applied)]
         self._seq_events, self._seq_done = [], None
         self._seq_entries, self._seq_first, self._seq_on_trigger = entries, first_index, on_trigger
-        payload = p.pack_sequence(int(gap_us), entries)
         with self.link.lock:
             self.link.require_open()
             self._running_seq = self.link._seq % 255 + 1   # the seq transact will use
             try:
-                self.link.transact(p.Command.RUN_SEQUENCE, payload)
+                self.link.transact(cmd, payload)
                 budget = sum(exposures_us) / 1e6 + len(entries) * (gap_us / 1e6 + 0.005) \
                     + self.link.timeout_s * (self.link.retries + 1)
                 if not self.link.wait_until(lambda: self._seq_done is not None, budget):
@@ -258,5 +315,5 @@ class LightStage:
         if missing:
             raise LinkError(f'{self.link.port}: trigger event(s) {missing} of the sequence were lost on the '
                             f'line (corrupted); the camera was triggered but their stamps are unknown')
-        return [self._trigger(first_index + k, entries[k].word, entries[k].exposure_us, got[k].t_trigger_us)
+        return [self._trigger(first_index + k, entries[k][0], entries[k][1], got[k].t_trigger_us, entries[k][2])
                 for k in range(len(entries))]

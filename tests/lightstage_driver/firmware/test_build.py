@@ -44,7 +44,10 @@ def test_firmware_builds_and_fits_the_atmega328p(tmp_path):
     assert match, result.stdout
     flash, ram = int(match[1]), int(match[2])
     assert 1000 < flash <= 32256 - 4096        # below the bootloader, with room to grow
-    assert ram <= 1024                         # leaves half the 2 KB for the stack
+    # the graded-level table (16 x 32 levels) and the latch schedule (32 steps) take 773 bytes;
+    # at least 512 stay for the stack, whose deepest use (stage_poll -> exposure_start ->
+    # schedule_build, plus an interrupt) is ~250 bytes by avr-gcc -fstack-usage
+    assert ram <= 1536
     # the .hex a user flashes is exactly the ELF's program image
     binary = tmp_path / 'image.bin'
     subprocess.run(['avr-objcopy', '-O', 'binary', '-R', '.eeprom', str(build / 'lightstage.elf'),

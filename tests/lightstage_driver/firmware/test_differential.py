@@ -1,8 +1,10 @@
 """The compiled firmware and the Python firmware model answer the same command stream
 the same way: a seeded random script of valid, invalid, malformed and retried commands
-is played against both, and the replies, events and LED words on the pins are compared
-(timestamps aside, which depend on when things happened)."""
+(graded levels, level tables and level sequences among them) is played against both, and
+the replies, events, LED words on the pins and each LED's on-time in each trigger pulse
+are compared (timestamps aside, which depend on when things happened)."""
 import struct
+import time
 
 import numpy as np
 import pytest
@@ -11,6 +13,7 @@ from lightstage_driver import protocol as p
 from lightstage_driver.sim_backend import PythonSimBackend
 
 from firmware_wire import Wire
+from graded_pins import on_times_us
 
 C = p.Command
 
@@ -25,8 +28,8 @@ def random_script(seed: int, n: int):
 
     for _ in range(n):
         kind = rng.choice(['pattern', 'fire', 'sequence', 'off', 'watchdog', 'levels', 'heartbeat',
-                           'identify', 'unknown', 'badlen', 'retry'],
-                          p=[.2, .15, .08, .08, .06, .04, .1, .04, .04, .11, .1])
+                           'identify', 'unknown', 'badlen', 'retry', 'table', 'levelseq'],
+                          p=[.12, .15, .06, .06, .04, .1, .08, .03, .03, .09, .08, .08, .08])
         if kind == 'retry' and script:
             script.append(script[-1])
             continue
@@ -49,7 +52,23 @@ def random_script(seed: int, n: int):
         elif kind == 'watchdog':
             cmd, payload = C.SET_WATCHDOG, struct.pack('<H', int(rng.choice([2000, 60000, 49, 60001, 0])))
         elif kind == 'levels':
-            cmd, payload = C.SET_LEVELS, p.pack_set_levels([1] * 32, True)
+            levels = [int(v) for v in rng.choice([0, 1, 127, 254, 255, int(rng.integers(0, 256))], size=32)]
+            if rng.random() < 0.1:
+                levels[int(rng.integers(0, 32))] = int(rng.choice([256, 4095]))
+            flags = int(rng.choice([0, 0, 1, 4]))
+            cmd, payload = C.SET_LEVELS, struct.pack('<B32H', flags, *levels)
+        elif kind == 'table':
+            rows = int(rng.choice([1, 2, 4]))
+            first = int(rng.choice([0, 4, 12, 14, 15]))
+            cmd, payload = C.SET_LEVEL_TABLE, bytes([first]) + bytes(rng.integers(0, 256, 32 * rows, dtype='uint8'))
+        elif kind == 'levelseq':
+            count = int(rng.choice([1, 3, 16, 0, 17]))
+            gap = int(rng.choice([0, 100, 1_000_001]))
+            entries = [(int(rng.choice([u32(0, 16), 16])) if rng.random() < 0.1 else u32(0, 16),
+                        int(rng.choice([u32(20, 3000), 10])) if rng.random() < 0.1 else u32(20, 3000))
+                       for _ in range(min(count, 16))]
+            cmd, payload = C.RUN_LEVEL_SEQUENCE, struct.pack('<IB', gap, count) + b''.join(
+                struct.pack('<BI', row, e) for row, e in entries)
         elif kind == 'heartbeat':
             cmd, payload = C.HEARTBEAT, b''
         elif kind == 'identify':
@@ -69,7 +88,7 @@ def normalise(frame: p.Frame):
     cmd, body = frame.cmd, frame.payload
     if cmd == p.NAK_CMD:
         return ('NAK', frame.seq, p.Nak.unpack(body))
-    if cmd in (C.SET_PATTERN | p.REPLY_BIT, C.ALL_OFF | p.REPLY_BIT):
+    if cmd in (C.SET_PATTERN | p.REPLY_BIT, C.ALL_OFF | p.REPLY_BIT, C.SET_LEVELS | p.REPLY_BIT):
         return (cmd, frame.seq, len(body))
     if cmd == C.FIRE | p.REPLY_BIT:
         t0, t1 = p.unpack_u32_pair(body, 'FIRE')
@@ -94,24 +113,34 @@ def play(backend, script):
         wire.drain()
         backend.reset_observations()
         transcript = []
-        for seq, cmd, payload in script:
+        previous = None
+        for item in script:
+            seq, cmd, payload = item
             reply = wire.call(cmd, payload, seq=seq, timeout_s=2.0)
             transcript.append(normalise(reply))
-            if cmd == C.RUN_SEQUENCE and reply.cmd == C.RUN_SEQUENCE | p.REPLY_BIT:
+            retry = item == previous      # answered from the duplicate cache: nothing runs
+            previous = item
+            if cmd in (C.RUN_SEQUENCE, C.RUN_LEVEL_SEQUENCE) and reply.cmd == cmd | p.REPLY_BIT and not retry:
                 done = wire.event(p.Event.SEQUENCE_DONE, timeout_s=2.0)
                 wire.frames.append(done)
             # the events received meanwhile, in order (no others are due: nothing is running)
             transcript += [normalise(f) for f in wire.frames if isinstance(f, p.Frame)]
             wire.frames.clear()
         wire.call(C.ALL_OFF)
-        return transcript, [w.word for w in backend.led_words()], len(backend.trigger_pulses())
+        # the observations come on their own channel (stdout): let the last ones in
+        counts = None
+        while counts != (len(backend.led_words()), len(backend.trigger_pulses())):
+            counts = (len(backend.led_words()), len(backend.trigger_pulses()))
+            time.sleep(0.2)
+        words, pulses = backend.led_words(), backend.trigger_pulses()
+        return transcript, [w.word for w in words], len(pulses), on_times_us(words, pulses)
     finally:
         wire.close()
 
 
 @pytest.fixture(scope='module')
 def python_sim():
-    backend = PythonSimBackend()
+    backend = PythonSimBackend(pwm_bits=8)     # as the AVR firmware
     backend.start()
     yield backend
     backend.close()
@@ -130,3 +159,8 @@ def test_firmware_and_model_agree_on_a_random_command_stream(avr, wire, python_s
     assert len(got[0]) == len(expected[0])
     assert got[1] == expected[1]          # LED words latched, in order
     assert got[2] == expected[2]          # trigger pulses
+    # each LED's on-time in each pulse: the firmware latches on the model's ticks (within
+    # a few CPU cycles)
+    for k, (e, g) in enumerate(zip(expected[3], got[3])):
+        assert np.abs(g - e).max() <= 0.5, f'pulse {k}: model {e}, firmware {g}'
+    assert any(0 < t < on.max() for on in got[3] for t in on)   # graded on-times were among them

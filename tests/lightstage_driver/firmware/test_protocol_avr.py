@@ -16,7 +16,7 @@ R = p.NakReason
 def test_identify_reports_the_chip_limits(wire):
     identity = p.Identity.unpack(wire.expect_ok(C.IDENTIFY))
     assert identity == p.Identity(
-        protocol_version=1, fw_version=(1, 0, 0), led_count=32, sites=8, channels=4, pwm_bits=0,
+        protocol_version=1, fw_version=(1, 1, 0), led_count=32, sites=8, channels=4, pwm_bits=8,
         min_exposure_us=20, max_exposure_us=2_000_000, watchdog_ms=1000, max_sequence=16,
         max_payload=136, name='lightstage-avr')
 
@@ -37,7 +37,16 @@ REFUSALS = [
     (C.SET_PATTERN, b'\x01\x0f\x00\x00', R.BAD_LENGTH, 4),
     (C.SET_PATTERN, b'\x02\x0f\x00\x00\x00', R.BAD_FLAGS, 2),
     (C.SET_PATTERN, b'\x81\x0f\x00\x00\x00', R.BAD_FLAGS, 0x81),
-    (C.SET_LEVELS, p.pack_set_levels([1] * 32, True), R.UNSUPPORTED, C.SET_LEVELS),
+    (C.SET_LEVELS, p.pack_set_levels([1] * 31 + [256], True), R.LEVEL_RANGE, 31 << 16 | 256),
+    (C.SET_LEVELS, p.pack_set_levels([1] * 32, True)[:-1], R.BAD_LENGTH, 64),
+    (C.SET_LEVELS, b'\x02' + p.pack_set_levels([1] * 32, True)[1:], R.BAD_FLAGS, 2),
+    (C.SET_LEVEL_TABLE, b'\x00' + bytes(31), R.BAD_LENGTH, 32),
+    (C.SET_LEVEL_TABLE, b'\x00' + bytes(2 * 32 + 1), R.BAD_LENGTH, 66),
+    (C.SET_LEVEL_TABLE, b'\x0e' + bytes(3 * 32), R.ROW_RANGE, 16),
+    (C.RUN_LEVEL_SEQUENCE, struct.pack('<IB', 0, 1) + struct.pack('<BI', 16, 100), R.ROW_RANGE, 16),
+    (C.RUN_LEVEL_SEQUENCE, struct.pack('<IB', 0, 2) + struct.pack('<BI', 0, 100), R.BAD_LENGTH, 10),
+    (C.RUN_LEVEL_SEQUENCE, struct.pack('<IB', 0, 1) + struct.pack('<BI', 0, 19), R.EXPOSURE_RANGE, 19),
+    (C.RUN_LEVEL_SEQUENCE, struct.pack('<IB', 0, 17) + struct.pack('<BI', 0, 100) * 17, R.SEQUENCE_LENGTH, 17),
     (C.FIRE, b'\x64\x00\x00', R.BAD_LENGTH, 3),
     (C.FIRE, p.pack_u32(19), R.EXPOSURE_RANGE, 19),
     (C.FIRE, p.pack_u32(2_000_001), R.EXPOSURE_RANGE, 2_000_001),
@@ -51,7 +60,7 @@ REFUSALS = [
     (C.ALL_OFF, b'\x00', R.BAD_LENGTH, 1),
     (C.SET_WATCHDOG, b'\x64', R.BAD_LENGTH, 1),
     (C.SET_WATCHDOG, struct.pack('<H', 49), R.WATCHDOG_RANGE, 49),
-    (0x09, b'', R.UNKNOWN_COMMAND, 0x09),
+    (0x0B, b'', R.UNKNOWN_COMMAND, 0x0B),
     (0x40, b'', R.UNKNOWN_COMMAND, 0x40),
     (0x85, p.pack_u32(100), R.UNKNOWN_COMMAND, 0x85),
 ]

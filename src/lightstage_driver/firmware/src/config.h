@@ -9,7 +9,7 @@
 #endif
 
 #define FW_MAJOR 1
-#define FW_MINOR 0
+#define FW_MINOR 1
 #define FW_PATCH 0
 #define FW_NAME "lightstage-avr"
 
@@ -17,7 +17,7 @@
 #define LED_COUNT 32
 #define SITES 8
 #define CHANNELS 4
-#define PWM_BITS 0 /* on/off only: 74HC595 outputs */
+#define PWM_BITS 8 /* graded levels as on-times within the exposure (schedule.h) */
 
 #define MIN_EXPOSURE_US 20UL
 #define MAX_EXPOSURE_US 2000000UL

@@ -42,7 +42,7 @@ int main(void)
         /* Sleep until the next interrupt (a received byte or the 1 kHz tick); sei
          * followed by sleep is atomic on AVR, so no wake-up is lost. */
         cli();
-        if (uart_rx_pending() || exposure_finished()) {
+        if (uart_rx_pending() || exposure_finished() || exposure_poll()) {
             sei();
             continue;
         }

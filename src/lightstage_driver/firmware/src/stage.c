@@ -7,6 +7,7 @@
 #include "config.h"
 #include "exposure.h"
 #include "link.h"
+#include "schedule.h"
 
 enum {
     CMD_IDENTIFY = 0x01,
@@ -17,6 +18,8 @@ enum {
     CMD_RUN_SEQUENCE = 0x06,
     CMD_ALL_OFF = 0x07,
     CMD_SET_WATCHDOG = 0x08,
+    CMD_SET_LEVEL_TABLE = 0x09,
+    CMD_RUN_LEVEL_SEQUENCE = 0x0A,
     REPLY = 0x80,
     EVT_READY = 0x40,
     EVT_TRIGGER = 0x41,
@@ -37,6 +40,7 @@ enum {
     NAK_WATCHDOG_RANGE = 9,
     NAK_BAD_FLAGS = 10,
     NAK_GAP_RANGE = 11,
+    NAK_ROW_RANGE = 12,
 };
 
 enum { SEQ_COMPLETE = 0, SEQ_ABORTED_ALL_OFF = 1, SEQ_ABORTED_WATCHDOG = 2 };
@@ -47,8 +51,12 @@ enum { SEQ_COMPLETE = 0, SEQ_ABORTED_ALL_OFF = 1, SEQ_ABORTED_WATCHDOG = 2 };
 
 static frame_t frame;
 
-static uint32_t armed; /* what the next FIRE shows */
+static uint32_t armed; /* LEDs with a level above 0 in the next FIRE */
+static uint8_t armed_levels[LED_COUNT]; /* the next FIRE's levels (0 or 255 after SET_PATTERN) */
 static uint32_t lit;   /* what the LEDs show now */
+
+/* graded patterns for RUN_LEVEL_SEQUENCE (SET_LEVEL_TABLE); zero after reset */
+static uint8_t level_table[MAX_SEQUENCE][LED_COUNT];
 
 /* host watchdog */
 static uint16_t watchdog_ms = WATCHDOG_DEFAULT_MS;
@@ -65,9 +73,10 @@ static uint8_t fire_pending, fire_seq;
 
 /* RUN_SEQUENCE */
 static struct {
-    uint8_t running, seq, count, started, done, waiting;
+    uint8_t running, seq, count, started, done, waiting, graded;
     uint32_t gap_us, next_us;
-    uint32_t word[MAX_SEQUENCE];
+    uint32_t word[MAX_SEQUENCE];  /* RUN_SEQUENCE */
+    uint8_t row[MAX_SEQUENCE];    /* RUN_LEVEL_SEQUENCE: level_table rows */
     uint32_t exposure_us[MAX_SEQUENCE];
 } sequence;
 
@@ -162,6 +171,13 @@ static uint8_t exposure_in_range(uint32_t us)
     return us >= MIN_EXPOSURE_US && us <= MAX_EXPOSURE_US;
 }
 
+static void set_armed_word(uint32_t word)
+{
+    armed = word;
+    for (uint8_t i = 0; i < LED_COUNT; i++, word >>= 1)
+        armed_levels[i] = word & 1 ? LEVEL_FULL : 0;
+}
+
 static void sequence_finish(uint8_t status)
 {
     uint8_t p[2] = {sequence.done, status};
@@ -179,7 +195,7 @@ static void all_off(uint8_t status)
     if (lit || exposure_running())
         exposure_abort_all_off();
     lit = 0;
-    armed = 0;
+    set_armed_word(0);
     if (sequence.running)
         sequence_finish(status);
 }
@@ -212,12 +228,52 @@ static void do_set_pattern(void)
     uint8_t flags = frame.payload[0];
     if (flags & (uint8_t)~FLAG_SHOW_NOW)
         return nak(NAK_BAD_FLAGS, flags, 1);
-    armed = get_u32(frame.payload + 1);
+    uint32_t word = get_u32(frame.payload + 1);
+    if (flags & FLAG_SHOW_NOW) {
+        chain_show(word);
+        lit = word;
+    }
+    set_armed_word(word);
+    reply_u32(clock_us());
+}
+
+static void do_set_levels(void)
+{
+    if (frame.len != 1 + 2 * LED_COUNT)
+        return nak(NAK_BAD_LENGTH, frame.len, 1);
+    for (uint8_t i = 0; i < LED_COUNT; i++) {
+        uint16_t level = get_u16(frame.payload + 1 + 2 * i);
+        if (level > LEVEL_FULL)
+            return nak(NAK_LEVEL_RANGE, ((uint32_t)i << 16) | level, 1);
+    }
+    uint8_t flags = frame.payload[0];
+    if (flags & (uint8_t)~FLAG_SHOW_NOW)
+        return nak(NAK_BAD_FLAGS, flags, 1);
+    armed = 0;
+    for (uint8_t i = 0; i < LED_COUNT; i++) {
+        armed_levels[i] = frame.payload[1 + 2 * i];
+        if (armed_levels[i])
+            armed |= 1UL << i;
+    }
+    /* without an exposure there is no fraction to take: SHOW_NOW lights every level > 0 */
     if (flags & FLAG_SHOW_NOW) {
         chain_show(armed);
         lit = armed;
     }
     reply_u32(clock_us());
+}
+
+static void do_set_level_table(void)
+{
+    if (frame.len < 1 + LED_COUNT || (frame.len - 1) % LED_COUNT)
+        return nak(NAK_BAD_LENGTH, frame.len, 1);
+    uint8_t first = frame.payload[0];
+    uint8_t rows = (uint8_t)((frame.len - 1) / LED_COUNT);
+    if (first + rows > MAX_SEQUENCE)
+        return nak(NAK_ROW_RANGE, first + rows - 1, 1);
+    memcpy(level_table[first], frame.payload + 1, rows * LED_COUNT);
+    uint8_t p[2] = {first, rows};
+    reply(CMD_SET_LEVEL_TABLE | REPLY, p, 2, 1);
 }
 
 static void do_fire(void)
@@ -230,31 +286,43 @@ static void do_fire(void)
     fire_pending = 1;
     fire_seq = frame.seq;
     lit = armed;
-    exposure_start(armed, exposure_us);
+    exposure_start(armed_levels, 0, exposure_us);
     /* the reply goes out when the exposure has ended (stage_poll) */
 }
 
-static void do_run_sequence(void)
+/* RUN_SEQUENCE entries are (word u32, exposure u32); RUN_LEVEL_SEQUENCE entries are
+ * (row u8, exposure u32).  Both are checked whole before anything runs. */
+static void do_run_sequence(uint8_t graded)
 {
+    uint8_t entry = graded ? 5 : 8, key = graded ? 1 : 4;
     if (frame.len < 5)
         return nak(NAK_BAD_LENGTH, frame.len, 1);
     uint32_t gap_us = get_u32(frame.payload);
     uint8_t count = frame.payload[4];
     if (count == 0 || count > MAX_SEQUENCE)
         return nak(NAK_SEQUENCE_LENGTH, count, 1);
-    if (frame.len != 5 + 8 * count)
+    if (frame.len != 5 + entry * count)
         return nak(NAK_BAD_LENGTH, frame.len, 1);
     if (gap_us > MAX_GAP_US)
         return nak(NAK_GAP_RANGE, gap_us, 1);
+    const uint8_t *e0 = frame.payload + 5;
     for (uint8_t k = 0; k < count; k++) {
-        uint32_t e = get_u32(frame.payload + 5 + 8 * k + 4);
+        if (graded && e0[entry * k] >= MAX_SEQUENCE)
+            return nak(NAK_ROW_RANGE, e0[entry * k], 1);
+    }
+    for (uint8_t k = 0; k < count; k++) {
+        uint32_t e = get_u32(e0 + entry * k + key);
         if (!exposure_in_range(e))
             return nak(NAK_EXPOSURE_RANGE, e, 1);
     }
     for (uint8_t k = 0; k < count; k++) {
-        sequence.word[k] = get_u32(frame.payload + 5 + 8 * k);
-        sequence.exposure_us[k] = get_u32(frame.payload + 5 + 8 * k + 4);
+        if (graded)
+            sequence.row[k] = e0[entry * k];
+        else
+            sequence.word[k] = get_u32(e0 + entry * k);
+        sequence.exposure_us[k] = get_u32(e0 + entry * k + key);
     }
+    sequence.graded = graded;
     sequence.running = 1;
     sequence.seq = frame.seq;
     sequence.count = count;
@@ -264,7 +332,7 @@ static void do_run_sequence(void)
     sequence.waiting = 1;
     sequence.next_us = clock_us(); /* the first trigger goes at once */
     uint8_t p[1] = {count};
-    reply(CMD_RUN_SEQUENCE | REPLY, p, 1, 1);
+    reply(frame.cmd | REPLY, p, 1, 1);
 }
 
 static void do_all_off(void)
@@ -311,11 +379,15 @@ static void handle_frame(void)
     case CMD_SET_PATTERN:
         return do_set_pattern();
     case CMD_SET_LEVELS:
-        return nak(NAK_UNSUPPORTED, cmd, 1); /* pwm_bits = 0: on/off LEDs */
+        return do_set_levels();
+    case CMD_SET_LEVEL_TABLE:
+        return do_set_level_table();
+    case CMD_RUN_LEVEL_SEQUENCE:
+        return do_run_sequence(1);
     case CMD_FIRE:
         return do_fire();
     case CMD_RUN_SEQUENCE:
-        return do_run_sequence();
+        return do_run_sequence(0);
     case CMD_ALL_OFF:
         return do_all_off();
     case CMD_SET_WATCHDOG:
@@ -366,8 +438,17 @@ static uint8_t service_sequence(void)
         return left < 2000;
     uint8_t k = sequence.started++;
     sequence.waiting = 0;
-    lit = sequence.word[k];
-    exposure_start(sequence.word[k], sequence.exposure_us[k]);
+    if (sequence.graded) {
+        const uint8_t *levels = level_table[sequence.row[k]];
+        lit = 0;
+        for (uint8_t i = 0; i < LED_COUNT; i++)
+            if (levels[i])
+                lit |= 1UL << i;
+        exposure_start(levels, 0, sequence.exposure_us[k]);
+    } else {
+        lit = sequence.word[k];
+        exposure_start(0, sequence.word[k], sequence.exposure_us[k]);
+    }
     return 1;
 }
 
@@ -389,7 +470,7 @@ static void service_watchdog(void)
 
 uint8_t stage_poll(void)
 {
-    uint8_t busy = 0;
+    uint8_t busy = exposure_poll();
     service_exposure_end();
     /* While a FIRE's exposure runs the host waits for its reply (stop-and-wait): later
      * bytes stay in the receive ring until the reply has gone out. */
