@@ -428,9 +428,9 @@ def test_every_bad_request_field_is_refused_by_name_and_the_node_serves_on(rig):
              (dict(intensities=with_led(6, 3e38)), 'patterns[0].intensities[6]: pattern 0, LED 6 (site 1, channel 2) is above 1'),
              (dict(exposure_us=2**32 - 1), 'patterns[0].exposure_us 4294967295 us is outside the firmware range'),
              (dict(exposure_us=19), 'patterns[0].exposure_us 19 us is outside'),
-             (dict(gain_db=float('inf')), 'patterns[0].gain_db inf is outside 0..48 dB'),
-             (dict(gain_db=-1.0), 'patterns[0].gain_db -1.0 is outside'),
-             (dict(gain_db=3e38), 'is outside 0..48 dB'),
+             (dict(gain_db=float('inf')), 'patterns[0].gain_db = inf dB is out of range: give 0 .. 48 dB'),
+             (dict(gain_db=-1.0), 'patterns[0].gain_db = -1.0 dB is out of range'),
+             (dict(gain_db=3e38), 'dB is out of range: give 0 .. 48 dB'),
              (dict(intensities=with_led(9, 0.7)), 'is 0.699999988079071, a graded level, but the board')]
     for fields, expected in cases:
         response = send(**fields)

@@ -13,7 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from lightstage_driver.errors import PatternError
-from lightstage_driver.request_check import GAIN_DB_RANGE, MAX_PATTERNS_PER_REQUEST, check_request
+from lightstage_driver.request_check import MAX_PATTERNS_PER_REQUEST, check_request
+from lightstage_graph.limits import GAIN_DB_MAX, GAIN_DB_MIN
 
 FUZZ = settings(max_examples=int(os.environ.get('LIGHTSTAGE_FUZZ_EXAMPLES', 300)), deadline=None,
                 suppress_health_check=[HealthCheck.too_slow])
@@ -46,7 +47,7 @@ def valid(pattern) -> bool:
     if isinstance(g, str) or g is None:
         return False
     g = float(g)
-    return math.isnan(g) or GAIN_DB_RANGE[0] <= g <= GAIN_DB_RANGE[1]
+    return math.isnan(g) or GAIN_DB_MIN <= g <= GAIN_DB_MAX
 
 
 @FUZZ
@@ -77,8 +78,8 @@ def test_each_field_names_itself():
              ({'intensities': [0.0] * 5 + [1.5] + [0.0] * 26}, 'LED 5 (site 1, channel 1) is above 1'),
              ({'exposure_us': 2**32 - 1}, 'patterns[0].exposure_us 4294967295 us is outside the firmware range'),
              ({'exposure_us': 5}, 'patterns[0].exposure_us 5 us is outside'),
-             ({'gain_db': math.inf}, 'patterns[0].gain_db inf is outside 0..48 dB'),
-             ({'gain_db': -3.0}, 'patterns[0].gain_db -3.0 is outside'),
+             ({'gain_db': math.inf}, 'patterns[0].gain_db = inf dB is out of range: give 0 .. 48 dB'),
+             ({'gain_db': -3.0}, 'patterns[0].gain_db = -3.0 dB is out of range'),
              ({'gain_db': 'loud'}, 'patterns[0].gain_db must be a number')]
     for change, expected in cases:
         try:

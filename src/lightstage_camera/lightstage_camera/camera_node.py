@@ -37,7 +37,7 @@ from lightstage_graph.limits import (DIMMER_MIN, DIMMER_MAX, EXPOSURE_US_MAX, EX
                                      GAIN_DB_MAX, GAIN_DB_MIN)
 from lightstage_graph.names import (CAMERA_INFO_TOPIC, CAMERA_NODE, FRAME_LOST_TOPIC,
                                     ILLUMINATION_TOPIC, IMAGE_TOPIC)
-from lightstage_graph.params import declare_parameters, floating, integer, string
+from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
 from lightstage_graph.qos import ILLUMINATION_QOS, IMAGE_QOS
 from lightstage_graph.spin import init_node, spin_until_stopped
 from lightstage_graph.stamps import ns_to_stamp, stamp_to_ns
@@ -80,6 +80,11 @@ PARAMETERS = {
                                         f'(the authors\' {DEFAULT_DIMMER})', DIMMER_MIN, DIMMER_MAX)),
     'default_gain_db': (15.0, floating('gain [dB] for triggers that ask for the camera default '
                                        '(gain_db NaN)', GAIN_DB_MIN, GAIN_DB_MAX)),
+    'exposure_scales_light': (False, boolean('sim: the image is the light integrated over each '
+                                             'trigger\'s exposure (times exposure_us / the rig\'s '
+                                             'exposure_us), as on a graded stage where a level is '
+                                             'an LED\'s share of the exposure; false = the '
+                                             'authors\' convention, exposure changes only the noise')),
     # ---- real cameras (basler, aravis)
     'serial_number': ('', string('camera to open: basler: serial number; aravis: device id, serial '
                                  'or IP address (opened by address: no discovery); empty = the '
@@ -115,7 +120,7 @@ PARAMETERS = {
     'diagnostics_period_s': (1.0, floating('/diagnostics period [s]', 0.1, 60.0, read_only=True)),
 }
 BACKEND_SETTINGS = ('capture_dir', 'sample', 'noise', 'noise_file', 'seed', 'dimmer',
-                    'default_gain_db')
+                    'default_gain_db', 'exposure_scales_light')
 # real cameras: a change of these reopens the camera; exposure and gain apply at once
 CAMERA_SETTINGS = ('serial_number', 'trigger_source', 'pixel_format', 'transport_layer',
                    'camera_features', 'frame_timeout_s', 'reopen_period_s')
@@ -212,7 +217,8 @@ class CameraNode(Node):
         return SimCameraBackend.from_capture(
             self._publish_frame, s['capture_dir'], sample=s['sample'], noise=s['noise'],
             dimmer=float(s['dimmer']), default_gain_db=float(s['default_gain_db']), seed=seed,
-            calibration=noise_calibration(s['noise_file']))
+            calibration=noise_calibration(s['noise_file']),
+            exposure_scales_light=bool(s['exposure_scales_light']))
 
     def _make_camera_backend(self, backend: str, s: dict) -> CameraBackend:
         if s['trigger_source'] not in TRIGGER_SOURCES:

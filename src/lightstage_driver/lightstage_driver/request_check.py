@@ -5,16 +5,12 @@ and the range, so that the service answers with what to fix and never dies on a 
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
+from lightstage_graph.limits import LimitError, check_gain_db
 
 from .errors import PatternError
 from .protocol import LED_COUNT
 
-# TODO(lead): move to lightstage_graph limits (the camera's gain range; the camera node
-# takes 0..48 dB for its own default gain).
-GAIN_DB_RANGE = (0.0, 48.0)
 # More triggers than one call should hold: 1024 x the longest exposure is half an hour.
 MAX_PATTERNS_PER_REQUEST = 1024
 
@@ -61,16 +57,10 @@ def check_request(patterns, default_exposure_us: int, min_exposure_us: int, max_
                                f'range {min_exposure_us}..{max_exposure_us} us (0 = the driver default, '
                                f'{int(default_exposure_us)} us)')
         exposures.append(exposure)
-        gain = pattern.gain_db
-        try:
-            gain = float(gain)
-        except (TypeError, ValueError) as exc:
-            raise PatternError(f'{field}.gain_db must be a number of dB (NaN = camera default), '
-                               f'got {pattern.gain_db!r}') from exc
-        lo, hi = GAIN_DB_RANGE
-        if not math.isnan(gain) and not lo <= gain <= hi:
-            raise PatternError(f'{field}.gain_db {gain!r} is outside {lo:g}..{hi:g} dB (NaN = the '
-                               f'camera default)')
+        try:  # the camera checks the same range (lightstage_graph.limits) again
+            check_gain_db(pattern.gain_db, f'{field}.gain_db', nan_is_default=True)
+        except LimitError as exc:
+            raise PatternError(str(exc)) from None
     return np.array(rows), exposures
 
 
