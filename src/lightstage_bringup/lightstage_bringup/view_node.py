@@ -35,14 +35,14 @@ class ViewNode(Node):
         self.qos_depth = qos_depth
         self.fox_context = context
         self.channels: dict[str, foxglove.Channel] = {}
-        self._subscriptions: dict[str, object] = {}
+        self._served: dict[str, object] = {}
         self.skipped: dict[str, str] = {}
         self.create_timer(discovery_period_s, self.discover)
         self.discover()
 
     def discover(self) -> None:
         for topic, types in self.get_topic_names_and_types():
-            if topic in self._subscriptions or topic in self.skipped:
+            if topic in self._served or topic in self.skipped:
                 continue
             if len(types) != 1:
                 self._skip(topic, f'it has {len(types)} types ({", ".join(types)})')
@@ -63,7 +63,7 @@ class ViewNode(Node):
                                        context=self.fox_context)
             qos = subscription_qos([from_rclpy_qos(p.qos_profile) for p in publishers], self.qos_depth)
             self.channels[topic] = channel
-            self._subscriptions[topic] = self.create_subscription(
+            self._served[topic] = self.create_subscription(
                 cls, topic, self._forward(channel), to_rclpy_qos(qos), raw=True)
             self.get_logger().info(f'serving {topic} ({type_name}; {qos.reliability})')
 

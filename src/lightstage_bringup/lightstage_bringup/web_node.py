@@ -156,11 +156,9 @@ class WebBridge(Node):
 
     async def start_job(self, kind: str, goal: dict) -> None:
         client, action, name = self.actions[kind]
-        job = self.state.start_job(kind, goal)   # refuses a second one (409)
         if not client.server_is_ready():
-            error = self._unavailable('action', name, kind)
-            self.state.update_job(job, state='failed', message=str(error))
-            raise error
+            raise self._unavailable('action', name, kind)
+        job = self.state.start_job(kind, goal)   # refuses a second one (409)
         fields = {k: (math.nan if v is None else v) for k, v in goal.items()}
         progress = capture_progress if kind == 'capture' else calibrate_progress
 
