@@ -41,6 +41,7 @@ def stage(stage_capture, stage_artifact_path, tmp_path_factory):
         'driver': {'port': 'sim', 'reconnect_period_s': 60.0},
         'camera': {'capture_dir': str(stage_capture), 'sample': 'banana-real/s0/p00', 'seed': 5},
         'classifier': {'artifact_path': str(stage_artifact_path), 'timeout_s': 10.0},
+        'acquisition': {'preview': False, 'exposure_us': 5000},
     })
     client = GraphClient(domain_id)
     answers = []   # the Classify service's responses, from its introspection events
@@ -48,7 +49,8 @@ def stage(stage_capture, stage_artifact_path, tmp_path_factory):
                                     lambda e: answers.extend(e.response), 10)
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
-            start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
+            start_nodes(supervisor, client, ['driver', 'camera', 'classifier', 'acquisition'],
+                        domain_id, params)
             with served('web', domain_id) as (server, url):
                 yield {'client': client, 'answers': answers, 'url': url, 'server': server,
                        'supervisor': supervisor, 'tmp': tmp}
@@ -146,8 +148,7 @@ def _request(url, method='GET', body=None, content_type='application/json', host
     ('POST', '/api/classify', b'{not json', 400, 'not valid JSON'),
     ('POST', '/api/capture', {'output_dir': 'x', 'target': 'banana'}, 400, 'expected label/sample/pose'),
     ('POST', '/api/capture', {'target': 'a/b/c'}, 400, 'output_dir: give the capture folder'),
-    ('POST', '/api/capture', {'output_dir': 'x', 'target': 'a/b/c'}, 503,
-     'the action /lightstage/capture_model is not available'),
+    ('POST', '/api/capture', {'output_dir': 'x', 'target': 'a/b/c=3'}, 400, '=SIM_SAMPLE is for the command line'),
     ('POST', '/api/calibrate', {'levels': 'many'}, 400, 'levels must be a whole number'),
     ('POST', '/api/jobs/cancel', {}, 409, 'no capture or calibration is running'),
     ('GET', '/api/images/12345.png', None, 404, 'no image with stamp 12345'),
@@ -176,6 +177,29 @@ def test_the_page_listens_on_loopback_only_and_survives_the_bad_requests(stage):
     assert code == 200 and state['connected']['classify']
 
 
+def test_a_capture_started_from_the_page_reports_its_progress_and_result(stage):
+    import time
+    out = stage['tmp'] / 'capture'
+    code, job = _request(stage['url'] + '/api/capture', 'POST',
+                         {'output_dir': str(out), 'target': 'banana-real/s0/p00', 'frames_averaged': 1})
+    assert code == 202 and job['kind'] == 'capture' and job['state'] == 'running', job
+    code, again = _request(stage['url'] + '/api/calibrate', 'POST', {})
+    assert code == 409 and 'a capture is running' in again['error']
+    progress = set()
+    deadline = time.monotonic() + 60
+    while True:
+        (job,) = [j for j in _request(stage['url'] + '/api/state')[1]['jobs'] if j['id'] == job['id']]
+        if job['state'] != 'running':
+            break
+        progress.add(job['progress'])
+        assert time.monotonic() < deadline, job
+        time.sleep(0.05)
+    assert job['state'] == 'succeeded', job
+    assert job['fraction'] == 1.0 and job['result']['images_captured'] == 32
+    assert any(p.endswith('LED images (s0_red)') or '/32 LED images' in p for p in progress), progress
+    assert len(list((out / 'banana-real' / 's0' / 'p00').glob('*.png'))) == 32
+
+
 def test_a_driver_fault_and_the_classify_it_fails_show_on_the_page(stage):
     code, state = _request(stage['url'] + '/api/state')
     (driver,) = [d for d in state['diagnostics'] if d['name'] == DRIVER_STATUS]
@@ -192,7 +216,8 @@ def test_a_driver_fault_and_the_classify_it_fails_show_on_the_page(stage):
             "document.getElementById('label').dataset.pending === undefined && "
             "document.getElementById('label').dataset.success === '0' && "
             "document.getElementById('label').textContent", 60, 'the failed classification')
-        history = await page.evaluate("document.querySelector('#history tbody tr td.failed').textContent")
+        history = await page.wait_for("document.querySelector('#history tbody tr td.failed')?.textContent",
+                                      10, 'the failed classification in the history')
         png = await page.screenshot(stage['tmp'] / 'web_driver_fault.png')
         return alert, diag, failed, history, png
 
