@@ -230,3 +230,32 @@ def test_the_app_refuses_other_hosts_and_non_json_posts():
                                 headers={'Content-Type': 'application/json'})
         assert big.status == 413
     _with_app(check)
+
+
+def test_bad_arguments_of_web_and_view_exit_2_naming_the_option(capsys):
+    from lightstage_bringup import view_cli, web_cli
+    assert web_cli.main(['--history', '0']) == 2
+    assert '--history must be 1..1000' in capsys.readouterr().err
+    for bad in (['--port', '70000'], ['--port', 'http']):
+        with pytest.raises(SystemExit) as exc:
+            web_cli.main(bad)
+        assert exc.value.code == 2
+        assert 'expected a port number 0..65535' in capsys.readouterr().err
+    assert view_cli.main(['--include', '(']) == 2
+    assert "--include '(' is not a valid regular expression" in capsys.readouterr().err
+
+
+def test_a_port_in_use_is_a_clear_error_exit_1():
+    import socket
+    import subprocess
+    from suite_helpers import fresh_domain_id, lightstage_command
+    with socket.socket() as taken:
+        taken.bind(('127.0.0.1', 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        for verb in ('web', 'view'):
+            p = subprocess.run(lightstage_command(verb, '--port', str(port), '--domain-id',
+                                                  str(fresh_domain_id())),
+                               capture_output=True, text=True, timeout=60)
+            assert p.returncode == 1, (verb, p.stderr)
+            assert f'cannot listen on 127.0.0.1:{port}' in p.stderr and 'choose another --port' in p.stderr
