@@ -18,7 +18,7 @@ import signal
 import sys
 import threading
 
-from lightstage_bringup.web_cli import is_loopback, port_number
+from lightstage_bringup.web_cli import is_loopback, server_parser
 from lightstage_graph.ros_env import apply_ros_environment
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
@@ -26,23 +26,15 @@ DEFAULT_PORT = 8765  # Foxglove's default for a WebSocket connection
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog='lightstage view',
-        description='Serve the running graph over the Foxglove WebSocket protocol, for Foxglove '
-                    'or Lichtblick: images, illumination, results, diagnostics, service calls.',
-        epilog='exit codes: 0 stopped, 1 the server could not start, 2 bad arguments')
-    p.add_argument('--port', type=port_number, default=DEFAULT_PORT,
-                   help=f'TCP port (default {DEFAULT_PORT}, Foxglove\'s default; 0: any free port, printed)')
-    p.add_argument('--host', default='127.0.0.1',
-                   help='address to listen on (default 127.0.0.1: this machine only)')
+    p = server_parser('lightstage view', 'Serve the running graph over the Foxglove WebSocket '
+                      'protocol, for Foxglove or Lichtblick: images, illumination, results, '
+                      'diagnostics, service calls.', DEFAULT_PORT, 'the graph')
     p.add_argument('--include', default='', metavar='REGEX',
                    help='serve only topics matching this regular expression')
     p.add_argument('--exclude', default='', metavar='REGEX',
                    help='never serve topics matching this regular expression')
     p.add_argument('--no-services', action='store_true',
                    help='leave out the service calls (<service>/_service_event topics)')
-    p.add_argument('--domain-id', type=int, default=None,
-                   help='ROS_DOMAIN_ID of the graph (default: $ROS_DOMAIN_ID or 0)')
     return p
 
 

@@ -39,22 +39,28 @@ def is_loopback(host: str) -> bool:
     return host in ('localhost', '::1') or host.startswith('127.')
 
 
-def _parser() -> argparse.ArgumentParser:
+def server_parser(prog: str, description: str, default_port: int, exposes: str) -> argparse.ArgumentParser:
+    """The options `lightstage web` and `lightstage view` share: where to listen, which graph."""
     p = argparse.ArgumentParser(
-        prog='lightstage web',
-        description='Serve the operator\'s page for the running graph: live camera image, the '
-                    'LEDs lit, Classify with label and scores, history, diagnostics, capture and '
-                    'noise calibration with progress.',
+        prog=prog, description=description,
         epilog='exit codes: 0 stopped, 1 the server could not start, 2 bad arguments')
-    p.add_argument('--port', type=port_number, default=DEFAULT_PORT,
-                   help=f'TCP port (default {DEFAULT_PORT}; 0: any free port, printed)')
+    p.add_argument('--port', type=port_number, default=default_port,
+                   help=f'TCP port (default {default_port}; 0: any free port, printed)')
     p.add_argument('--host', default='127.0.0.1',
-                   help='address to listen on (default 127.0.0.1: this machine only; another '
-                        'address exposes the stage\'s controls to that network)')
-    p.add_argument('--history', type=int, default=30,
-                   help='classifications kept with their images (default 30)')
+                   help=f'address to listen on (default 127.0.0.1: this machine only; another '
+                        f'address exposes {exposes} to that network)')
     p.add_argument('--domain-id', type=int, default=None,
                    help='ROS_DOMAIN_ID of the graph (default: $ROS_DOMAIN_ID or 0)')
+    return p
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = server_parser('lightstage web', 'Serve the operator\'s page for the running graph: live '
+                      'camera image, the LEDs lit, Classify with label and scores, history, '
+                      'diagnostics, capture and noise calibration with progress.',
+                      DEFAULT_PORT, 'the stage\'s controls')
+    p.add_argument('--history', type=int, default=30,
+                   help='classifications kept with their images (default 30)')
     return p
 
 
