@@ -200,6 +200,30 @@ def test_a_capture_started_from_the_page_reports_its_progress_and_result(stage):
     assert len(list((out / 'banana-real' / 's0' / 'p00').glob('*.png'))) == 32
 
 
+def test_a_capture_cancelled_from_the_page_ends_canceled_and_writes_nothing(stage):
+    import time
+    out = stage['tmp'] / 'cancelled'
+    code, job = _request(stage['url'] + '/api/capture', 'POST',
+                         {'output_dir': str(out), 'target': 'banana-real/s0/p01', 'frames_averaged': 8})
+    assert code == 202, job
+    deadline = time.monotonic() + 60
+    while not _job(stage, job['id'])['progress'].startswith(('1/', '2/', '3/')):
+        assert time.monotonic() < deadline, _job(stage, job['id'])
+        time.sleep(0.05)
+    code, answer = _request(stage['url'] + '/api/jobs/cancel', 'POST', {})
+    assert code == 200 and answer == {'cancelling': True}
+    while _job(stage, job['id'])['state'] in ('running', 'cancelling'):
+        assert time.monotonic() < deadline, _job(stage, job['id'])
+        time.sleep(0.05)
+    assert _job(stage, job['id'])['state'] == 'canceled'
+    assert not (out / 'banana-real' / 's0' / 'p01').exists()
+
+
+def _job(stage, job_id):
+    (job,) = [j for j in _request(stage['url'] + '/api/state')[1]['jobs'] if j['id'] == job_id]
+    return job
+
+
 def test_a_driver_fault_and_the_classify_it_fails_show_on_the_page(stage):
     code, state = _request(stage['url'] + '/api/state')
     (driver,) = [d for d in state['diagnostics'] if d['name'] == DRIVER_STATUS]
