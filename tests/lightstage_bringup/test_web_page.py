@@ -3,9 +3,11 @@
 One graph (driver on the simulated firmware, camera, classifier), one page server and one
 browser for the module, in this order: the page classifies (the label in the DOM is the
 Classify service's own answer, seen on its introspection topic), bad API requests get 4xx
-with a reason and the graph goes on, and a driver fault (its firmware simulator killed)
-shows on the page as an ERROR, as does the classify that then fails. Each state is
-screenshotted and the screenshot checked not to be blank.
+with a reason and the graph goes on, a capture started from the page reports its progress
+(and one cancelled ends canceled), a lost frame shows as an alert, and a driver fault (its
+firmware simulator killed) shows on the page as an ERROR, as does the classify that then
+fails. The classify and the fault are screenshotted and the screenshots checked not to be
+blank.
 """
 import asyncio
 import json
@@ -222,6 +224,27 @@ def test_a_capture_cancelled_from_the_page_ends_canceled_and_writes_nothing(stag
 def _job(stage, job_id):
     (job,) = [j for j in _request(stage['url'] + '/api/state')[1]['jobs'] if j['id'] == job_id]
     return job
+
+
+def test_a_lost_frame_shows_on_the_page(stage):
+    # what a camera publishes for a trigger whose frame will not come (the camera's own tests
+    # make it lose frames; here the page's side: notice -> the alert a person sees)
+    from lightstage_graph.qos import IMAGE_QOS
+    from lightstage_interfaces.msg import FrameLost
+    client = stage['client']
+    client.wait_for_subscriptions('web', ['/camera/frame_lost'], 10.0)
+    publisher = client.node.create_publisher(FrameLost, '/camera/frame_lost', IMAGE_QOS)
+    client.spin_until(lambda: publisher.get_subscription_count() > 0, 10.0, 'the page to subscribe')
+    client.spin_for(0.5)   # the reliable writer matched the page's reader
+    publisher.publish(FrameLost(sequence=4242, reason='BlockID gap: frame 17 lost in transfer'))
+
+    async def steps(page):
+        return await page.wait_for(
+            "[...document.querySelectorAll('.alert')].filter(a => a.dataset.source === 'camera')"
+            ".map(a => a.textContent).join('\\n')", 10, 'the lost frame on the page')
+    lost = _in_browser(stage, steps)
+    client.node.destroy_publisher(publisher)
+    assert 'frame of trigger 4242 lost: BlockID gap: frame 17 lost in transfer' in lost
 
 
 def test_a_driver_fault_and_the_classify_it_fails_show_on_the_page(stage):
