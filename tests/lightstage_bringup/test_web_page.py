@@ -202,6 +202,24 @@ def test_a_capture_started_from_the_page_reports_its_progress_and_result(stage):
     assert len(list((out / 'banana-real' / 's0' / 'p00').glob('*.png'))) == 32
 
 
+def test_a_noise_calibration_started_from_the_page_reports_its_progress_and_fit(stage):
+    import time
+    noise_file = stage['tmp'] / 'noise.yaml'
+    code, job = _request(stage['url'] + '/api/calibrate', 'POST',
+                         {'output_path': str(noise_file), 'frames_per_level': 8, 'levels': 3})
+    assert code == 202 and job['kind'] == 'calibrate', job
+    progress = set()
+    deadline = time.monotonic() + 60
+    while (job := _job(stage, job['id']))['state'] == 'running':
+        progress.add(job['progress'])
+        assert time.monotonic() < deadline, job
+        time.sleep(0.05)
+    assert job['state'] == 'succeeded', job
+    assert job['result']['sigma_p2'] > 0 and job['result']['output_path'] == str(noise_file)
+    assert noise_file.is_file()
+    assert any(p.startswith('level ') and '/3 (' in p for p in progress), progress
+
+
 def test_a_capture_cancelled_from_the_page_ends_canceled_and_writes_nothing(stage):
     import time
     out = stage['tmp'] / 'cancelled'
