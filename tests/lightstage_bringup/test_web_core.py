@@ -207,6 +207,15 @@ def test_the_app_runs_one_job_at_a_time_and_pushes_the_state():
         assert busy.status == 409 and 'a capture is running' in (await busy.json())['error']
         pushed = json.loads((await ws.receive(timeout=5)).data)
         assert pushed['version'] > first['version'] and pushed['jobs'][0]['state'] == 'starting'
+        assert 'history' in first
+        state.set_connected('classify', True)
+        while pushed['connected'].get('classify') is not True:
+            pushed = json.loads((await ws.receive(timeout=5)).data)
+        assert 'history' not in pushed   # only when it changed
+        state.on_result(result([]))
+        while 'history' not in pushed:
+            pushed = json.loads((await ws.receive(timeout=5)).data)
+        assert pushed['history'][0]['label'] == 'pear-real'
         state.update_job(bridge.jobs[0], state='failed', message='the disk is full')
         while True:
             pushed = json.loads((await ws.receive(timeout=5)).data)

@@ -4,7 +4,8 @@ the graph (no rclpy here; `web_node` is the bridge).
     GET  /                     the page (static files from web_static/, no build step, nothing
                                fetched from elsewhere)
     GET  /api/state            everything the page shows, as JSON
-    GET  /api/events           WebSocket: the state as JSON whenever it changes (<= 10 per s)
+    GET  /api/events           WebSocket: the state as JSON whenever it changes (<= 10 per s;
+                               the history only when it changed)
     GET  /api/images/live.png  the camera's latest image; /api/images/STAMP.png one of history
     POST /api/classify         {max_images, timeout_s} -> the Classify service's answer
     POST /api/capture          {output_dir, target, ...} -> 202, a job (progress in the state)
@@ -105,7 +106,8 @@ def make_app(state: PageState, bridge: Bridge, allowed_hosts=LOOPBACK_HOSTS) -> 
 
     async def image(request):
         name = request.match_info['name']
-        png = state.png(name)
+        # made on first request (stretch + PNG: tens of ms for a large frame): off the loop
+        png = await asyncio.get_running_loop().run_in_executor(None, state.png, name)
         return web.Response(body=png, content_type='image/png',
                             headers={'Cache-Control': 'no-store' if name == 'live' else 'max-age=3600'})
 
@@ -139,9 +141,9 @@ def make_app(state: PageState, bridge: Bridge, allowed_hosts=LOOPBACK_HOSTS) -> 
     async def events(request):
         ws = web.WebSocketResponse(heartbeat=20.0)
         await ws.prepare(request)
-        app['websockets'].add(ws)
         try:
-            await ws.send_str(json.dumps(state.snapshot()))
+            await ws.send_str(json.dumps(state.snapshot()))   # all of it, then the changes
+            app['websockets'].add(ws)
             async for msg in ws:  # the page sends nothing; this waits for it to go
                 if msg.type == WSMsgType.ERROR:
                     break
@@ -168,7 +170,7 @@ def make_app(state: PageState, bridge: Bridge, allowed_hosts=LOOPBACK_HOSTS) -> 
 
     async def push(_app):
         """Send the state to every open page when it changed, at most every PUSH_PERIOD_S."""
-        sent = -1
+        sent, sent_history = -1, None
         changed = asyncio.Event()
         loop = asyncio.get_running_loop()
         state.on_change = lambda: loop.call_soon_threadsafe(changed.set)
@@ -176,8 +178,9 @@ def make_app(state: PageState, bridge: Bridge, allowed_hosts=LOOPBACK_HOSTS) -> 
             await changed.wait()
             changed.clear()
             if state.version != sent and app['websockets']:
-                sent = state.version
-                text = json.dumps(state.snapshot())
+                snap = state.snapshot(history_since=sent_history)   # each page got the last one
+                sent, sent_history = snap['version'], snap['history_version']
+                text = json.dumps(snap)
                 for ws in list(app['websockets']):
                     try:
                         await ws.send_str(text)

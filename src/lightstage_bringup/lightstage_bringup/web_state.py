@@ -48,12 +48,12 @@ def display_image(pixels: np.ndarray, max_px: int) -> tuple[np.ndarray, float]:
     """A mono16 image (H, W) -> (8-bit image at most `max_px` a side, stretched so its 99.5th
     percentile is white; the brightest pixel as a fraction of the 16-bit full scale)."""
     image = np.asarray(pixels)
+    peak = float(image.max()) / 65535.0 if image.size else 0.0
     step = max(1, math.ceil(max(image.shape) / max_px))
     if step > 1:  # block mean: the shown image keeps the noise level a person expects
         h, w = (image.shape[0] // step) * step, (image.shape[1] // step) * step
         image = image[:h, :w].reshape(h // step, step, w // step, step).mean(axis=(1, 3))
     image = image.astype(np.float32)
-    peak = float(np.max(pixels)) / 65535.0 if pixels.size else 0.0
     white = float(np.percentile(image, 99.5)) if image.size else 0.0
     if white <= 0:
         return np.zeros(image.shape, np.uint8), peak
@@ -69,17 +69,23 @@ def encode_png(image: np.ndarray) -> bytes:
 
 @dataclass
 class Frame:
-    """One camera image as the page keeps it."""
+    """One camera image as the page keeps it. The image to show is made when first asked
+    for (a camera can send frames faster than a page looks at them): from `pixels` (mono16 as
+    received) at most `max_px` a side, or given ready (`image`, 8-bit)."""
     stamp_ns: int
     width: int
     height: int
-    image: np.ndarray          # 8-bit display image
     peak: float                # brightest pixel / 16-bit full scale
     received: float            # wall time [s]
+    pixels: np.ndarray | None = None
+    image: np.ndarray | None = None
+    max_px: int = LIVE_MAX_PX
     _png: bytes | None = None
 
     def png(self) -> bytes:
         if self._png is None:
+            if self.image is None:
+                self.image = display_image(self.pixels, self.max_px)[0]
             self._png = encode_png(self.image)
         return self._png
 
@@ -134,11 +140,12 @@ class Job:
 class PageState:
     """The page's picture of the graph; every method is safe from any thread."""
 
-    def __init__(self, history_size: int = 30, image_buffer: int = 64, events_size: int = 50,
+    def __init__(self, history_size: int = 30, image_buffer: int = 40, events_size: int = 50,
                  rig: Rig | None = None, on_change: Callable[[], None] | None = None):
         self._lock = threading.Lock()
         self.on_change = on_change
         self.version = 0
+        self.history_version = 0   # the history alone changes less often than the rest
         self.rig = rig or Rig.paper_default()
         self._frames: OrderedDict[int, Frame] = OrderedDict()       # by stamp
         self._illumination: OrderedDict[int, Illumination] = OrderedDict()  # by sequence
@@ -199,8 +206,8 @@ class PageState:
 
     def on_image(self, stamp_ns: int, pixels: np.ndarray) -> None:
         """A mono16 image (H, W) stamped with its trigger."""
-        image, peak = display_image(pixels, LIVE_MAX_PX)
-        frame = Frame(stamp_ns, int(pixels.shape[1]), int(pixels.shape[0]), image, peak, time.time())
+        peak = float(pixels.max()) / 65535.0 if pixels.size else 0.0
+        frame = Frame(stamp_ns, int(pixels.shape[1]), int(pixels.shape[0]), peak, time.time(), pixels)
         with self._lock:
             self._frames[stamp_ns] = frame
             while len(self._frames) > self._image_buffer:
@@ -241,6 +248,7 @@ class PageState:
         """Under the lock: history entries waiting for this trigger get its LEDs (and image)."""
         for entry in self._awaiting_illumination.pop(ill.sequence, []):
             entry['illumination'] = ill.as_dict()
+            self.history_version += 1
             frame = self._frames.get(ill.stamp_ns)
             if frame is not None:
                 self._attach_image(entry, frame)
@@ -253,20 +261,21 @@ class PageState:
         self._history_frames[thumb.stamp_ns] = thumb
         entry['image'] = {'stamp_ns': str(thumb.stamp_ns), 'width': frame.width,
                           'height': frame.height, 'peak': round(frame.peak, 4)}
+        self.history_version += 1
         self._changed()
 
     def _add_history(self, item: dict) -> None:
         if len(self._history) == self._history.maxlen:
             self._forget(self._history[-1])
         self._history.appendleft(item)
+        self.history_version += 1
         self._changed()
 
     def _thumbnail(self, frame: Frame) -> Frame:
-        if max(frame.image.shape) <= THUMBNAIL_PX:
-            return frame
-        step = math.ceil(max(frame.image.shape) / THUMBNAIL_PX)
-        return Frame(frame.stamp_ns, frame.width, frame.height, frame.image[::step, ::step].copy(),
-                     frame.peak, frame.received)
+        """The small 8-bit copy a history entry keeps (not the camera's full frame)."""
+        image = frame.image if frame.pixels is None else display_image(frame.pixels, THUMBNAIL_PX)[0]
+        return Frame(frame.stamp_ns, frame.width, frame.height, frame.peak, frame.received,
+                     image=image, max_px=THUMBNAIL_PX)
 
     def _forget(self, item: dict) -> None:
         """A history entry falls off the end: its images go unless a newer entry has them."""
@@ -360,7 +369,9 @@ class PageState:
         self._notify()
 
     # ------------------------------------------------------------------ outputs
-    def snapshot(self) -> dict:
+    def snapshot(self, history_since: int | None = None) -> dict:
+        """Everything the page shows; the history is left out if it is the one of
+        `history_version` `history_since` (a page that has it keeps it)."""
         with self._lock:
             live = None
             if self._live is not None:
@@ -370,12 +381,14 @@ class PageState:
                         'height': self._live.height, 'peak': round(self._live.peak, 4),
                         'received': self._live.received,
                         'illumination': ill.as_dict() if ill else None}
-            return {'version': self.version, 'connected': dict(self.connected),
-                    'stage': self.stage_layout(), 'live': live,
-                    'classify_running': self._classify_running,
-                    'history': list(self._history), 'events': list(self._events),
+            snap = {'version': self.version, 'history_version': self.history_version,
+                    'connected': dict(self.connected), 'stage': self.stage_layout(), 'live': live,
+                    'classify_running': self._classify_running, 'events': list(self._events),
                     'diagnostics': sorted(self._diagnostics.values(), key=lambda d: d['name']),
                     'jobs': [j.as_dict() for j in self._jobs]}
+            if history_since != self.history_version:
+                snap['history'] = list(self._history)
+            return snap
 
     def stage_layout(self) -> dict:
         """Where the sites are (mm, seen from the camera) and the LED channels, to draw."""

@@ -244,7 +244,13 @@ document.getElementById('classify').addEventListener('click', classify);
 
 function connect() {
   const ws = new WebSocket(`ws://${location.host}/api/events`);
-  ws.onmessage = (m) => { state = JSON.parse(m.data); render(); };
+  ws.onmessage = (m) => {
+    const incoming = JSON.parse(m.data);
+    // the history comes only when it changed: keep the one this page has
+    if (!('history' in incoming) && state) incoming.history = state.history;
+    state = incoming;
+    render();
+  };
   ws.onclose = () => {
     if (state) { state.connected = {page: false}; renderLinks(); }
     setTimeout(connect, 1000);
