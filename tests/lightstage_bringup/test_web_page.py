@@ -20,14 +20,12 @@ import urllib.request
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from browser_helpers import Browser, chromium_path, screenshot_stats
+from browser_helpers import Browser, screenshot_stats
 from proc_sockets import sockets_of
 from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
 from web_helpers import served
 
-pytestmark = [pytest.mark.ros,
-              pytest.mark.skipif(chromium_path() is None,
-                                 reason='Debian\'s chromium is not installed (scripts/bootstrap.sh installs it)')]
+pytestmark = pytest.mark.ros
 
 DRIVER_STATUS = 'driver: light stage link'
 
