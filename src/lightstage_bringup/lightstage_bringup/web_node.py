@@ -196,9 +196,12 @@ class WebBridge(Node):
             self._goal_handle = None
         states = {GoalStatus.STATUS_SUCCEEDED: 'succeeded', GoalStatus.STATUS_CANCELED: 'canceled'}
         result = message_dict(answer.result)
+        done = answer.status == GoalStatus.STATUS_SUCCEEDED
         self.state.update_job(job, state=states.get(answer.status, 'failed'),
                               message=result.get('message', ''), result=result,
-                              fraction=1.0 if answer.status == GoalStatus.STATUS_SUCCEEDED else job.fraction)
+                              # a failed job keeps where it stopped
+                              progress='' if done else job.progress,
+                              fraction=1.0 if done else job.fraction)
 
     async def cancel_job(self) -> bool:
         job, handle = self.state.running_job(), self._goal_handle

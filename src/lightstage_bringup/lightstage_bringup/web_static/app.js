@@ -90,7 +90,9 @@ function renderAlerts() {
         el('span', {class: 'source'}, d.name), `${d.level}: ${d.message}`));
     }
   }
-  const recent = state.events.slice(0, 6).map(e => el('div', {class: `alert ${e.level}`, 'data-source': e.source},
+  // a status in ERROR stands on top as long as it lasts; its event would say it twice
+  const inError = new Set(errors.map(a => a.dataset.source));
+  const recent = state.events.filter(e => !(inError.has(e.source) && e.text.startsWith('ERROR'))).slice(0, 6).map(e => el('div', {class: `alert ${e.level}`, 'data-source': e.source},
     el('time', {}, clock(e.time)), el('span', {class: 'source'}, e.source), e.text));
   alerts.replaceChildren(...errors, ...recent);
 }
