@@ -21,10 +21,12 @@ mkdir -p "$LOG_DIR"
 # libelf-dev), strace, with which a test checks that ROS traffic stays on loopback, and
 # iproute2, with which scripts/run_tests.sh brings up loopback in the tests' network namespace;
 # Aravis (GenICam cameras) and its GObject introspection data, and the headers PyGObject and
-# pycairo are built against (libgirepository1.0-dev, libcairo2-dev).
+# pycairo are built against (libgirepository1.0-dev, libcairo2-dev); Debian's chromium, in
+# which the tests drive the operator's page headless (no browser download).
 APT_PACKAGES=(cmake ninja-build gcc g++ make pkg-config gcc-avr binutils-avr avr-libc
               libsimavr-dev libelf-dev strace iproute2
-              libaravis-0.8-0 gir1.2-aravis-0.8 libgirepository1.0-dev libcairo2-dev)
+              libaravis-0.8-0 gir1.2-aravis-0.8 libgirepository1.0-dev libcairo2-dev
+              chromium)
 PROJECT_PACKAGES=(lightstage_graph lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_recording lightstage_bringup)
 
 step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }

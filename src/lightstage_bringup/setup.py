@@ -8,10 +8,13 @@ setup(
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
     include_package_data=True,
+    # the operator's page (lightstage web): plain HTML / CSS / JS served from the package
+    package_data={package_name: ['web_static/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', ['config/lightstage.yaml', 'config/real_rig.yaml']),
+        ('share/' + package_name + '/config', ['config/lightstage.yaml', 'config/real_rig.yaml',
+                                               'config/foxglove_layout.json']),
         ('share/' + package_name + '/launch', ['launch/lightstage.launch.py']),
     ],
     install_requires=['setuptools'],

@@ -1,0 +1,95 @@
+"""`lightstage view`: the running graph, live, in Foxglove or Lichtblick (docs/WEB.md).
+
+    lightstage up driver camera classifier --params ...   # the graph
+    lightstage view                  # then in Foxglove: Open connection -> Foxglove WebSocket
+                                     # ws://127.0.0.1:8765, and import the stage's layout
+
+Serves every topic of the graph (camera images, /illumination, /lightstage/result,
+/diagnostics, the service calls' events, ...) over the Foxglove WebSocket protocol with
+foxglove-sdk, as CDR with ros2msg schemas. Bound to 127.0.0.1 unless --host says otherwise.
+
+Exit codes: 0 stopped by Ctrl-C / SIGTERM; 1 the server could not start (port in use);
+2 bad arguments.
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from lightstage_bringup.web_cli import is_loopback, server_parser
+from lightstage_graph.ros_env import apply_ros_environment
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+DEFAULT_PORT = 8765  # Foxglove's default for a WebSocket connection
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = server_parser('lightstage view', 'Serve the running graph over the Foxglove WebSocket '
+                      'protocol, for Foxglove or Lichtblick: images, illumination, results, '
+                      'diagnostics, service calls.', DEFAULT_PORT, 'the graph')
+    p.add_argument('--include', default='', metavar='REGEX',
+                   help='serve only topics matching this regular expression')
+    p.add_argument('--exclude', default='', metavar='REGEX',
+                   help='never serve topics matching this regular expression')
+    p.add_argument('--no-services', action='store_true',
+                   help='leave out the service calls (<service>/_service_event topics)')
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    from lightstage_recording.recording import TopicSelector
+    args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        selector = TopicSelector(None, args.include, args.exclude, services=not args.no_services)
+        apply_ros_environment(args.domain_id)  # before rclpy is imported: LOCALHOST discovery
+    except ValueError as exc:
+        print(f'lightstage view: {str(exc).replace("include_regex", "--include").replace("exclude_regex", "--exclude")}',
+              file=sys.stderr)
+        return EXIT_USAGE
+    return serve(args, selector)
+
+
+def serve(args, selector) -> int:
+    import foxglove
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    from lightstage_bringup.view_channels import layout_path
+    from lightstage_bringup.view_node import ViewNode
+
+    try:
+        server = foxglove.start_server(name='lightstage', host=args.host, port=args.port)
+    except Exception as exc:  # noqa: BLE001 (the SDK raises its own error type for a busy port)
+        print(f'lightstage view: cannot listen on {args.host}:{args.port}: {exc}; choose another '
+              '--port', file=sys.stderr)
+        return EXIT_FAILED
+    if not is_loopback(args.host):
+        print(f'lightstage view: listening on {args.host}: the graph is visible to that network',
+              file=sys.stderr)
+    rclpy.init(args=[], domain_id=args.domain_id, signal_handler_options=SignalHandlerOptions.NO)
+    node = ViewNode(selector)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    layout = layout_path()
+    print(f'lightstage view: Foxglove WebSocket at ws://{args.host}:{server.port} '
+          f'(ROS_DOMAIN_ID={node.context.get_domain_id()})'
+          + (f'; the stage\'s layout: {layout}' if layout else '') + '; Ctrl-C stops', flush=True)
+    try:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        server.stop()
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return EXIT_OK
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,261 @@
+// The operator's page: renders the server's state (pushed on /api/events) and sends the
+// page's requests to /api/*. Plain JavaScript, no build step, nothing loaded from elsewhere.
+'use strict';
+
+const COLOURS = {red: '#ff3b30', green: '#30c552', blue: '#2f6bff', nir: '#b45cf0'};
+let state = null;
+let selected = null;      // id of the history entry shown under Classify (null: the newest)
+let lastAnswer = null;    // the Classify service's answer to this page's last call
+let liveShown = null;
+
+function el(tag, attrs, ...children) {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) {
+    if (k === 'class') node.className = v;
+    else if (k.startsWith('on')) node.addEventListener(k.slice(2), v);
+    else node.setAttribute(k, v);
+  }
+  for (const c of children.flat()) {
+    if (c !== null && c !== undefined) node.append(c instanceof Node ? c : String(c));
+  }
+  return node;
+}
+
+function svg(tag, attrs) {
+  const node = document.createElementNS('http://www.w3.org/2000/svg', tag);
+  for (const [k, v] of Object.entries(attrs)) node.setAttribute(k, v);
+  return node;
+}
+
+function clock(t) { return new Date(t * 1000).toLocaleTimeString(); }
+function ms(v) { return v === null || v === undefined ? '' : `${v.toFixed(1)} ms`; }
+
+// The stage seen from the camera: each site a cluster of its 4 LEDs (R G B / NIR), lit ones
+// coloured with their drive level.
+function ledPicture(intensities, size) {
+  const stage = state.stage;
+  const box = svg('svg', {width: size, height: size, viewBox: `0 0 ${size} ${size}`, class: 'stage'});
+  box.append(svg('circle', {cx: size / 2, cy: size / 2, r: size / 2 - 1, fill: '#12151c'}));
+  const reach = Math.max(1, ...stage.sites.map(s => Math.hypot(s.x_mm, s.y_mm)));
+  const ring = size / 2 - size * 0.14;
+  const led = size * 0.04, gap = size * 0.046;
+  const offsets = [[-1, -1], [1, -1], [-1, 1], [1, 1]];
+  const title = [];
+  stage.sites.forEach((site, s) => {
+    const cx = size / 2 + site.x_mm / reach * ring, cy = size / 2 - site.y_mm / reach * ring;
+    if (size >= 120) {
+      const n = svg('text', {x: cx, y: cy + gap * 3.4, 'font-size': size * 0.06, fill: '#8b93a3', 'text-anchor': 'middle'});
+      n.textContent = s;
+      box.append(n);
+    }
+    stage.channels.forEach((ch, c) => {
+      const v = intensities ? intensities[s * stage.channels.length + c] : 0;
+      const lit = v > 0;
+      if (lit) title.push(`site ${s} ${ch} ${Math.round(v * 100)} %`);
+      box.append(svg('circle', {cx: cx + offsets[c][0] * gap, cy: cy + offsets[c][1] * gap, r: led,
+        fill: lit ? COLOURS[ch] : '#2a2f3a', 'fill-opacity': lit ? 0.35 + 0.65 * v : 1,
+        stroke: lit ? '#fff' : '#444b59', 'stroke-width': lit ? 0.8 : 0.5,
+        'data-led': s * stage.channels.length + c, 'data-lit': lit ? '1' : '0'}));
+    });
+  });
+  const t = svg('title', {});
+  t.textContent = title.length ? title.join(', ') : 'all LEDs off';
+  box.append(t);
+  return box;
+}
+
+function patternText(ill) {
+  if (!ill) return 'LEDs: not known for this image';
+  const lit = ill.intensities.map((v, i) => [v, i]).filter(([v]) => v > 0);
+  const chans = state.stage.channels;
+  const names = lit.map(([v, i]) => `${Math.floor(i / chans.length)}${chans[i % chans.length][0].toUpperCase()}`);
+  return `trigger ${ill.sequence} (pattern ${ill.index + 1}/${ill.count} of request ${ill.request_id}): `
+    + `${lit.length} LED${lit.length === 1 ? '' : 's'} lit ${names.join(' ')}; exposure `
+    + `${(ill.exposure_us / 1000).toFixed(1)} ms` + (ill.gain_db === null ? '' : `, gain ${ill.gain_db} dB`);
+}
+
+function renderLinks() {
+  const links = document.getElementById('links');
+  links.replaceChildren(...Object.entries(state.connected).map(([k, up]) =>
+    el('span', {class: `pill ${up ? 'up' : 'down'}`, title: up ? `${k}: available` : `${k}: not available`}, k)));
+  document.getElementById('classify').disabled = state.classify_running;
+}
+
+function renderAlerts() {
+  const alerts = document.getElementById('alerts');
+  const errors = [];
+  for (const d of state.diagnostics) {
+    if (d.level === 'ERROR' || d.level === 'STALE') {
+      errors.push(el('div', {class: 'alert', 'data-source': d.name},
+        el('span', {class: 'source'}, d.name), `${d.level}: ${d.message}`));
+    }
+  }
+  // a status in ERROR stands on top as long as it lasts; its event would say it twice
+  const inError = new Set(errors.map(a => a.dataset.source));
+  const recent = state.events.filter(e => !(inError.has(e.source) && e.text.startsWith('ERROR'))).slice(0, 6).map(e => el('div', {class: `alert ${e.level}`, 'data-source': e.source},
+    el('time', {}, clock(e.time)), el('span', {class: 'source'}, e.source), e.text));
+  alerts.replaceChildren(...errors, ...recent);
+}
+
+function renderLive() {
+  const live = state.live;
+  const img = document.getElementById('live');
+  if (!live) return;
+  if (liveShown !== live.stamp_ns) {
+    liveShown = live.stamp_ns;
+    img.src = `/api/images/live.png?stamp=${live.stamp_ns}`;
+  }
+  document.getElementById('live-caption').textContent =
+    `${live.width} x ${live.height}, received ${clock(live.received)}; brightest pixel `
+    + `${(live.peak * 100).toFixed(1)} % of full scale`;
+  document.getElementById('live-leds').replaceChildren(ledPicture(live.illumination && live.illumination.intensities, 150));
+  document.getElementById('live-pattern').textContent = patternText(live.illumination);
+}
+
+function scoreBars(names, scores) {
+  const box = document.getElementById('scores');
+  if (!scores.length) { box.replaceChildren(); return; }
+  const lo = Math.min(0, ...scores), hi = Math.max(0, ...scores);
+  const span = hi - lo || 1, zero = (0 - lo) / span * 100;
+  const best = scores.indexOf(Math.max(...scores));
+  const order = scores.map((s, i) => i).sort((a, b) => scores[b] - scores[a]);
+  box.replaceChildren(...order.flatMap(i => {
+    const v = scores[i];
+    const left = v >= 0 ? zero : (v - lo) / span * 100, width = Math.abs(v) / span * 100;
+    const bar = el('div', {class: 'bar'}, el('span', {class: i === best ? 'best' : '', style: `left:${left}%;width:${width}%`}),
+      el('span', {class: 'zero', style: `left:${zero}%`}));
+    return [el('span', {class: 'score-name'}, names[i]), bar, el('span', {class: 'muted'}, (v >= 0 ? '+' : '') + v.toFixed(3))];
+  }));
+}
+
+function shownEntry() {
+  if (selected !== null) return state.history.find(h => h.id === selected) || null;
+  return state.history[0] || null;
+}
+
+function renderAnswer() {
+  const label = document.getElementById('label');
+  const entry = shownEntry();
+  // this page's own answer first (a failed call may have no history entry yet), then the history
+  const a = selected === null && lastAnswer ? lastAnswer : entry;
+  if (!a) return;
+  label.textContent = a.success ? a.label : `classification failed: ${a.message}`;
+  label.className = a.success ? '' : 'failed';
+  label.dataset.success = a.success ? '1' : '0';
+  document.getElementById('times').textContent = a.success
+    ? `${a.images_used} images, acquisition ${ms(a.acquisition_ms)}, compute ${ms(a.compute_ms)}` : '';
+  scoreBars(a.class_names || [], a.scores || []);
+  const thumbs = document.getElementById('class-images');
+  const images = entry && (!lastAnswer || selected !== null || sameClassification(entry, lastAnswer)) ? entry.images : [];
+  thumbs.replaceChildren(...images.map(i => el('div', {class: 'thumb'},
+    i.image ? el('img', {src: `/api/images/${i.image.stamp_ns}.png`, alt: `image of trigger ${i.sequence}`}) : el('div', {}, 'image not received'),
+    el('div', {class: 'leds'}, ledPicture(i.illumination && i.illumination.intensities, 90)),
+    `trigger ${i.sequence}`)));
+}
+
+function sameClassification(entry, answer) {
+  return entry.success === answer.success && entry.label === answer.label
+    && entry.acquisition_ms === answer.acquisition_ms;
+}
+
+function renderHistory() {
+  const body = document.querySelector('#history tbody');
+  body.replaceChildren(...state.history.map(h => el('tr', {
+      class: h.id === selected ? 'selected' : '', 'data-id': h.id,
+      onclick: () => { selected = selected === h.id ? null : h.id; lastAnswer = null; render(); }},
+    el('td', {}, clock(h.time)),
+    h.success ? el('td', {}, h.label) : el('td', {class: 'failed', title: h.message}, 'failed: ' + h.message.slice(0, 60)),
+    el('td', {}, h.images_used || ''), el('td', {}, h.success ? ms(h.acquisition_ms) : ''),
+    el('td', {}, h.success ? ms(h.compute_ms) : ''))));
+}
+
+function renderDiagnostics() {
+  const box = document.getElementById('diagnostics');
+  if (!state.diagnostics.length) return;
+  box.replaceChildren(...state.diagnostics.map(d => el('div', {class: `diag ${d.level}`, 'data-name': d.name},
+    el('div', {}, el('span', {class: 'level'}, d.level), el('strong', {}, d.name), ': ', d.message),
+    el('details', {}, el('summary', {}, `${Object.keys(d.values).length} values, ${clock(d.received)}`),
+      el('dl', {}, Object.entries(d.values).flatMap(([k, v]) => [el('dt', {}, k), el('dd', {}, v)]))))));
+}
+
+function renderJobs() {
+  document.getElementById('jobs').replaceChildren(...state.jobs.slice(0, 4).map(j => {
+    const running = ['starting', 'running', 'cancelling'].includes(j.state);
+    return el('div', {class: `job ${j.state}`, 'data-id': j.id},
+      el('div', {}, el('strong', {}, j.kind), ` ${j.state}`, j.progress ? `: ${j.progress}` : '',
+        running ? el('button', {type: 'button', style: 'margin-left:1em;padding:.1em .6em', onclick: cancelJob}, 'Cancel') : null),
+      el('div', {class: 'progress'}, el('span', {style: `width:${Math.round(j.fraction * 100)}%`})),
+      j.message ? el('div', {class: 'muted'}, j.message) : null);
+  }));
+}
+
+function render() {
+  if (!state) return;
+  renderLinks(); renderAlerts(); renderLive(); renderAnswer(); renderHistory(); renderDiagnostics(); renderJobs();
+}
+
+async function post(path, body) {
+  const r = await fetch(path, {method: 'POST', headers: {'Content-Type': 'application/json'}, body: JSON.stringify(body)});
+  const data = await r.json().catch(() => ({error: `HTTP ${r.status}`}));
+  if (!r.ok) throw new Error(data.error || `HTTP ${r.status}`);
+  return data;
+}
+
+function say(text) { document.getElementById('classify-status').textContent = text; }
+
+async function classify() {
+  const button = document.getElementById('classify');
+  button.disabled = true;
+  say('classifying ...');
+  document.getElementById('label').dataset.pending = '1';
+  try {
+    lastAnswer = await post('/api/classify', {max_images: Number(document.getElementById('max-images').value) || 0});
+    selected = null;
+    say('');
+  } catch (e) {
+    lastAnswer = {success: false, message: e.message};
+    say('');
+  } finally {
+    delete document.getElementById('label').dataset.pending;
+    button.disabled = false;
+    render();
+  }
+}
+
+async function cancelJob() {
+  try { await post('/api/jobs/cancel', {}); } catch (e) { alert(e.message); }
+}
+
+function formBody(form) {
+  const body = {};
+  for (const input of form.querySelectorAll('input')) {
+    if (input.type === 'checkbox') body[input.name] = input.checked;
+    else if (input.type === 'number') body[input.name] = Number(input.value) || 0;
+    else body[input.name] = input.value;
+  }
+  return body;
+}
+
+for (const [id, path] of [['capture-form', '/api/capture'], ['calibrate-form', '/api/calibrate']]) {
+  document.getElementById(id).addEventListener('submit', async (ev) => {
+    ev.preventDefault();
+    try { await post(path, formBody(ev.target)); } catch (e) { alert(e.message); }
+  });
+}
+document.getElementById('classify').addEventListener('click', classify);
+
+function connect() {
+  const ws = new WebSocket(`ws://${location.host}/api/events`);
+  ws.onmessage = (m) => {
+    const incoming = JSON.parse(m.data);
+    // the history comes only when it changed: keep the one this page has
+    if (!('history' in incoming) && state) incoming.history = state.history;
+    state = incoming;
+    render();
+  };
+  ws.onclose = () => {
+    if (state) { state.connected = {page: false}; renderLinks(); }
+    setTimeout(connect, 1000);
+  };
+}
+connect();

@@ -1,0 +1,154 @@
+"""`lightstage view` beside the graph on the simulated stage, seen by a Foxglove-protocol
+client (the ws-protocol's messages over aiohttp's WebSocket client; foxglove-sdk names the
+subprotocol `foxglove.sdk.v1`, the same messages as `foxglove.websocket.v1`, which it no
+longer accepts by that name): during a classify it receives
+the camera images, the illumination states and the result, each decoded from its CDR bytes
+with the ros2msg schema the server advertised (as Foxglove does it), with the right sizes;
+the shipped layout names only topics the server serves; the server listens on loopback only.
+"""
+import asyncio
+import json
+import struct
+
+import pytest
+from lightstage_bringup.supervisor import Supervisor
+
+from proc_sockets import sockets_of
+from suite_helpers import REPO, GraphClient, fresh_domain_id, start_nodes, write_params
+from web_helpers import served
+
+pytestmark = pytest.mark.ros
+
+SUBPROTOCOL = 'foxglove.sdk.v1'
+MESSAGE_DATA = 0x01   # binary opcode: subscription id (u32), log time (u64), payload
+WANTED = {'/camera/image_raw': 'sensor_msgs/msg/Image',
+          '/illumination': 'lightstage_interfaces/msg/IlluminationState',
+          '/lightstage/result': 'lightstage_interfaces/msg/ClassificationResult',
+          '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray'}
+
+
+def decoder(channel: dict):
+    """What a Foxglove client does with a cdr / ros2msg channel: parse the schema text."""
+    from mcap.records import Schema
+    from mcap_ros2.decoder import DecoderFactory
+    schema = Schema(id=channel['id'], name=channel['schemaName'], encoding=channel['schemaEncoding'],
+                    data=channel['schema'].encode())
+    return DecoderFactory().decoder_for(channel['encoding'], schema)
+
+
+def layout_topics(layout: dict) -> set[str]:
+    """The topics a Foxglove layout's panels read (topic paths start with the topic)."""
+    found = set()
+
+    def walk(value):
+        if isinstance(value, dict):
+            for key, v in value.items():
+                if key in ('topicPath', 'imageTopic', 'topicToRender', 'value') and isinstance(v, str):
+                    found.add(v.split('.')[0])
+                walk(v)
+        elif isinstance(value, list):
+            for v in value:
+                walk(v)
+    walk(layout['configById'])
+    return found
+
+
+def test_a_foxglove_client_sees_images_illumination_and_result_of_a_classify(
+        stage_capture, stage_artifact_path, tmp_path):
+    import aiohttp
+    from lightstage_interfaces.srv import Classify
+    domain_id = fresh_domain_id()
+    params = write_params(tmp_path / 'params.yaml', {
+        'driver': {'port': 'sim'},
+        'camera': {'capture_dir': str(stage_capture), 'sample': 'orange-fake/s1/p01', 'seed': 9},
+        'classifier': {'artifact_path': str(stage_artifact_path), 'timeout_s': 10.0},
+    })
+    client = GraphClient(domain_id)
+
+    async def watch(url):
+        channels, received = {}, {topic: [] for topic in WANTED}
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(url, protocols=[SUBPROTOCOL, 'foxglove.websocket.v1'],
+                                          max_msg_size=64 << 20) as ws:
+                assert ws.protocol == SUBPROTOCOL
+                info = json.loads((await ws.receive(timeout=10)).data)
+                assert info['op'] == 'serverInfo' and info['name'] == 'lightstage'
+                deadline = asyncio.get_running_loop().time() + 30
+                while not set(WANTED) <= set(channels):  # topics are advertised as discovered
+                    message = await ws.receive(timeout=max(0.1, deadline - asyncio.get_running_loop().time()))
+                    if message.type == aiohttp.WSMsgType.TEXT:
+                        op = json.loads(message.data)
+                        if op['op'] == 'advertise':
+                            channels.update({c['topic']: c for c in op['channels']})
+                # the view's readers matched with the graph's writers (a reliable writer gives a
+                # reader only what it publishes after they matched)
+                await asyncio.to_thread(client.wait_for_subscriptions, 'view',
+                                        ['/camera/image_raw', '/illumination', '/lightstage/result'], 20.0)
+                subscriptions = {i: channels[topic] for i, topic in enumerate(WANTED, start=1)}
+                await ws.send_str(json.dumps({'op': 'subscribe', 'subscriptions': [
+                    {'id': i, 'channelId': c['id']} for i, c in subscriptions.items()]}))
+                while True:   # the subscription is on once its first message comes (diagnostics: 1/s)
+                    message = await ws.receive(timeout=10)
+                    if message.type == aiohttp.WSMsgType.BINARY:
+                        break
+                    op = json.loads(message.data)
+                    assert op['op'] != 'status' or op['level'] < 2, op   # 2: error
+                call = asyncio.create_task(asyncio.to_thread(
+                    client.call, Classify, '/lightstage/classify',
+                    Classify.Request(max_images=4, timeout_s=10.0), timeout_s=30.0))
+                statuses = set()   # the driver's and the camera's, each every second
+                read_diagnostics = decoder(channels['/diagnostics'])
+                while not (call.done() and received['/lightstage/result'] and len(statuses) >= 2
+                           and len(received['/camera/image_raw']) >= 4):
+                    assert asyncio.get_running_loop().time() < deadline + 60, \
+                        {'statuses': statuses, **{t: len(m) for t, m in received.items()}}
+                    message = await ws.receive(timeout=30)
+                    if message.type == aiohttp.WSMsgType.TEXT:
+                        op = json.loads(message.data)
+                        assert op['op'] != 'status' or op['level'] < 2, op   # 2: error
+                    if message.type == aiohttp.WSMsgType.BINARY:
+                        opcode, sub_id, _log_time = struct.unpack_from('<BIQ', message.data)
+                        assert opcode == MESSAGE_DATA
+                        topic = subscriptions[sub_id]['topic']
+                        received[topic].append(message.data[13:])
+                        if topic == '/diagnostics':
+                            statuses |= {s.name for s in read_diagnostics(message.data[13:]).status}
+                return channels, received, await call
+
+    try:
+        with Supervisor(sigint_timeout_s=5.0) as supervisor:
+            start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
+            with served('view', domain_id) as (server, url):
+                try:
+                    channels, received, answer = asyncio.run(watch(url))
+                except AssertionError as exc:
+                    raise AssertionError(f'{exc}\nlightstage view said:\n{server.output()}') from None
+                listening = [s for s in sockets_of(server.pid) if s.proto.startswith('tcp') and s.state == '0A']
+    finally:
+        client.close()
+
+    assert answer.success, answer.message
+    for topic, type_name in WANTED.items():
+        c = channels[topic]
+        assert (c['encoding'], c['schemaEncoding'], c['schemaName']) == ('cdr', 'ros2msg', type_name)
+    decode = {topic: decoder(channels[topic]) for topic in WANTED}
+
+    images = [decode['/camera/image_raw'](data) for data in received['/camera/image_raw']]
+    assert len(images) == answer.images_used == 4
+    for image in images:   # the camera renders the 120 px capture: mono16, 2 bytes a pixel
+        assert (image.width, image.height, image.encoding, image.step) == (120, 120, 'mono16', 240)
+        assert len(image.data) == image.height * image.step
+    lit = [decode['/illumination'](data) for data in received['/illumination']]
+    assert len(lit) == 4 and all(len(m.intensities) == 32 and m.count_in_request == 4 for m in lit)
+    assert sorted((m.header.stamp.sec, m.header.stamp.nanosec) for m in lit) == \
+        sorted((i.header.stamp.sec, i.header.stamp.nanosec) for i in images)
+    (result,) = [decode['/lightstage/result'](data) for data in received['/lightstage/result']]
+    assert result.label == answer.label and result.images_used == 4
+    assert len(result.scores) == len(result.class_names) == 4
+    assert sorted(result.sequences) == sorted(m.sequence for m in lit)
+    diagnostics = [decode['/diagnostics'](data) for data in received['/diagnostics']]
+    assert {s.name for d in diagnostics for s in d.status} == {'driver: light stage link', 'camera: camera'}
+
+    assert listening and all(s.loopback for s in listening), [str(s) for s in listening]
+    layout = json.loads((REPO / 'src/lightstage_bringup/config/foxglove_layout.json').read_text())
+    assert layout_topics(layout) <= set(channels), layout_topics(layout)
