@@ -164,3 +164,20 @@ def test_an_unknown_start_sample_is_reported_and_fixing_it_starts_the_camera(har
     assert status.level == OK and 'banana-fake/s1/p01' in status.message
     h.trigger(1, 3_000_000_000, np.ones(32))
     assert h.spin_until(lambda: len(h.images) == 1)
+
+
+def test_exposure_scales_light_changes_at_run_time(harness_factory, stage_capture, stage_modelset):
+    h = harness_factory(capture_dir=str(stage_capture), sample=0, noise='none')
+    leds = np.full(32, 0.5, np.float32)
+    h.trigger(1, 5_000_000_000, leds, exposure_us=11250)
+    assert h.spin_until(lambda: len(h.images) == 1)
+    (ok,) = h.set(exposure_scales_light=True)
+    assert ok.successful
+    h.trigger(2, 6_000_000_000, leds, exposure_us=11250)
+    assert h.spin_until(lambda: len(h.images) == 2)
+    frames = [np.frombuffer(bytes(m.data), '<u2').reshape(120, 120) for m in h.images]
+    for scales, frame in zip((False, True), frames):
+        expected = SimCamera(stage_modelset, sample=0, noise='none',
+                             exposure_scales_light=scales).capture(leds, 11250, 17.5)
+        np.testing.assert_array_equal(frame, expected)
+    assert not np.array_equal(frames[0], frames[1])

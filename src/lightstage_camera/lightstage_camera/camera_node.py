@@ -302,6 +302,7 @@ class CameraNode(Node):
                 cam.calibration = replace(calibration, max_level=cam.modelset.max_level)
             cam.dimmer = float(s['dimmer'])
             cam.default_gain_db = float(s['default_gain_db'])
+            cam.exposure_scales_light = bool(s['exposure_scales_light'])
             if 'seed' in changes:
                 cam.rng = np.random.default_rng(None if int(s['seed']) < 0 else int(s['seed']))
         except (ValueError, OSError) as exc:
