@@ -20,6 +20,7 @@ from lightstage_bringup import demo
 from lightstage_recording import BagReader
 from lightstage_graph.ros_env import ros_environment
 from recording_helpers import bag_results
+from lightstage_graph.graph_client import GraphTimeout
 from suite_helpers import GraphClient, fresh_domain_id, lightstage_command
 
 pytestmark = pytest.mark.ros
@@ -65,7 +66,8 @@ def test_the_demo_leaves_its_bag_and_its_replay_command_reproduces_the_labels(
     # the printed commands, as a user runs them in two terminals
     client = GraphClient(domain_id)
     replayed = []
-    client.node.create_subscription(ClassificationResult, '/lightstage/result', replayed.append, 10)
+    # deep enough for every result: this client does not spin while the bag plays
+    client.node.create_subscription(ClassificationResult, '/lightstage/result', replayed.append, 100)
     up_argv, up_kwargs = _run_printed(commands[0], domain_id)
     assert '--no-record' not in up_argv  # the recorder runs beside the observing classifier
     classifier = subprocess.Popen(up_argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
@@ -76,12 +78,17 @@ def test_the_demo_leaves_its_bag_and_its_replay_command_reproduces_the_labels(
         play_argv, play_kwargs = _run_printed(commands[1], domain_id)
         p = subprocess.run(play_argv, capture_output=True, timeout=180, **play_kwargs)
         assert p.returncode == 0, p.stdout + p.stderr
-        client.spin_until(lambda: len(replayed) >= len(recorded), 30.0,
-                          lambda: f'{len(recorded)} replayed results (got {len(replayed)})')
+        try:
+            client.spin_until(lambda: len(replayed) >= len(recorded), 30.0,
+                              lambda: f'{len(recorded)} replayed results (got {len(replayed)})')
+            missed = None
+        except GraphTimeout as exc:
+            missed = exc
     finally:
         classifier.send_signal(signal.SIGINT)
         log, _ = classifier.communicate(timeout=60)
         client.close()
+    assert missed is None, f'{missed}; the classifier said:\n{log}'
     by_sequences = {tuple(r.sequences): r for r in replayed}
     for r in recorded:  # every call (8 and 4 images: both use the artifact's first patterns)
         again = by_sequences.get(tuple(r.sequences))
