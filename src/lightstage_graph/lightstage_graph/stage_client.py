@@ -31,6 +31,7 @@ from lightstage_interfaces.srv import ApplyPatterns
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.qos import QoSProfile
 from rclpy.parameter import parameter_value_to_python
 from sensor_msgs.msg import Image
 
@@ -49,8 +50,14 @@ class StageClient:
         self._apply_client = node.create_client(ApplyPatterns, APPLY_PATTERNS_SERVICE,
                                                 callback_group=callback_group)
         images = MutuallyExclusiveCallbackGroup()  # in arrival order, one at a time
-        self._image_sub = node.create_subscription(Image, IMAGE_TOPIC, self.matcher.add_message,
-                                                   IMAGE_QOS, callback_group=images)
+        # the reader keeps up to image_buffer images the executor has not taken yet (IMAGE_QOS's
+        # 32 is one sequence): a node held up for a moment loses none (depth is not matched
+        # against the publisher's; unused depth costs nothing)
+        depth = max(IMAGE_QOS.depth, int(image_buffer))
+        self._image_sub = node.create_subscription(
+            Image, IMAGE_TOPIC, self.matcher.add_message,
+            QoSProfile(history=IMAGE_QOS.history, depth=depth, reliability=IMAGE_QOS.reliability,
+                       durability=IMAGE_QOS.durability), callback_group=images)
         # the camera's notice that a trigger's frame will not come: `collect` fails at once
         self._lost_sub = node.create_subscription(FrameLost, FRAME_LOST_TOPIC,
                                                   self.matcher.add_lost_message, IMAGE_QOS,
