@@ -244,8 +244,8 @@ def test_issue_23_a_stopped_camera_is_refused_not_skipped(graph):
     finally:
         os.kill(camera.pid, signal.SIGCONT)
     assert not r.success
-    assert r.message.startswith("not classifying: the camera node 'camera' did not answer a "
-                                'parameter query within 2.0 s, so its dimmer cannot be checked'), r.message
+    assert re.match(r"not classifying: the camera node 'camera' did not answer a parameter "
+                    r'query within [\d.]+ s, so its dimmer cannot be checked', r.message), r.message
     r = classify(client, max_images=4)
     assert r.success, r.message
     assert not graph.supervisor.exited()

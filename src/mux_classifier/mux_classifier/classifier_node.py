@@ -57,7 +57,9 @@ from .observe import SequenceObserver, TriggerState
 from .stage_queue import StageBusy, StageQueue
 
 START_HINT = 'lightstage up driver camera classifier'
-CAMERA_QUERY_S = 2.0  # the camera's parameter service answers in ms when the camera is up
+# the camera's parameter service answers in ms when the camera is up, in seconds on a machine
+# loaded far beyond its cores: the query may take this long, or half the call's time if more
+CAMERA_QUERY_S = 2.0
 # unclaimed images kept per image of the artifact's longest sequence: a sequence's images
 # come before its last trigger state is seen, and the next one's may follow at once
 BUFFERED_SEQUENCES = 2
@@ -265,7 +267,8 @@ class ClassifierNode(Node):
             try:
                 # driver and camera there (the clearest errors first), dimmer checked, then light
                 self.stage.wait_ready(remaining_s)
-                self._check_camera(artifact, min(CAMERA_QUERY_S, deadline - time.monotonic()))
+                left_s = deadline - time.monotonic()
+                self._check_camera(artifact, min(left_s, max(CAMERA_QUERY_S, left_s / 2)))
                 left_s = deadline - time.monotonic()
                 if left_s <= 0:
                     raise InferenceError(f'the time limit ({remaining_s:.2f} s left when the '
