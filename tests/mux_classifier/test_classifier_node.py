@@ -22,6 +22,22 @@ def node(stage_artifact_path):
     rclpy.shutdown(context=context)
 
 
+def answer(node, request):
+    """Run the node's service handler (a coroutine awaiting the stage queue's worker) to its
+    response, as the executor would."""
+    import time
+    from lightstage_interfaces.srv import Classify
+    handler = node._on_classify(request, Classify.Response())
+    deadline = time.monotonic() + 30.0
+    while time.monotonic() < deadline:
+        try:
+            handler.send(None)
+        except StopIteration as done:
+            return done.value
+        time.sleep(0.005)
+    raise AssertionError('the handler did not answer within 30 s')
+
+
 def test_an_unforeseen_failure_in_a_call_is_answered_with_its_text(node, monkeypatch):
     from lightstage_interfaces.srv import Classify
     from mux_classifier import classifier_node
@@ -29,11 +45,35 @@ def test_an_unforeseen_failure_in_a_call_is_answered_with_its_text(node, monkeyp
     def broken(*_args, **_kwargs):
         raise RuntimeError('boom')
 
+    monkeypatch.setattr(node.stage, 'wait_ready', lambda _timeout_s: None)
+    monkeypatch.setattr(node.stage, 'camera_parameters', lambda _names, _t: {'backend': 'sim',
+                                                                             'dimmer': 0.45})
     monkeypatch.setattr(classifier_node, 'classify_on_stage', broken)
-    r = node._on_classify(Classify.Request(max_images=4, timeout_s=1.0), Classify.Response())
+    r = answer(node, Classify.Request(max_images=4, timeout_s=1.0))
     assert not r.success
     assert r.message.startswith('the classifier failed unexpectedly (RuntimeError: boom)')
     assert node._busy.acquire(blocking=False)  # the stage lock was let go
+    node._busy.release()
+    assert node.queue.served == 1 and len(node.queue) == 0  # the queue's worker goes on
+
+
+def test_a_camera_that_does_not_answer_refuses_the_call(node, monkeypatch):
+    """Issue 23: a stopped camera made the classifier skip its dimmer check after 2 s and
+    light the stage anyway; the safety check fails closed."""
+    from lightstage_interfaces.srv import Classify
+    from mux_classifier import classifier_node
+    lit = []
+    monkeypatch.setattr(node.stage, 'wait_ready', lambda _timeout_s: None)
+    monkeypatch.setattr(node.stage, 'camera_parameters', lambda _names, _t: None)  # no answer
+    monkeypatch.setattr(classifier_node, 'classify_on_stage', lambda *a, **k: lit.append(a))
+    r = answer(node, Classify.Request(max_images=4, timeout_s=1.0))
+    assert not r.success and not lit
+    assert r.message == (
+        "not classifying: the camera node 'camera' did not answer a parameter query within 1.0 s, "
+        "so its dimmer cannot be checked against the classifier's (0.45; a sim camera at "
+        "another dimmer classifies wrong silently). Is the camera running and not stopped or "
+        "hung (`ros2 node list`, its log)? If the camera node has another name, set the "
+        "classifier's camera_node parameter to it")
 
 
 def test_an_unforeseen_failure_loading_an_artifact_is_a_rejection(node, monkeypatch, tmp_path):

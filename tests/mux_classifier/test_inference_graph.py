@@ -17,6 +17,7 @@ import subprocess
 import sys
 import threading
 import zipfile
+from pathlib import Path
 from typing import NamedTuple
 
 import pytest
@@ -162,12 +163,105 @@ def test_a_sim_camera_at_another_dimmer_is_refused(graph):
 
 
 
+def _burst(client, n, **request):
+    """`n` Classify calls sent at once from one client; their answers, in sending order."""
+    from lightstage_interfaces.srv import Classify
+    service = client.service(Classify, '/lightstage/classify')
+    client.spin_until(service.service_is_ready, 10.0, 'the classify service')
+    futures = [service.call_async(Classify.Request(**request)) for _ in range(n)]
+    client.spin_until(lambda: all(f.done() for f in futures), 300.0,
+                      lambda: f'{sum(not f.done() for f in futures)} of {n} answers')
+    return [f.result() for f in futures]
+
+
+def _served_order(answers, results):
+    """Which answer each result (published in the order calls are served) belongs to, tied by
+    the timings both carry."""
+    return [next(i for i, r in enumerate(answers)
+                 if (r.acquisition_ms, r.compute_ms) == (m.acquisition_ms, m.compute_ms))
+            for m in results]
+
+
+def test_issue_23_twenty_concurrent_calls_are_all_served_in_order(graph):
+    """Four or more concurrent calls all failed: every executor thread waited for the stage,
+    none was left for the driver's reply. Twenty at once, each with time enough to wait its
+    turn: every one classifies, one at a time, in the order sent, and the node stays up."""
+    from lightstage_interfaces.msg import ClassificationResult
+    client = graph.client
+    (ok,) = client.set_parameters('camera', sample='orange-real/s0/p01')
+    assert ok.successful, ok.reason
+    results = []
+    client.node.create_subscription(ClassificationResult, '/lightstage/result', results.append, 100)
+    client.spin_for(0.5)
+    answers = _burst(client, 20, max_images=4, timeout_s=300.0)
+    assert all(r.success for r in answers), [r.message for r in answers if not r.success]
+    client.spin_until(lambda: len(results) >= 20, 10.0, 'the 20 results')
+    assert _served_order(answers, results[-20:]) == list(range(20))
+    # one sequence after the other on the stage, never interleaved
+    seqs = [s for m in results[-20:] for s in m.sequences]
+    assert seqs == list(range(seqs[0], seqs[0] + 80))
+    assert all(r.label.startswith('orange') for r in answers)
+    assert not graph.supervisor.exited()
+
+
+def test_issue_23_calls_beyond_what_fits_their_time_limit_are_refused_at_once(graph):
+    """Twenty at once with 1.5 s each: those the stage can serve in time classify, in order;
+    the others are refused with the reason (the calls ahead of them, the time limit) instead
+    of failing after it; none is left unanswered and the stage classifies afterwards."""
+    from lightstage_interfaces.msg import ClassificationResult
+    client = graph.client
+    results = []
+    client.node.create_subscription(ClassificationResult, '/lightstage/result', results.append, 100)
+    classify(client, max_images=4)  # the queue has learnt how long a call takes
+    client.spin_until(lambda: results, 10.0, 'the first result')
+    answers = _burst(client, 20, max_images=4, timeout_s=1.5)
+    served = [i for i, r in enumerate(answers) if r.success]
+    refused = [r.message for r in answers if not r.success]
+    assert served and refused
+    client.spin_until(lambda: len(results) >= 1 + len(served), 10.0, 'the results')
+    assert _served_order(answers, results[1:]) == served  # in the order sent
+    for message in refused:
+        assert ('ahead of this one would keep the stage busy' in message
+                or 'less than a call takes' in message), message
+        assert 'timeout_s' in message, message
+    r = classify(client, max_images=4)
+    assert r.success, r.message
+    assert not graph.supervisor.exited()
+
+
+def test_issue_23_a_stopped_camera_is_refused_not_skipped(graph):
+    """A camera stopped with SIGSTOP made the classifier skip its dimmer check after 2 s and
+    light the stage anyway ("its dimmer is not checked"); the check fails closed: the call is
+    refused naming the camera, and classifies again once the camera runs."""
+    import signal
+    client = graph.client
+    r = classify(client, max_images=4)  # the camera is matched and answering
+    assert r.success, r.message
+    camera = graph.supervisor['camera']
+    os.kill(camera.pid, signal.SIGSTOP)
+    try:
+        r = classify(client, max_images=4, timeout_s=5.0)
+    finally:
+        os.kill(camera.pid, signal.SIGCONT)
+    assert not r.success
+    assert re.match(r"not classifying: the camera node 'camera' did not answer a parameter "
+                    r'query within [\d.]+ s, so its dimmer cannot be checked', r.message), r.message
+    r = classify(client, max_images=4)
+    assert r.success, r.message
+    assert not graph.supervisor.exited()
+
+
 def test_classify_cli_prints_the_answer(graph):
     domain_id = graph.domain_id
-    p = subprocess.run([sys.executable, '-m', 'lightstage_bringup.classify_cli', '--domain-id',
-                        str(domain_id), '--json', '--max-images', '4'],
-                       capture_output=True, text=True, timeout=60)
+    # the installed command, as a user runs it (its exit tears the client down differently
+    # from `python -m`)
+    lightstage = str(Path(sys.executable).with_name('lightstage'))
+    p = subprocess.run([lightstage, 'classify', '--domain-id', str(domain_id), '--json',
+                        '--max-images', '4'], capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr
+    # issue 23: every successful call ended in `Exception ignored in: <function
+    # Executor.__del__> ... InvalidHandle`; the client now closes in order
+    assert 'Exception ignored' not in p.stderr and 'Traceback' not in p.stderr, p.stderr
     answer = json.loads(p.stdout)
     assert answer['success'] and answer['images_used'] == 4
     assert answer['label'] in answer['class_names']

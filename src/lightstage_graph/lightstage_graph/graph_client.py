@@ -38,6 +38,12 @@ class GraphClient:
         self._clients = {}  # one client per service / action, discovered once
 
     def close(self) -> None:
+        """Executor, node, then the context, in that order (idempotent). Shutting the context
+        down first left the executor's guard conditions to a garbage collection after it:
+        `Exception ignored in: <function Executor.__del__> ... InvalidHandle` on stderr."""
+        if self.context.ok():
+            self.executor.shutdown(timeout_sec=0)
+            self.node.destroy_node()
         self.context.try_shutdown()
 
     def __enter__(self) -> GraphClient:
@@ -68,9 +74,13 @@ class GraphClient:
 
     # ------------------------------------------------------------------ services
     def service(self, srv_type, name: str):
-        """The client of service `name` (made once)."""
+        """The client of service `name` (made once). Its reply reader is as deep as a queued
+        service's (`qos.QUEUED_SERVICE_QOS`): many calls in flight may be answered at once
+        (refusals), and the default depth, 10, would drop the oldest of those answers."""
         if name not in self._clients:
-            self._clients[name] = self.node.create_client(srv_type, name)
+            from .qos import QUEUED_SERVICE_QOS
+            self._clients[name] = self.node.create_client(srv_type, name,
+                                                          qos_profile=QUEUED_SERVICE_QOS)
         return self._clients[name]
 
     def _unavailable(self, what: str, wait_s: float, hint: str) -> GraphTimeout:

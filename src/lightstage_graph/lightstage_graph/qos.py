@@ -12,3 +12,11 @@ IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=32,
 ILLUMINATION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                               reliability=ReliabilityPolicy.RELIABLE,
                               durability=DurabilityPolicy.VOLATILE)
+
+# A service that queues its calls (the classifier's /lightstage/classify): as the services'
+# default (reliable, volatile) but 1000 requests deep, so that a burst of concurrent calls
+# waits in the request reader until the executor takes them; the default depth, 10, drops
+# the oldest requests of a larger burst, which are then never answered.
+QUEUED_SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                                reliability=ReliabilityPolicy.RELIABLE,
+                                durability=DurabilityPolicy.VOLATILE)

@@ -11,8 +11,13 @@ The classifier and the acquisition node both drive the stage this way:
     frames = self.stage.grab(patterns, exposure_us, gain_db, timeout_s)  # apply + collect
     settings = self.stage.camera_parameters(('backend', 'dimmer'), timeout_s)  # or None
 
-Calls block (they wait for the driver's reply and the images), so the node spins a
-multi-threaded executor and passes a reentrant `callback_group`. Every failure is a
+Calls block (they wait for the driver's reply and the images): make them from a thread that
+is not one of the executor's (a worker, or an executor with threads to spare), with the
+node spun by a multi-threaded executor; the clients go in the `callback_group` given (a
+reentrant one). The image and lost-frame subscriptions have a mutually exclusive group of
+their own: images are handled one at a time, in the order they arrive, which is what lets
+`ImageMatcher.collect(..., since_ns=...)` tell from a later image that a missing one will
+not come (the classifier's observing mode). Every failure is a
 `StageError` saying which part of the stage is missing or failed and what to do.
 """
 from __future__ import annotations
@@ -25,6 +30,8 @@ from lightstage_interfaces.msg import FrameLost, Pattern
 from lightstage_interfaces.srv import ApplyPatterns
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.qos import QoSProfile
 from rclpy.parameter import parameter_value_to_python
 from sensor_msgs.msg import Image
 
@@ -42,12 +49,19 @@ class StageClient:
         self._start = f'`{start_hint}`' if start_hint else 'the driver and the camera'
         self._apply_client = node.create_client(ApplyPatterns, APPLY_PATTERNS_SERVICE,
                                                 callback_group=callback_group)
-        self._image_sub = node.create_subscription(Image, IMAGE_TOPIC, self.matcher.add_message,
-                                                   IMAGE_QOS, callback_group=callback_group)
+        images = MutuallyExclusiveCallbackGroup()  # in arrival order, one at a time
+        # the reader keeps up to image_buffer images the executor has not taken yet (IMAGE_QOS's
+        # 32 is one sequence): a node held up for a moment loses none (depth is not matched
+        # against the publisher's; unused depth costs nothing)
+        depth = max(IMAGE_QOS.depth, int(image_buffer))
+        self._image_sub = node.create_subscription(
+            Image, IMAGE_TOPIC, self.matcher.add_message,
+            QoSProfile(history=IMAGE_QOS.history, depth=depth, reliability=IMAGE_QOS.reliability,
+                       durability=IMAGE_QOS.durability), callback_group=images)
         # the camera's notice that a trigger's frame will not come: `collect` fails at once
         self._lost_sub = node.create_subscription(FrameLost, FRAME_LOST_TOPIC,
                                                   self.matcher.add_lost_message, IMAGE_QOS,
-                                                  callback_group=callback_group)
+                                                  callback_group=images)
         self._camera_params = node.create_client(GetParameters, f'{camera_node}/get_parameters',
                                                  callback_group=callback_group)
 

@@ -13,9 +13,15 @@ goes out on ``/lightstage/result`` (`observe.SequenceObserver`; its own service 
 classified twice). ``service_introspection`` publishes the Classify calls on
 ``/lightstage/classify/_service_event`` so that recordings hold them.
 
-The service handler blocks while it waits for the driver and the images, so the node runs
-in a MultiThreadedExecutor with one ReentrantCallbackGroup: images and the driver's reply
-are handled by other threads meanwhile.
+Concurrency: the stage lights one sequence at a time, so calls take turns in a FIFO
+(`stage_queue.StageQueue`) served by one worker thread; the service handler is a coroutine
+that submits its call and awaits the outcome without holding an executor thread. The
+driver's replies, the camera's parameter answers and the images are therefore always
+handled, at any number of concurrent calls (when every executor thread waited for the
+stage, four calls at once all failed). A call that cannot be served within its time limit
+is refused at once with the reason. Images (and lost-frame notices) have a mutually
+exclusive callback group of their own, so they are handled in arrival order
+(`StageClient`).
 """
 from __future__ import annotations
 
@@ -23,32 +29,40 @@ import sys
 import threading
 import time
 import traceback
+from concurrent.futures import Future as ThreadFuture
 
 import numpy as np
 from lightstage_graph.errors import StageError
 from lightstage_graph.names import (CAMERA_NODE, CLASSIFIER_NODE, CLASSIFY_SERVICE,
                                     ILLUMINATION_TOPIC, RESULT_TOPIC)
 from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
-from lightstage_graph.qos import ILLUMINATION_QOS
+from lightstage_graph.qos import ILLUMINATION_QOS, QUEUED_SERVICE_QOS
 from lightstage_graph.spin import init_node, spin_until_stopped
 from lightstage_graph.stage_client import StageClient
 from lightstage_graph.stamps import ns_to_stamp, stamp_to_ns
 from lightstage_interfaces.msg import ClassificationResult, IlluminationState
 from lightstage_interfaces.srv import Classify
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_services_default
 from rclpy.service_introspection import ServiceIntrospectionState
+from rclpy.task import Future
 
 from .classify_request import TIMEOUT_MAX_S, TIMEOUT_MIN_S, request_timeout_s
-from .inference import AcquisitionPlan, classify_on_stage
+from .inference import AcquisitionPlan, InferenceError, classify_on_stage
 from .artifact import ArtifactError, TrainedArtifact, check_dimmer
 from .observe import SequenceObserver, TriggerState
+from .stage_queue import StageBusy, StageQueue
 
 START_HINT = 'lightstage up driver camera classifier'
-CAMERA_QUERY_S = 2.0  # the camera's parameter service answers in ms when the camera is up
+# the camera's parameter service answers in ms when the camera is up, in seconds on a machine
+# loaded far beyond its cores: the query may take this long, or half the call's time if more
+CAMERA_QUERY_S = 2.0
+# unclaimed images kept per image of the artifact's longest sequence: a sequence's images
+# come before its last trigger state is seen, and the next one's may follow at once
+BUFFERED_SEQUENCES = 2
 
 PARAMETERS = {
     'artifact_path': ('', string(
@@ -81,16 +95,18 @@ class ClassifierNode(Node):
         self.p = declare_parameters(self, PARAMETERS)
         self.artifact: TrainedArtifact | None = None
         self.artifact_error = ''
-        self._load_artifact(self.p('artifact_path'))
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._busy = threading.Lock()  # one classification at a time: they share the stage
-        self._camera_answers = True  # until a parameter query of the camera goes unanswered
         group = ReentrantCallbackGroup()
         self.stage = StageClient(self, image_buffer=self.p('image_buffer'), callback_group=group,
                                  start_hint=START_HINT, camera_node=self.p('camera_node'))
+        self._load_artifact(self.p('artifact_path'))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._busy = threading.Lock()  # held by the queue's worker while it uses the stage
+        self.queue = StageQueue(name='classify-stage')
         self._result_pub = self.create_publisher(ClassificationResult, RESULT_TOPIC, 10)
+        # a burst of calls waits in the service's queue until the executor takes them; the
+        # default depth (10) would drop the oldest of a larger burst unanswered
         service = self.create_service(Classify, CLASSIFY_SERVICE, self._on_classify,
-                                      callback_group=group)
+                                      qos_profile=QUEUED_SERVICE_QOS, callback_group=group)
         if self.p('service_introspection'):
             service.configure_introspection(self.get_clock(), qos_profile_services_default,
                                             ServiceIntrospectionState.CONTENTS)
@@ -101,10 +117,13 @@ class ClassifierNode(Node):
                 timeout_s=lambda: float(self.p('timeout_s')),
                 bit_depth=lambda: int(self.p('camera_bit_depth')),
                 on_error=lambda m: self.get_logger().warning(m))
+            # in order, one at a time: the assembler sees each request's states as sent
             self.create_subscription(IlluminationState, ILLUMINATION_TOPIC, self._on_illumination,
-                                     ILLUMINATION_QOS, callback_group=group)
+                                     ILLUMINATION_QOS, callback_group=MutuallyExclusiveCallbackGroup())
 
     def destroy_node(self) -> None:
+        if getattr(self, 'queue', None) is not None:
+            self.queue.close()  # waiting calls are refused; the one on the stage finishes
         if getattr(self, 'observer', None) is not None:
             self.observer.close()  # its worker thread ends before the node goes
         super().destroy_node()
@@ -130,6 +149,9 @@ class ClassifierNode(Node):
         return artifact
 
     def _use(self, path: str, artifact: TrainedArtifact) -> None:
+        # the buffer holds what the artifact's sequences need, whatever image_buffer says
+        self.stage.matcher.set_capacity(max(int(self.p('image_buffer')),
+                                            BUFFERED_SEQUENCES * max(artifact.n_images)))
         self.artifact, self.artifact_error = artifact, ''
         self.get_logger().info(f'loaded {path}: {artifact.describe()}')
 
@@ -168,66 +190,96 @@ class ClassifierNode(Node):
 
     def _check_camera(self, artifact: TrainedArtifact, timeout_s: float) -> None:
         """DimmerMismatch if a sim camera renders at another dimmer than the classifier was
-        trained with (a real camera has no dimmer). A camera node that does not answer is not
-        refused here: without it the images are missed, with their own error. After one miss
-        the query waits briefly, so a camera without parameter services costs no latency."""
-        if not self._camera_answers:
-            timeout_s = min(timeout_s, 0.1)
+        trained with (a real camera has no dimmer). The check fails closed: a camera node that
+        does not answer (stopped, hung, not running, another name) refuses the call, since
+        an unchecked sim camera at another dimmer would classify wrong silently."""
         settings = self.stage.camera_parameters(('backend', 'dimmer'), timeout_s)
         if settings is None:
-            if self._camera_answers:
-                self.get_logger().warning(
-                    f'the camera node {self.p("camera_node")!r} did not answer a parameter '
-                    f'query within {timeout_s:g} s: its dimmer is not checked against the '
-                    'classifier\'s')
-            self._camera_answers = False
-            return
-        self._camera_answers = True
+            camera = self.p('camera_node')
+            raise InferenceError(
+                f'not classifying: the camera node {camera!r} did not answer a parameter query '
+                f'within {timeout_s:.1f} s, so its dimmer cannot be checked against the '
+                f'classifier\'s ({artifact.dimmer:g}; a sim camera at another dimmer classifies '
+                f'wrong silently). Is the camera running and not stopped or hung (`ros2 node '
+                f'list`, its log)? If the camera node has another name, set the classifier\'s '
+                f'camera_node parameter to it')
         if settings.get('backend') == 'sim' and 'dimmer' in settings:
             check_dimmer(artifact.dimmer, settings['dimmer'])
 
     # ------------------------------------------------------------------ service
-    def _on_classify(self, request: Classify.Request, response: Classify.Response):
+    async def _on_classify(self, request: Classify.Request, response: Classify.Response):
+        """Check the request, queue it for the stage and await its turn and outcome; the
+        executor thread is free meanwhile."""
         try:
-            return self._classify(request, response)
+            try:
+                timeout_s = request_timeout_s(request.timeout_s, self.p('timeout_s'))
+            except ValueError as exc:
+                return self._failed(response, str(exc))
+            if self.artifact is None:
+                return self._failed(response, self.artifact_error)
+            try:
+                outcome = self.queue.submit(lambda remaining_s: self._serve(request, remaining_s),
+                                            timeout_s)
+            except StageBusy as exc:
+                return self._failed(response, str(exc))
+            answer = await self._awaitable(outcome)
+            try:
+                return answer.result()
+            except StageBusy as exc:  # its turn came too late
+                return self._failed(response, str(exc))
         except Exception as exc:  # noqa: BLE001 - last resort: the service answers every request
-            self.get_logger().error(f'classify failed unexpectedly: {traceback.format_exc()}')
-            return Classify.Response(
-                success=False, message=f'the classifier failed unexpectedly ({type(exc).__name__}: '
-                                       f'{exc}); this is a bug: report it with the node\'s log')
+            return self._unexpected(exc)
 
-    def _classify(self, request: Classify.Request, response: Classify.Response):
+    def _awaitable(self, outcome: ThreadFuture) -> Future:
+        """An rclpy Future done when the worker's `outcome` is, waking the executor then (a
+        result set from another thread does not wake it by itself: ros2/rclpy#1467)."""
+        done = Future()
+
+        def resolve(_outcome):
+            done.set_result(_outcome)
+            executor = self.executor
+            if executor is not None:
+                executor.wake()
+        outcome.add_done_callback(resolve)
+        return done
+
+    def _unexpected(self, exc: BaseException) -> Classify.Response:
+        self.get_logger().error('classify failed unexpectedly: '
+                                + ''.join(traceback.format_exception(exc)))
+        return Classify.Response(
+            success=False, message=f'the classifier failed unexpectedly ({type(exc).__name__}: '
+                                   f'{exc}); this is a bug: report it with the node\'s log')
+
+    @staticmethod
+    def _failed(response: Classify.Response, message: str) -> Classify.Response:
         response.success = False
-        try:
-            timeout_s = request_timeout_s(request.timeout_s, self.p('timeout_s'))
-        except ValueError as exc:
-            response.message = str(exc)
-            return response
+        response.message = message
+        return response
+
+    def _serve(self, request: Classify.Request, remaining_s: float) -> Classify.Response:
+        """One call on the stage (the queue's worker thread), within `remaining_s`."""
+        response = Classify.Response(success=False)
         artifact = self.artifact
         if artifact is None:
-            response.message = self.artifact_error
-            return response
-        start = time.monotonic()
-        busy = (f'another classification kept the stage busy for {timeout_s:g} s (this '
-                'request\'s time limit); try again, or give a longer timeout_s')
-        if not self._busy.acquire(timeout=timeout_s):
-            response.message = busy
-            return response
-        try:
-            remaining_s = timeout_s - (time.monotonic() - start)
-            if remaining_s <= 0:
-                response.message = busy
-                return response
-            self._check_camera(artifact, min(CAMERA_QUERY_S, remaining_s))
-            result = classify_on_stage(artifact, self._apply, self.stage.matcher,
-                                       max_images=request.max_images, timeout_s=remaining_s,
-                                       bit_depth=self.p('camera_bit_depth'))
-        except (StageError, ArtifactError) as exc:  # InferenceError, MissingImagesError, DimmerMismatch
-            response.message = str(exc)
-            self.get_logger().warning(f'classify failed: {exc}')
-            return response
-        finally:
-            self._busy.release()
+            return self._failed(response, self.artifact_error)
+        deadline = time.monotonic() + remaining_s
+        with self._busy:
+            try:
+                # driver and camera there (the clearest errors first), dimmer checked, then light
+                self.stage.wait_ready(remaining_s)
+                left_s = deadline - time.monotonic()
+                self._check_camera(artifact, min(left_s, max(CAMERA_QUERY_S, left_s / 2)))
+                left_s = deadline - time.monotonic()
+                if left_s <= 0:
+                    raise InferenceError(f'the time limit ({remaining_s:.2f} s left when the '
+                                         'stage was free) ran out while checking the stage; '
+                                         'give a longer timeout_s')
+                result = classify_on_stage(artifact, self._apply, self.stage.matcher,
+                                           max_images=request.max_images, timeout_s=left_s,
+                                           bit_depth=self.p('camera_bit_depth'))
+            except (StageError, ArtifactError) as exc:  # InferenceError, MissingImagesError, DimmerMismatch
+                self.get_logger().warning(f'classify failed: {exc}')
+                return self._failed(response, str(exc))
         response.success = True
         response.message = f'{result.label} from {result.images_used} images'
         response.label = result.label

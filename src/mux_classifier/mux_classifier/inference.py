@@ -9,7 +9,8 @@ One classification (the classifier node maps ROS onto this; nothing here imports
    the trigger stamps (and sequence numbers);
 3. `ImageMatcher.collect`: the images whose header stamps *equal* those trigger stamps, in
    pattern order; never by arrival order. Images that arrive before the trigger stamps are
-   known (the camera can be faster than the driver's reply) wait in a small buffer;
+   known (the camera can be faster than the driver's reply) wait in a small buffer; a
+   missing image fails the call at once when the camera reports it lost;
 4. `classify_frames`: mono16 -> gray levels, the same area downscale training used
    (`lightstage_camera.scene_models.downscale_images`), HOG, the artifact's classifier for k.
 """

@@ -9,6 +9,12 @@ and classifies them exactly as `inference.classify_on_stage` would have. `Sequen
 runs that on a worker thread, skipping the sequences its own node lit through the Classify
 service (those are classified there already).
 
+One lost image fails its own sequence only, and at once: a sequence's images are claimed in
+the matcher as soon as its trigger states are complete (however far behind the worker is,
+they are not evicted), and the wait for a missing image ends as soon as a later image has
+arrived (the camera's stream is reliable and in trigger order), not after the timeout, so
+the sequences behind it lose nothing.
+
 Nothing here imports rclpy; the classifier node maps /illumination onto `TriggerState`.
 """
 from __future__ import annotations
@@ -142,7 +148,10 @@ def classify_observed(artifact: TrainedArtifact, seq: ObservedSequence, matcher:
     ``acquisition_ms`` runs from the arrival of the sequence's first trigger state to the
     arrival of its last image (on this node's clock; on replay it reflects replay timing).
     """
-    frames, last_arrival_ns = matcher.collect(seq.stamps_ns, timeout_s, seq.sequences)
+    # none of its images can have come before its first trigger state: only images since
+    # then tell that a missing one was passed over (a bag played again repeats old stamps)
+    frames, last_arrival_ns = matcher.collect(seq.stamps_ns, timeout_s, seq.sequences,
+                                              since_ns=seq.first_arrival_ns)
     return classify_collected(artifact, frames, bit_depth, list(seq.sequences), seq.stamps_ns[0],
                               max(0.0, (last_arrival_ns - seq.first_arrival_ns) / 1e6))
 
@@ -154,6 +163,7 @@ class ObserverStats:
     own_skipped: int = 0         # lit by this node's Classify service
     not_artifact: int = 0        # other patterns or counts
     failed: int = 0
+    behind: int = 0              # not classified: more than max_pending were waiting
     last_error: str = ''
     errors: list = field(default_factory=list)
 
@@ -168,6 +178,9 @@ class SequenceObserver:
       collects a sequence. Before deciding on a sequence the worker waits for it to be free,
       so a sequence the service lit is always registered (`mark_own`) by then and skipped;
     - ``on_error(message)``: a sequence that could not be classified (e.g. missing images).
+
+    At most ``max_pending`` sequences wait for the worker (their images are claimed in the
+    matcher meanwhile); one beyond that is not classified, and said so.
     """
 
     def __init__(self, artifact: Callable[[], TrainedArtifact | None], matcher: ImageMatcher,
@@ -175,7 +188,8 @@ class SequenceObserver:
                  stage_busy: threading.Lock | None = None, timeout_s: Callable[[], float] = lambda: 10.0,
                  bit_depth: Callable[[], int] = lambda: 10,
                  on_error: Callable[[str], None] = lambda _m: None,
-                 tolerance: float = DEFAULT_TOLERANCE, own_memory: int = 256):
+                 tolerance: float = DEFAULT_TOLERANCE, own_memory: int = 256,
+                 max_pending: int = 64):
         self._artifact = artifact
         self.matcher = matcher
         self._publish = publish
@@ -189,6 +203,7 @@ class SequenceObserver:
         self._own: OrderedDict[int, None] = OrderedDict()
         self._own_memory = int(own_memory)
         self._own_lock = threading.Lock()
+        self.max_pending = int(max_pending)
         self._queue: queue.Queue = queue.Queue()
         self._assemble_lock = threading.Lock()
         self._thread = threading.Thread(target=self._run, name='sequence-observer', daemon=True)
@@ -206,11 +221,28 @@ class SequenceObserver:
             return seq.stamps_ns[0] in self._own
 
     def on_trigger(self, state: TriggerState) -> None:
-        """Feed one IlluminationState (any thread)."""
+        """Feed one IlluminationState (any thread). A request it completes is recognised here
+        at once, and the images of an artifact sequence claimed, before the worker gets to it."""
         with self._assemble_lock:
             states = self.assembler.add(state)
-        if states is not None:
-            self._queue.put(states)
+            if states is None:
+                return
+            self.stats.sequences_seen += 1
+            artifact = self._artifact()
+            if artifact is None:
+                return  # no classifier loaded: nothing to classify
+            seq = observed_sequence(states, artifact, self.tolerance)
+            if seq is None:
+                self.stats.not_artifact += 1
+                return
+            if self._queue.unfinished_tasks >= self.max_pending:
+                self.stats.behind += 1
+                self._error(f'observed request {seq.request_id} ({seq.n_images} images) not '
+                            f'classified: {self.max_pending} observed sequences are already '
+                            'waiting to be classified (this node cannot keep up; give it more CPU)')
+                return
+            self.matcher.claim(seq.stamps_ns)
+            self._queue.put((seq, artifact))
 
     def close(self, timeout_s: float = 5.0) -> None:
         self._queue.put(None)
@@ -225,26 +257,25 @@ class SequenceObserver:
 
     def _run(self) -> None:
         while True:
-            states = self._queue.get()
+            item = self._queue.get()
             try:
-                if states is None:
+                if item is None:
                     return
-                self._handle(states)
+                self._handle(item)
             except Exception as exc:  # noqa: BLE001 - the worker must survive any one sequence
                 self.stats.failed += 1
                 self._error(f'observed sequence not classified: {type(exc).__name__}: {exc}')
             finally:
                 self._queue.task_done()
 
-    def _handle(self, states: list[TriggerState]) -> None:
-        self.stats.sequences_seen += 1
-        artifact = self._artifact()
-        if artifact is None:
-            return
-        seq = observed_sequence(states, artifact, self.tolerance)
-        if seq is None:
-            self.stats.not_artifact += 1
-            return
+    def _handle(self, item) -> None:
+        seq, artifact = item
+        try:
+            self._classify(seq, artifact)
+        finally:
+            self.matcher.release(seq.stamps_ns)
+
+    def _classify(self, seq: ObservedSequence, artifact: TrainedArtifact) -> None:
         # a Classify call in progress may be lighting this very sequence: let it finish (it
         # registers its sequences before it lets go of the stage), then decide
         with self._stage_busy:
