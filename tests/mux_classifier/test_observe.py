@@ -201,3 +201,15 @@ def test_a_replayed_bag_played_again_is_not_mistaken_for_lost_images(stage_artif
         observer.close()
     assert not errors
     assert len(published) == 4
+
+
+def test_a_graded_boards_rounded_drive_matches_its_request_and_not_the_next_step():
+    from mux_classifier.observe import pattern_matches
+    requested = np.linspace(0.0, 1.0, 32)
+    requested[3] = 0.3
+    applied = (np.round(requested * 255) / 255).astype(np.float32)  # what a pwm_bits 8 board lights
+    assert np.abs(applied - requested).max() > 1 / 512  # 0.3 -> 77/255 is 0.00196 off
+    assert pattern_matches(applied, requested)
+    one_step_up = applied.copy()
+    one_step_up[5] += np.float32(1 / 255)
+    assert not pattern_matches(one_step_up, applied)

@@ -33,9 +33,11 @@ from lightstage_graph.errors import StageError
 from .artifact import TrainedArtifact
 from .inference import Classification, ImageMatcher, classify_collected
 
-# IlluminationState.intensities are float32 copies of the requested drive on PWM rigs; on/off
-# rigs report 0/1 for what was lit (drive > 0.5)
-DEFAULT_TOLERANCE = 1.0 / 512.0
+# IlluminationState.intensities are the drives the board applied: a graded board (pwm_bits 8)
+# rounds each to its 1/255 steps (up to half a step, 1/510, from the requested drive); on/off
+# boards report 0/1 for what was lit. Half a step plus float32 slack matches a graded drive to
+# its request; distinct patterns differ by whole steps.
+DEFAULT_TOLERANCE = 0.5 / 255.0 + 1e-6
 
 
 @dataclass(frozen=True)
