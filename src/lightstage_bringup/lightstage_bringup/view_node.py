@@ -14,7 +14,8 @@ from __future__ import annotations
 import time
 
 import foxglove
-from lightstage_recording.bag_ros import from_rclpy_qos, message_class, to_rclpy_qos
+from lightstage_recording.bag_ros import (from_rclpy_qos, new_published_topics,
+                                          to_rclpy_qos)
 from lightstage_recording.msg_definitions import DefinitionNotFoundError
 from lightstage_recording.recording import TopicSelector, subscription_qos
 from rclpy.node import Node
@@ -41,22 +42,14 @@ class ViewNode(Node):
         self.discover()
 
     def discover(self) -> None:
-        for topic, types in self.get_topic_names_and_types():
-            if topic in self._served or topic in self.skipped:
+        known = self._served.keys() | self.skipped.keys()
+        for topic, type_name, cls, publishers, problem in new_published_topics(self, known, self.selector):
+            if problem:
+                self._skip(topic, problem)
                 continue
-            if len(types) != 1:
-                self._skip(topic, f'it has {len(types)} types ({", ".join(types)})')
-                continue
-            type_name = types[0]
-            if not self.selector.wants(topic, type_name):
-                continue
-            publishers = self.get_publishers_info_by_topic(topic)
-            if not publishers:
-                continue  # only subscribers so far: look again later
             try:
-                cls = message_class(type_name)
                 schema = ros2_schema(type_name)
-            except (ImportError, DefinitionNotFoundError) as exc:
+            except DefinitionNotFoundError as exc:
                 self._skip(topic, str(exc))
                 continue
             channel = foxglove.Channel(topic, schema=schema, message_encoding='cdr',

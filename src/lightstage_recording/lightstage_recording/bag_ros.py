@@ -76,3 +76,27 @@ def message_class(type_name: str):
     except (ImportError, AttributeError):
         raise ImportError(f'message type {type_name} is not installed in this Python '
                           f'environment; install the {package} interface package') from None
+
+
+def new_published_topics(node, known, selector):
+    """The topics of the graph a recorder-like node should take up now, for each one
+    `(topic, type_name, message class, publishers, problem)`: topics in `known` are passed
+    over, as are those `selector` does not want and those nobody publishes yet (discovery
+    looks again later); `problem` is why a topic cannot be taken (several types, no message
+    class installed), else ''."""
+    for topic, types in node.get_topic_names_and_types():
+        if topic in known:
+            continue
+        if len(types) != 1:
+            yield topic, '', None, [], f'it has {len(types)} types ({", ".join(types)}); one is needed'
+            continue
+        type_name = types[0]
+        if not selector.wants(topic, type_name):
+            continue
+        publishers = node.get_publishers_info_by_topic(topic)
+        if not publishers:
+            continue
+        try:
+            yield topic, type_name, message_class(type_name), publishers, ''
+        except ImportError as exc:
+            yield topic, type_name, None, publishers, str(exc)

@@ -35,7 +35,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 
-from .bag_ros import from_rclpy_qos, message_class, to_rclpy_qos
+from .bag_ros import from_rclpy_qos, new_published_topics, to_rclpy_qos
 from .exceptions import BagError
 from .layout import default_bag_name
 from .msg_definitions import is_service_event
@@ -134,23 +134,10 @@ class RecorderNode(Node):
     def _discover(self) -> None:
         if self._finished or self.recording.stopped:
             return
-        for topic, types in self.get_topic_names_and_types():
-            if topic in self._recording or topic in self._skipped:
-                continue
-            if len(types) != 1:
-                self._skip(topic, f'it has {len(types)} types ({", ".join(types)}); a bag topic '
-                                  'has one')
-                continue
-            type_name = types[0]
-            if not self.selector.wants(topic, type_name):
-                continue
-            publishers = self.get_publishers_info_by_topic(topic)
-            if not publishers:
-                continue  # only subscribers so far: look again at the next discovery
-            try:
-                cls = message_class(type_name)
-            except ImportError as exc:
-                self._skip(topic, str(exc))
+        known = self._recording.keys() | self._skipped.keys()
+        for topic, type_name, cls, publishers, problem in new_published_topics(self, known, self.selector):
+            if problem:
+                self._skip(topic, problem)
                 continue
             offered = [from_rclpy_qos(p.qos_profile) for p in publishers]
             type_hash = str(publishers[0].topic_type_hash)
