@@ -196,10 +196,14 @@ ISR(TIMER1_COMPA_vect)
 
 uint8_t exposure_poll(void)
 {
-    if (state != RUNNING)
-        return 0;
     uint8_t sreg = SREG;
     cli();
+    /* checked with interrupts off: the compare interrupt may end the exposure between a
+     * check before cli() and the edges below, which would then latch the end a second time */
+    if (state != RUNNING) {
+        SREG = sreg;
+        return 0;
+    }
     uint32_t ovf;
     uint16_t tcnt;
     clock_read_wide_unlocked(&ovf, &tcnt);
