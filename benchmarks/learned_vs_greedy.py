@@ -29,8 +29,21 @@ from lightstage_camera.capture_format import load_capture
 from mux_trainer.baselines import SnrOptimalClassifier
 from mux_trainer.data import search_data
 from mux_trainer.greedy import GreedyPatternSelector
-from mux_trainer.holdout import holdout_split, method_summary
+from mux_trainer.holdout import holdout_split, method_summary, test_images
 from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
+
+
+def classify_ms(model, test, seed, repeats=20) -> float:
+    """Compute of one classification with the numpy model (features + head), one sample."""
+    images = test_images(test, 'joint', model.patterns_, 0, seed)[:, :1]
+    k, n, p = images.shape
+    side = int(round(np.sqrt(p)))
+    stack = images.transpose(1, 0, 2).reshape(1, k, side, p // side)
+    model.model_.predict(stack)
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        model.model_.predict(stack)
+    return (time.perf_counter() - t0) * 1e3 / repeats
 
 
 def run_capture(path, args) -> dict:
@@ -71,6 +84,9 @@ def run_capture(path, args) -> dict:
             out[name][f'patterns_{k}'] = np.round(model.patterns_, 3).tolist()
             print(f'  {name}: {k} exp {acc:.3f} ({model.train_seconds_:.0f} s, best step '
                   f'{model.best_step_})', flush=True)
+        out[name]['classify_ms_8'] = classify_ms(model, test, args.seed)
+        print(f'  {name}: classify {out[name]["classify_ms_8"]:.1f} ms per sample '
+              '(numpy model, 8 images at 120 px, one sample at a time)', flush=True)
     return out
 
 
@@ -94,7 +110,8 @@ def main(argv=None):
     for path, res in results.items():
         for name, r in res.items():
             secs = r['train_seconds'] or sum(v for k, v in r.items() if k.startswith('train_seconds_'))
-            print(f'{path:30s} {name:15s} {r["4"]:.3f} / {r["8"]:.3f}  {secs:.0f} s')
+            print(f'{path:30s} {name:15s} {r["4"]:.3f} / {r["8"]:.3f}  {secs:.0f} s'
+                  + (f'  classify {r["classify_ms_8"]:.1f} ms' if 'classify_ms_8' in r else ''))
     if args.json:
         with open(args.json, 'w') as f:
             json.dump({'args': vars(args), 'results': results}, f, indent=1)
