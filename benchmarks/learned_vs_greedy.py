@@ -76,7 +76,8 @@ def run_capture(path, args) -> dict:
         out[name] = {'train_seconds': 0.0}
         for k in (4, 8):
             model = LearnedIlluminationClassifier(
-                n_images=k, binary=binary, max_steps=args.steps, seed=args.seed).fit(train)
+                n_images=k, binary=binary, max_steps=args.steps, seed=args.seed,
+                lr_patterns=args.lr_patterns).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
             out[name][str(k)] = acc
             out[name][f'train_seconds_{k}'] = model.train_seconds_
@@ -99,6 +100,9 @@ def main(argv=None):
     p.add_argument('--n-repeats', type=int, default=400, help="greedy's / SNR's inner splits")
     p.add_argument('--n-renders', type=int, default=4)
     p.add_argument('--steps', type=int, default=150, help='learned: most training steps')
+    p.add_argument('--lr-patterns', type=float, default=0.1,
+                   help='learned: Adam step on the LED logits (0: the patterns stay at their '
+                        'per-colour start, a control for what learning the light adds)')
     p.add_argument('--methods', default='greedy,snr_optimal,learned,learned_binary')
     p.add_argument('--json', help='write the figures here')
     args = p.parse_args(argv)
