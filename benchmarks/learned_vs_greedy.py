@@ -1,0 +1,125 @@
+"""Learned illumination (graded and on/off) against greedy and SNR-optimal, on one held-out
+split, at 4 and 8 exposures.
+
+For each capture: the SearchData at 120 px with Sigma3 noise and `--features` (default
+intensity_stats, the pose-robust statistics the learned model is built on), the held-out
+split of `holdout.holdout_split` (25 % of the pose indices, or of the physical samples with
+`--holdout-by instances`), then on the training part:
+- greedy per colour, 2 columns (4 and 8 exposures; `GreedyPatternSelector`, n_repeats as
+  given, default the method's 400), evaluated by `holdout.method_summary`;
+- SNR-optimal, its first 2 columns, likewise;
+- learned, graded and binary, trained separately for 4 and for 8 images (one exposure
+  each), evaluated by `learned.evaluate_learned_heldout`: the same test-noise stream
+  (`holdout.test_images`) and the same n_renders.
+Prints held-out accuracy and training seconds per method and exposure count, and writes the
+figures as JSON with --json.
+
+    PYTHONPATH=src/lightstage_camera:src/mux_classifier:src/mux_trainer \\
+        .venv/bin/python benchmarks/learned_vs_greedy.py /work/data/weak0.2 [--seed 0]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from lightstage_camera.capture_format import load_capture
+from mux_trainer.baselines import SnrOptimalClassifier
+from mux_trainer.data import search_data
+from mux_trainer.greedy import GreedyPatternSelector
+from mux_trainer.holdout import holdout_split, method_summary, test_images
+from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
+
+
+def classify_ms(model, test, seed, repeats=20) -> float:
+    """Compute of one classification with the numpy model (features + head), one sample."""
+    images = test_images(test, 'joint', model.patterns_, 0, seed)[:, :1]
+    k, n, p = images.shape
+    side = int(round(np.sqrt(p)))
+    stack = images.transpose(1, 0, 2).reshape(1, k, side, p // side)
+    model.model_.predict(stack)
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        model.model_.predict(stack)
+    return (time.perf_counter() - t0) * 1e3 / repeats
+
+
+def run_capture(path, args) -> dict:
+    ms = load_capture(path, downscale_to=120)
+    data = search_data(ms, 'sigma3', features=args.features)
+    instance = np.asarray(ms.instance) if args.holdout_by == 'instances' else None
+    tr, te = holdout_split(data, 0.25, args.seed, instance)
+    train, test = data.subset(tr), data.subset(te)
+    print(f'{path}: {train.n_samples} training, {test.n_samples} held-out samples, '
+          f'{len(data.class_names)} classes, held out by {args.holdout_by}', flush=True)
+    out = {}
+    common = dict(seed=args.seed, n_jobs=1, n_repeats=args.n_repeats)
+    for name, make in (('greedy', lambda: GreedyPatternSelector(mode='per_colour', n_patterns=2,
+                                                                 **common)),
+                       ('snr_optimal', lambda: SnrOptimalClassifier(n_images=2, **common))):
+        if name not in args.methods:
+            continue
+        t0 = time.perf_counter()
+        model = make().fit(train)
+        seconds = time.perf_counter() - t0
+        res = method_summary(model, test, args.n_renders, args.seed, train_seconds=seconds)
+        out[name] = {'4': res['accuracy_by_images']['1'], '8': res['accuracy_by_images']['2'],
+                     'train_seconds': seconds}
+        print(f'  {name}: 4 exp {out[name]["4"]:.3f}, 8 exp {out[name]["8"]:.3f} '
+              f'({seconds:.0f} s)', flush=True)
+    for binary in (False, True):
+        name = 'learned_binary' if binary else 'learned'
+        if name not in args.methods:
+            continue
+        out[name] = {'train_seconds': 0.0}
+        for k in (4, 8):
+            model = LearnedIlluminationClassifier(
+                n_images=k, binary=binary, max_steps=args.steps, seed=args.seed,
+                lr_patterns=args.lr_patterns).fit(train)
+            acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
+            out[name][str(k)] = acc
+            out[name][f'train_seconds_{k}'] = model.train_seconds_
+            out[name][f'best_step_{k}'] = model.best_step_
+            out[name][f'patterns_{k}'] = np.round(model.patterns_, 3).tolist()
+            print(f'  {name}: {k} exp {acc:.3f} ({model.train_seconds_:.0f} s, best step '
+                  f'{model.best_step_})', flush=True)
+        out[name]['classify_ms_8'] = classify_ms(model, test, args.seed)
+        print(f'  {name}: classify {out[name]["classify_ms_8"]:.1f} ms per sample '
+              '(numpy model, 8 images at 120 px, one sample at a time)', flush=True)
+    return out
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    p.add_argument('captures', nargs='+')
+    p.add_argument('--seed', type=int, default=0)
+    p.add_argument('--features', default='intensity_stats')
+    p.add_argument('--holdout-by', default='poses', choices=('poses', 'instances'))
+    p.add_argument('--n-repeats', type=int, default=400, help="greedy's / SNR's inner splits")
+    p.add_argument('--n-renders', type=int, default=4)
+    p.add_argument('--steps', type=int, default=150, help='learned: most training steps')
+    p.add_argument('--lr-patterns', type=float, default=0.1,
+                   help='learned: Adam step on the LED logits (0: the patterns stay at their '
+                        'per-colour start, a control for what learning the light adds)')
+    p.add_argument('--methods', default='greedy,snr_optimal,learned,learned_binary')
+    p.add_argument('--json', help='write the figures here')
+    args = p.parse_args(argv)
+    args.methods = args.methods.split(',')
+    results = {}
+    for path in args.captures:
+        results[path] = run_capture(path, args)
+    print('\nheld-out accuracy (4 / 8 exposures), training seconds')
+    for path, res in results.items():
+        for name, r in res.items():
+            secs = r['train_seconds'] or sum(v for k, v in r.items() if k.startswith('train_seconds_'))
+            print(f'{path:30s} {name:15s} {r["4"]:.3f} / {r["8"]:.3f}  {secs:.0f} s'
+                  + (f'  classify {r["classify_ms_8"]:.1f} ms' if 'classify_ms_8' in r else ''))
+    if args.json:
+        with open(args.json, 'w') as f:
+            json.dump({'args': vars(args), 'results': results}, f, indent=1)
+
+
+if __name__ == '__main__':
+    main()

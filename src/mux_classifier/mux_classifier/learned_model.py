@@ -1,0 +1,113 @@
+"""Inference of a learned-illumination model in numpy (no autodiff library).
+
+A learned model (`mux_trainer.learned`) is an LED pattern matrix ``patterns`` (32, k),
+site-major, levels in [0, 1], one image per column, and a small classifier over the k
+images: per image the 9 pose-robust object statistics of `intensity_stats` (exact,
+`intensity_stats_images_numpy`: the values the training differentiated through), the
+concatenated ``k * 9`` values z-scored with the training set's ``feature_mean`` and
+``feature_scale``, then dense layers (ReLU between them; none after the last), whose
+argmax is the class. Everything is plain arrays, for an npz artifact without pickle.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .intensity_stats import N_STATS, intensity_stats_images_numpy
+
+__all__ = ["LearnedModel"]
+
+
+@dataclass
+class LearnedModel:
+    """patterns (32, k); feature_mean, feature_scale (k * 9,); layers: [(W, b), ...] with
+    W (inputs, outputs), the last layer's outputs the classes' logits; class_names."""
+
+    patterns: np.ndarray
+    feature_mean: np.ndarray
+    feature_scale: np.ndarray
+    layers: list
+    class_names: list = field(default_factory=list)
+
+    def __post_init__(self):
+        self.patterns = np.asarray(self.patterns, dtype=np.float32)
+        if self.patterns.ndim != 2:
+            raise ValueError(f"patterns must be (LEDs, k), got shape {self.patterns.shape}")
+        if self.patterns.min() < 0 or self.patterns.max() > 1:
+            raise ValueError("patterns: LED levels must lie in [0, 1]")
+        self.feature_mean = np.asarray(self.feature_mean, dtype=np.float32).reshape(-1)
+        self.feature_scale = np.asarray(self.feature_scale, dtype=np.float32).reshape(-1)
+        n_in = self.n_images * N_STATS
+        if self.feature_mean.size != n_in or self.feature_scale.size != n_in:
+            raise ValueError(f"feature_mean and feature_scale must hold {n_in} values "
+                             f"({self.n_images} images x {N_STATS}), got "
+                             f"{self.feature_mean.size} and {self.feature_scale.size}")
+        if not (self.feature_scale > 0).all():
+            raise ValueError("feature_scale must be > 0 everywhere")
+        self.layers = [(np.asarray(W, np.float32), np.asarray(b, np.float32).reshape(-1))
+                       for W, b in self.layers]
+        if not self.layers:
+            raise ValueError("layers: give at least one (W, b) layer")
+        width = n_in
+        for i, (W, b) in enumerate(self.layers):
+            if W.ndim != 2 or W.shape[0] != width or b.shape != (W.shape[1],):
+                raise ValueError(f"layer {i}: W must be ({width}, m) and b (m,), got "
+                                 f"{W.shape} and {b.shape}")
+            width = W.shape[1]
+        self.class_names = list(self.class_names)
+
+    @property
+    def n_images(self) -> int:
+        return self.patterns.shape[1]
+
+    @property
+    def n_classes(self) -> int:
+        return self.layers[-1][0].shape[1]
+
+    def features(self, stacks) -> np.ndarray:
+        """Stacks (n, k, H, W) gray levels -> float32 (n, k * 9) raw object statistics."""
+        arr = np.asarray(stacks, dtype=np.float32)
+        if arr.ndim != 4 or arr.shape[1] != self.n_images:
+            raise ValueError(f"expected stacks (n, {self.n_images}, H, W), one image per "
+                             f"learned pattern in pattern order; got shape {arr.shape}")
+        n, k, H, W = arr.shape
+        return intensity_stats_images_numpy(arr.reshape(n * k, H, W)).reshape(n, k * N_STATS)
+
+    def logits_from_features(self, X) -> np.ndarray:
+        """Raw features (n, k * 9) -> logits (n, classes), float32."""
+        h = (np.asarray(X, np.float32) - self.feature_mean) / self.feature_scale
+        for i, (W, b) in enumerate(self.layers):
+            h = h @ W + b
+            if i < len(self.layers) - 1:
+                h = np.maximum(h, 0)
+        return h
+
+    def predict_features(self, X) -> np.ndarray:
+        return np.argmax(self.logits_from_features(X), axis=1)
+
+    def predict(self, stacks) -> np.ndarray:
+        """Class indices of stacks (n, k, H, W) taken under `patterns`."""
+        return self.predict_features(self.features(stacks))
+
+    def to_arrays(self) -> dict:
+        """Named arrays (for an npz; `from_arrays` inverts it)."""
+        out = {"patterns": self.patterns, "feature_mean": self.feature_mean,
+               "feature_scale": self.feature_scale,
+               "class_names": np.asarray(self.class_names, dtype=str)}
+        for i, (W, b) in enumerate(self.layers):
+            out[f"layer{i}_W"] = W
+            out[f"layer{i}_b"] = b
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays) -> "LearnedModel":
+        layers = []
+        while f"layer{len(layers)}_W" in arrays:
+            i = len(layers)
+            layers.append((arrays[f"layer{i}_W"], arrays[f"layer{i}_b"]))
+        missing = {"patterns", "feature_mean", "feature_scale"} - set(arrays)
+        if missing:
+            raise ValueError(f"learned model arrays lack {sorted(missing)}")
+        return cls(arrays["patterns"], arrays["feature_mean"], arrays["feature_scale"], layers,
+                   [str(c) for c in arrays.get("class_names", [])])
