@@ -120,6 +120,9 @@ def test_joint_mode_beam_search_over_led_additions(tiny_data):
 def test_saved_classifier_reloads_and_predicts_identically(tiny_data, tmp_path):
     sel = GreedyPatternSelector(n_patterns=2, n_repeats=8, seed=0).fit(tiny_data)
     art = sel.to_artifact()
+    # the noise setting is the estimator's, recorded at fit from the data it rendered with
+    assert sel.noise_['name'] == tiny_data.noise_name
+    assert art.noise == sel.noise_
     path = tmp_path / 'greedy.npz'
     art.save(path)
     loaded = TrainedArtifact.load(path)

@@ -25,7 +25,8 @@ def _fit(classifier, X, y):
 class PatternModelMixin:
     """Needs `mode`, `seed`, `noise`, `hog_config`, `dimmer`, `features`, `final_classifier`,
     `final_C`, `final_alpha`; after fit:
-    `patterns_`, `classifiers_`, `accuracy_by_images_`, `class_names_`, `evaluator_`."""
+    `patterns_`, `classifiers_`, `accuracy_by_images_`, `class_names_`, `evaluator_` and
+    `noise_` (the noise setting the fit rendered with, as an artifact stores it)."""
 
     method_name = 'patterns'
 
@@ -35,11 +36,13 @@ class PatternModelMixin:
 
     def _data(self, X) -> SearchData:
         """The search's data: X itself, or a ModelSet rendered with the estimator's noise,
-        HOG configuration, dimmer and feature extractor."""
-        if isinstance(X, SearchData):
-            return X
-        return search_data(X, self.noise, hog_config=self.hog_config, dimmer=self.dimmer,
-                           features=self.features)
+        HOG configuration, dimmer and feature extractor. Records its noise setting as
+        `noise_` (a SearchData carries its own)."""
+        data = X if isinstance(X, SearchData) else search_data(
+            X, self.noise, hog_config=self.hog_config, dimmer=self.dimmer,
+            features=self.features)
+        self.noise_ = noise_dict(data.noise_name, data.noise_model)
+        return data
 
     def _make_classifier(self, data: SearchData) -> MuxClassifier:
         return MuxClassifier(estimator=self.final_classifier, C=self.final_C,
@@ -85,8 +88,7 @@ class PatternModelMixin:
                 'best_n_patterns': int(self.best_n_patterns_),
                 'count_rule': str(getattr(self, 'count_rule', 'max'))}
         prov.update(provenance or {})
-        data = self.evaluator_.data
-        noise = noise_dict(data.noise_name, data.noise_model)
+        noise = self.noise_
         if self.mode == 'per_colour':
             return TrainedArtifact.from_classifiers(
                 clfs, site_patterns=self.patterns_[:, :k], class_names=self.class_names_,
