@@ -37,7 +37,7 @@ RECORDED = ['/illumination', '/camera/image_raw', '/lightstage/result',
 
 
 def _train(capture: Path, artifact: Path) -> None:
-    from lightstage_camera.capture_format import load_capture
+    from lightstage_physics.capture_format import load_capture
     from mux_trainer.greedy import GreedyPatternSelector
     modelset = load_capture(capture, downscale_to=120)
     model = GreedyPatternSelector(n_patterns=2, n_repeats=40, noise='sigma3', seed=0, n_jobs=2)
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
     shutil.rmtree(bag, ignore_errors=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        from lightstage_camera import synth
+        from lightstage_physics import synth
         capture = synth.generate(work / 'capture', image_size=120, n_samples_per_class=2, n_poses=3,
                                  object_types=('banana', 'orange'), n_jobs=2)
         t0 = time.perf_counter()

@@ -68,10 +68,10 @@ def main(argv=None) -> int:
     apply_ros_environment(domain_id)
 
     from lightstage_bringup.supervisor import Supervisor
-    from lightstage_camera import synth
-    from lightstage_camera.calibration_target import write_calibration_target
-    from lightstage_camera.capture_format import load_capture
-    from lightstage_camera.noise import PAPER_CALIBRATION
+    from lightstage_physics import synth
+    from lightstage_physics.calibration_target import write_calibration_target
+    from lightstage_physics.capture_format import load_capture
+    from lightstage_physics.noise import PAPER_CALIBRATION
     from lightstage_interfaces.action import CalibrateNoise, CaptureModel
 
     work = Path(tempfile.mkdtemp(prefix='bench-acquisition-'))
@@ -167,10 +167,10 @@ def core_calibration(args) -> int:
     """The calibration cases through the pure core on sim camera frames (see the docstring)."""
     from acquisition_helpers import sim_grab
     from lightstage_camera import calibration as cal
-    from lightstage_camera.calibration_target import write_calibration_target
-    from lightstage_camera.capture_format import load_capture
+    from lightstage_physics.calibration_target import write_calibration_target
+    from lightstage_physics.capture_format import load_capture
     from lightstage_graph.frames import mono16_to_gray
-    from lightstage_camera.noise import PAPER_CALIBRATION
+    from lightstage_physics.noise import PAPER_CALIBRATION
     from lightstage_camera.sim_camera import SimCamera
 
     work = Path(tempfile.mkdtemp(prefix='bench-calibration-'))

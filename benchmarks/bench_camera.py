@@ -107,7 +107,7 @@ def emulator_max_size():
 
 
 def bench_sim(n_triggers, burst, exposure_us):
-    from lightstage_camera import synth
+    from lightstage_physics import synth
     from lightstage_camera.sim_camera import SimCameraBackend
     with tempfile.TemporaryDirectory() as tmp:
         capture = synth.generate(Path(tmp) / 'capture', image_size=120, n_samples_per_class=1,

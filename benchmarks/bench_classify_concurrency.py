@@ -32,8 +32,8 @@ from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_param
 
 
 def _artifact(folder: Path) -> tuple[Path, Path]:
-    from lightstage_camera import synth
-    from lightstage_camera.capture_format import load_capture
+    from lightstage_physics import synth
+    from lightstage_physics.capture_format import load_capture
     from mux_trainer.baselines import NaiveClassifier
     capture = synth.generate(folder / 'capture', image_size=120, n_samples_per_class=2,
                              n_poses=3, object_types=('banana', 'orange'), n_jobs=1)

@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / 'benchmarks'))
 
 from bench_search import default_capture  # noqa: E402
-from lightstage_camera.capture_format import load_capture  # noqa: E402
+from lightstage_physics.capture_format import load_capture  # noqa: E402
 from mux_trainer.cluster import dask_cluster, shared_bytes  # noqa: E402
 from mux_trainer.data import search_data  # noqa: E402
 from mux_trainer.greedy import GreedyPatternSelector  # noqa: E402

@@ -4,9 +4,9 @@ Full-resolution path (what the paper's code does): render I = L @ w at full reso
 add camera noise per full-resolution pixel, clip, block-mean downscale to 120 x 120.
 Fast path: downscale the models once (ModelSet.downscaled), then render at 120 x 120 and
 add noise whose variance is scaled by the downscale's factor (noise_scale). Both produce
-the same statistics away from saturation (tests/lightstage_camera/test_lowres.py).
+the same statistics away from saturation (tests/lightstage_physics/test_lowres.py).
 
-    PYTHONPATH=src/lightstage_camera .venv/bin/python benchmarks/bench_render.py [--size 240]
+    PYTHONPATH=src/lightstage_physics .venv/bin/python benchmarks/bench_render.py [--size 240]
 """
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ import time
 
 import numpy as np
 
-from lightstage_camera.noise import preset
-from lightstage_camera.render import render_noisy
-from lightstage_camera.rig import Rig
-from lightstage_camera.scene_models import ModelSet
+from lightstage_physics.noise import preset
+from lightstage_physics.render import render_noisy
+from lightstage_physics.rig import Rig
+from lightstage_physics.scene_models import ModelSet
 
 
 def make_models(n: int, size: int, seed: int = 0) -> ModelSet:

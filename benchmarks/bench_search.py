@@ -43,10 +43,10 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for pkg in ('lightstage_camera', 'mux_classifier', 'mux_trainer'):
+for pkg in ('lightstage_physics', 'mux_classifier', 'mux_trainer'):
     sys.path.insert(0, str(ROOT / 'src' / pkg))
 
-from lightstage_camera.capture_format import load_capture  # noqa: E402
+from lightstage_physics.capture_format import load_capture  # noqa: E402
 from mux_classifier.hog import hog_batch, hog_batch_numpy, hog_reference  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 from mux_trainer.data import search_data  # noqa: E402
@@ -66,7 +66,7 @@ RECORDED_COLUMNS = ('10001111', '00011111', '10001111', '10001111', '00001011', 
 def default_capture() -> Path:
     path = ROOT / '.cache' / 'bench_synth'
     if not (path / 'rig.yaml').exists():
-        from lightstage_camera.synth import generate
+        from lightstage_physics.synth import generate
         print(f'generating the synthetic dataset into {path} ...', flush=True)
         generate(path)
     return path

@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_search import default_capture, fmt_breakdown  # noqa: E402
-from lightstage_camera.capture_format import load_capture  # noqa: E402
+from lightstage_physics.capture_format import load_capture  # noqa: E402
 from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
 from mux_trainer.data import search_data  # noqa: E402
 from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk  # noqa: E402

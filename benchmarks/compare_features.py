@@ -1,7 +1,7 @@
 """Which feature extractor for objects placed any way? Accuracy per feature x illumination x
 placement on held-out poses, and the extractors' speed.
 
-Generates two small synthetic datasets in memory (`lightstage_camera.synth`, rendered
+Generates two small synthetic datasets in memory (`lightstage_physics.synth`, rendered
 straight at 120 px; camera noise of the variance a 240 px capture has after its 2 x 2
 downscale): the same objects in canonical and in free placement. Renders every sample
 under a few FIXED illuminations with fresh Sigma3 noise (`mux_trainer.rendering`):
@@ -33,9 +33,9 @@ import numpy as np
 from joblib import Parallel, delayed
 from sklearn.svm import LinearSVC
 
-from lightstage_camera.noise import preset
-from lightstage_camera.rig import Rig
-from lightstage_camera.synth import plan, render_job
+from lightstage_physics.noise import preset
+from lightstage_physics.rig import Rig
+from lightstage_physics.synth import plan, render_job
 from mux_classifier.features import EXTRACTORS, extractor, features_for_split
 from mux_trainer.rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
                                    standard_normal)

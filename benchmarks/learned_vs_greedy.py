@@ -14,7 +14,7 @@ split of `holdout.holdout_split` (25 % of the pose indices, or of the physical s
 Prints held-out accuracy and training seconds per method and exposure count, and writes the
 figures as JSON with --json.
 
-    PYTHONPATH=src/lightstage_camera:src/mux_classifier:src/mux_trainer \\
+    PYTHONPATH=src/lightstage_physics:src/mux_classifier:src/mux_trainer \\
         .venv/bin/python benchmarks/learned_vs_greedy.py /work/data/weak0.2 [--seed 0]
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from lightstage_camera.capture_format import load_capture
+from lightstage_physics.capture_format import load_capture
 from mux_trainer.baselines import SnrOptimalClassifier
 from mux_trainer.data import search_data
 from mux_trainer.greedy import GreedyPatternSelector

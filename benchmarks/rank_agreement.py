@@ -33,11 +33,11 @@ from scipy.stats import spearmanr
 from threadpoolctl import threadpool_limits
 
 ROOT = Path(__file__).resolve().parents[1]
-for pkg in ('lightstage_camera', 'mux_classifier', 'mux_trainer'):
+for pkg in ('lightstage_physics', 'mux_classifier', 'mux_trainer'):
     sys.path.insert(0, str(ROOT / 'src' / pkg))
 
 from bench_search import default_capture  # noqa: E402
-from lightstage_camera.capture_format import load_capture  # noqa: E402
+from lightstage_physics.capture_format import load_capture  # noqa: E402
 from mux_trainer.data import search_data  # noqa: E402
 from mux_trainer.evaluation import CandidateEvaluator  # noqa: E402
 from mux_trainer.greedy import (REFINE_BATCH, REFINE_MAX, REFINE_TOP,  # noqa: E402

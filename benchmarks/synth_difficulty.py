@@ -9,7 +9,7 @@ accuracy of a linear SVM over repeated 75 / 25 pose splits (the same pose indice
 every class), plus the held-out-instance accuracy (train on some physical samples, test on
 the others; the paper's captured-imagery experiment).
 
-    PYTHONPATH=src/lightstage_camera:src/mux_classifier .venv/bin/python benchmarks/synth_difficulty.py [CAPTURE]
+    PYTHONPATH=src/lightstage_physics:src/mux_classifier .venv/bin/python benchmarks/synth_difficulty.py [CAPTURE]
 """
 from __future__ import annotations
 
@@ -23,10 +23,10 @@ import numpy as np
 from skimage.feature import hog
 from sklearn.svm import LinearSVC
 
-from lightstage_camera.capture_format import load_capture
-from lightstage_camera.noise import preset
-from lightstage_camera.render import render_noisy
-from lightstage_camera.rig import led_index
+from lightstage_physics.capture_format import load_capture
+from lightstage_physics.noise import preset
+from lightstage_physics.render import render_noisy
+from lightstage_physics.rig import led_index
 
 
 def hog_features(images: np.ndarray) -> np.ndarray:
@@ -106,7 +106,7 @@ def main(argv=None) -> int:
     parser.add_argument("--only", default="", help="comma-separated substrings of pattern names")
     args = parser.parse_args(argv)
     if args.capture is None:
-        from lightstage_camera.synth import generate
+        from lightstage_physics.synth import generate
         tmp = tempfile.mkdtemp(prefix="synth_")
         t0 = time.perf_counter()
         generate(tmp)

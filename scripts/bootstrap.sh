@@ -27,7 +27,7 @@ APT_PACKAGES=(cmake ninja-build gcc g++ make pkg-config gcc-avr binutils-avr avr
               libsimavr-dev libelf-dev strace iproute2
               libaravis-0.8-0 gir1.2-aravis-0.8 libgirepository1.0-dev libcairo2-dev
               chromium)
-PROJECT_PACKAGES=(lightstage_graph lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_recording lightstage_bringup)
+PROJECT_PACKAGES=(lightstage_graph lightstage_physics lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_recording lightstage_bringup)
 
 step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }
 fail() {

@@ -50,7 +50,7 @@ def rescue_dir(tmp_path_factory):
 def stage_capture(tmp_path_factory):
     """2 object types x {fake, real} x 2 samples x 3 poses at 120 px: the feature size, so
     rendering it stays fast (a few s); the downscale path is tested on small random models."""
-    from lightstage_camera import synth
+    from lightstage_physics import synth
     return synth.generate(tmp_path_factory.mktemp('stage') / 'capture', image_size=120,
                           n_samples_per_class=2, n_poses=3, object_types=('banana', 'orange'),
                           n_jobs=2)
@@ -58,7 +58,7 @@ def stage_capture(tmp_path_factory):
 
 @pytest.fixture(scope='session')
 def stage_modelset(stage_capture):
-    from lightstage_camera.capture_format import load_capture
+    from lightstage_physics.capture_format import load_capture
     return load_capture(stage_capture)
 
 
@@ -76,7 +76,7 @@ def stage_intensity_artifact_path(stage_capture, tmp_path_factory):
 
 
 def _train_stage_artifact(stage_capture, tmp_path_factory, features):
-    from lightstage_camera.capture_format import load_capture
+    from lightstage_physics.capture_format import load_capture
     from mux_trainer.baselines import FixedPatternClassifier
     from suite_helpers import TRAIN_SITE_PATTERNS
     modelset = load_capture(stage_capture, downscale_to=120)

@@ -2,6 +2,7 @@
 ROS glue listed below imports without rclpy, so it runs in a notebook, a CLI or a Dask
 worker that has no ROS. And the packages depend on each other as docs/ARCHITECTURE.md says."""
 import ast
+import graphlib
 import subprocess
 import sys
 from pathlib import Path
@@ -12,17 +13,24 @@ SRC = Path(__file__).resolve().parents[1] / 'src'
 ROS_MODULES = {'lightstage_graph.qos', 'lightstage_graph.spin', 'lightstage_graph.stage_client',
                'lightstage_recording.bag_ros'}
 
-# package -> the project packages it may import (lightstage_interfaces aside): a tree, no cycles
+# package -> the project packages it may import (lightstage_interfaces aside): a tree, no cycles.
+# The learning packages take the stage's physics from lightstage_physics and never import
+# lightstage_camera (camera SDKs, backends); the driver takes the LED layout from lightstage_graph.
 ALLOWED_IMPORTS = {
     'lightstage_graph': set(),
+    'lightstage_physics': {'lightstage_graph'},
     'lightstage_driver': {'lightstage_graph'},
-    'lightstage_camera': {'lightstage_graph'},
-    'mux_classifier': {'lightstage_graph', 'lightstage_camera'},
-    'mux_trainer': {'lightstage_graph', 'lightstage_camera', 'mux_classifier'},
+    'lightstage_camera': {'lightstage_graph', 'lightstage_physics'},
+    'mux_classifier': {'lightstage_graph', 'lightstage_physics'},
+    'mux_trainer': {'lightstage_graph', 'lightstage_physics', 'mux_classifier'},
     'lightstage_recording': {'lightstage_graph'},
-    'lightstage_bringup': {'lightstage_graph', 'lightstage_camera', 'lightstage_driver',
-                           'mux_classifier', 'mux_trainer', 'lightstage_recording'},
+    'lightstage_bringup': {'lightstage_graph', 'lightstage_physics', 'lightstage_camera',
+                           'lightstage_driver', 'mux_classifier', 'mux_trainer',
+                           'lightstage_recording'},
 }
+# the learning code and the physics it needs import no camera SDK (pypylon; Aravis through gi)
+NO_CAMERA_PACKAGES = ('lightstage_physics', 'mux_classifier', 'mux_trainer')
+CAMERA_MODULES = ('lightstage_camera', 'pypylon', 'gi')
 
 
 def pure_modules() -> list[str]:
@@ -39,6 +47,7 @@ def pure_modules() -> list[str]:
 def test_every_core_module_imports_without_rclpy():
     modules = pure_modules()
     assert {'lightstage_camera.acquisition', 'lightstage_camera.calibration',
+            'lightstage_physics.synth', 'lightstage_physics.render_jax', 'lightstage_graph.leds',
             'mux_trainer.greedy', 'mux_classifier.observe',
             'lightstage_recording.recording', 'lightstage_recording.writer', 'lightstage_driver.protocol',
             'lightstage_graph.frames', 'lightstage_graph.params', 'lightstage_graph.names',
@@ -52,17 +61,29 @@ def test_every_core_module_imports_without_rclpy():
     assert p.returncode == 0, p.stderr[-3000:]
 
 
+def imported_modules(module: Path, package: str) -> set[str]:
+    """The absolute names of the modules `module` (a file of `package`) imports anywhere in it
+    (function-level and TYPE_CHECKING imports too): `from a.b import c` gives a.b and a.b.c."""
+    names = set()
+    for node in ast.walk(ast.parse(module.read_text())):
+        if isinstance(node, ast.Import):
+            names |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ''
+            if node.level:
+                base = f'{package}.{base}' if base else package
+            names |= {base} | {f'{base}.{a.name}' for a in node.names}
+    return names
+
+
 def imported_project_packages(package: str) -> dict[str, set[str]]:
     """{other project package: the modules of `package` that import it}."""
     found: dict[str, set[str]] = {}
     for module in (SRC / package / package).glob('*.py'):
-        for node in ast.walk(ast.parse(module.read_text())):
-            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
-                [node.module] if isinstance(node, ast.ImportFrom) and node.module and not node.level else []
-            for name in names:
-                top = name.split('.')[0]
-                if top in ALLOWED_IMPORTS and top != package:
-                    found.setdefault(top, set()).add(module.name)
+        for name in imported_modules(module, package):
+            top = name.split('.')[0]
+            if top in ALLOWED_IMPORTS and top != package:
+                found.setdefault(top, set()).add(module.name)
     return found
 
 
@@ -71,3 +92,32 @@ def test_packages_import_each_other_only_down_the_documented_tree():
     for package, allowed in ALLOWED_IMPORTS.items():
         extra = {p: m for p, m in imported_project_packages(package).items() if p not in allowed}
         assert not extra, f'{package} imports {extra}; docs/ARCHITECTURE.md allows only {allowed or "none"}'
+
+
+def test_no_import_cycles_between_packages_or_modules():
+    """The documented tree has no cycle, and no two modules import each other round a circle
+    (counting imports inside functions and under TYPE_CHECKING: a circle there is one a
+    refactoring has to untangle too)."""
+    packages = {p: set(imported_project_packages(p)) for p in ALLOWED_IMPORTS}
+    graphlib.TopologicalSorter(packages).prepare()  # CycleError names the circle
+    modules = {f'{m.parent.name}.{m.stem}': m for m in SRC.glob('*/*/*.py')
+               if (m.parent / '__init__.py').exists() and m.stem != '__init__'}
+    graph = {name: {d for d in imported_modules(path, path.parent.name) if d in modules and d != name}
+             for name, path in modules.items()}
+    graphlib.TopologicalSorter(graph).prepare()
+
+
+def test_learning_code_and_physics_import_no_camera():
+    """Every module of the trainer, the classifier and the physics package, nodes included,
+    imports without lightstage_camera and without a camera SDK (pypylon, gi for Aravis)."""
+    modules = sorted(f'{package}.{m.stem}' for package in NO_CAMERA_PACKAGES
+                     for m in (SRC / package / package).glob('*.py') if m.stem != '__init__')
+    assert {'lightstage_physics.render_jax', 'lightstage_physics.synth', 'mux_trainer.trainer_node',
+            'mux_trainer.learned', 'mux_classifier.hog_kernel'} <= set(modules)
+    code = ('import importlib, sys\n'
+            f'for name in {modules!r}:\n'
+            '    importlib.import_module(name)\n'
+            f'    found = [m for m in {CAMERA_MODULES!r} if m in sys.modules]\n'
+            '    assert not found, f"importing {name} imported {found}"\n')
+    p = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]

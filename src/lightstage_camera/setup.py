@@ -19,7 +19,7 @@ setup(
     zip_safe=False,
     maintainer='lightstage maintainers',
     maintainer_email='maintainers@lightstage.invalid',
-    description='Camera and stage physics: capture format, model store, rendering, noise model, calibration, synthetic data; the camera node and the acquisition node (model capture, noise calibration).',
+    description='Camera hardware and acquisition: the camera node and its backends (simulated, pypylon, Aravis), trigger pairing, and the acquisition node (model capture, noise calibration). The physics it renders and records is lightstage_physics.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -1,6 +1,6 @@
 import numpy as np
-from lightstage_camera.rig import Rig
-from lightstage_camera.scene_models import ModelSet
+from lightstage_physics.rig import Rig
+from lightstage_physics.scene_models import ModelSet
 
 
 def make_modelset(n_per_class=2, size=24, n_classes=2, seed=0):

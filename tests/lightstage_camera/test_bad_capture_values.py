@@ -3,8 +3,8 @@ rebuilt; `synth --strength` and `--size` out of range are refused before any wor
 import numpy as np
 import pytest
 
-from lightstage_camera import synth
-from lightstage_camera.capture_format import load_capture, write_capture
+from lightstage_physics import synth
+from lightstage_physics.capture_format import load_capture, write_capture
 
 from camera_helpers import make_modelset
 
@@ -64,7 +64,7 @@ def test_the_memory_estimate_names_the_largest_size_that_fits():
 ])
 def test_capture_and_calibration_settings_are_those_a_rig_yaml_can_record(settings, message):
     """A capture records its setting in rig.yaml: one rig.yaml would refuse is refused first."""
-    from lightstage_camera.acquisition import CaptureSettings
+    from lightstage_camera.capture_settings import CaptureSettings
     from lightstage_camera.calibration import CalibrationSettings
     for kind in (CaptureSettings, CalibrationSettings):
         with pytest.raises(ValueError) as exc:

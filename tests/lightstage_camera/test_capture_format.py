@@ -6,8 +6,8 @@ import pytest
 import yaml
 from PIL import Image
 
-from lightstage_camera.capture_format import (CaptureFormatError, load_capture, to_raw16,
-                                              write_capture)
+from lightstage_physics.capture_format import (CaptureFormatError, load_capture, to_raw16,
+                                               write_capture)
 
 from camera_helpers import make_modelset
 

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from lightstage_camera.rig import CHANNELS, Rig, led_index
-from lightstage_camera.scene_models import ModelSet, downscale_images
+from lightstage_physics.rig import CHANNELS, Rig, led_index
+from lightstage_physics.scene_models import ModelSet, downscale_images
 
 from camera_helpers import make_modelset
 

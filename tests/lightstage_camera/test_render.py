@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
 
-from lightstage_camera.render import (led_to_channel_major, render_led_patterns,
-                                      render_noisy, render_site_patterns)
-from lightstage_camera.rig import led_index
-from lightstage_camera.noise import PRESETS
+from lightstage_physics.render import (led_to_channel_major, render_led_patterns,
+                                       render_noisy, render_site_patterns)
+from lightstage_physics.rig import led_index
+from lightstage_physics.noise import PRESETS
 
 
 def test_site_patterns_shape_and_order(small_modelset):

@@ -4,8 +4,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from lightstage_camera.render import render_led_patterns
-from lightstage_camera.render_jax import add_noise, led_basis, relight, render_noisy
+from lightstage_physics.render import render_led_patterns
+from lightstage_physics.render_jax import add_noise, led_basis, relight, render_noisy
 
 
 def test_relight_equals_numpy_renderer(small_modelset):

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from lightstage_camera.capture_format import (CaptureFormatError, check_equal_poses,
-                                              load_capture, write_capture)
-from lightstage_camera.rig import Rig
+from lightstage_physics.capture_format import (CaptureFormatError, check_equal_poses,
+                                               load_capture, write_capture)
+from lightstage_physics.rig import Rig
 
 from camera_helpers import make_modelset
 

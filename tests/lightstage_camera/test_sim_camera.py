@@ -4,10 +4,10 @@ import math
 import numpy as np
 import pytest
 from lightstage_camera.camera_backend import Trigger
-from lightstage_camera.noise import PAPER_CALIBRATION, PRESETS
-from lightstage_camera.render import render_led_patterns, render_site_patterns
-from lightstage_camera.rig import Rig
-from lightstage_camera.scene_models import ModelSet
+from lightstage_physics.noise import PAPER_CALIBRATION, PRESETS
+from lightstage_physics.render import render_led_patterns, render_site_patterns
+from lightstage_physics.rig import Rig
+from lightstage_physics.scene_models import ModelSet
 from lightstage_camera.sim_camera import (SampleError, SimCamera, SimCameraBackend, encode_mono16,
                                           resolve_sample)
 

@@ -153,7 +153,7 @@ def graded_artifact_path(stage_artifact_path, tmp_path_factory):
     """The stage's trained artifact with its patterns at drive 0.6 (level 153 of 255, exact)."""
     from dataclasses import replace
 
-    from lightstage_camera.rig import site_to_led_patterns
+    from lightstage_physics.rig import site_to_led_patterns
     from mux_classifier.artifact import TrainedArtifact
     art = TrainedArtifact.load(stage_artifact_path)
     assert art.site_patterns is not None and set(np.unique(art.site_patterns)) <= {0.0, 1.0}

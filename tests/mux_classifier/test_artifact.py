@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lightstage_camera.rig import DEFAULT_DIMMER, site_to_led_patterns
+from lightstage_physics.rig import DEFAULT_DIMMER, site_to_led_patterns
 from mux_classifier.artifact import (FORMAT_VERSION, UNRECORDED_DIMMER, ArtifactError,
                                      DimmerMismatch, TrainedArtifact, check_dimmer,
                                      noise_to_dict)

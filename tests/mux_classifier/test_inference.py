@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from lightstage_camera.render import render_led_patterns
+from lightstage_physics.render import render_led_patterns
 from lightstage_camera.sim_camera import SimCamera
 from mux_classifier.artifact import ArtifactError
 from mux_classifier.inference import (ImageMatcher, InferenceError, MissingImagesError,
@@ -62,7 +62,7 @@ def test_mono16_to_gray_undoes_the_msb_alignment():
 
 def _upsampled(modelset, factor=2):
     """The same scene seen by a camera with `factor` x the resolution (each pixel a block)."""
-    from lightstage_camera.scene_models import ModelSet
+    from lightstage_physics.scene_models import ModelSet
     big = modelset.models.repeat(factor, axis=-1).repeat(factor, axis=-2)
     return ModelSet(big, modelset.labels, modelset.class_names, modelset.sample_names,
                     modelset.pose_index, modelset.instance,

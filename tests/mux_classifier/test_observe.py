@@ -23,7 +23,7 @@ def _states(patterns, request_id=5, stamp0=STAMP0, seq0=100, source='lightstage'
 @pytest.fixture(scope='module')
 def frames(stage_capture, stage_artifact):
     """mono16 frames of one sample under the artifact's 8 patterns, from the sim camera."""
-    from lightstage_camera.capture_format import load_capture
+    from lightstage_physics.capture_format import load_capture
     from lightstage_camera.sim_camera import SimCamera
     camera = SimCamera(load_capture(stage_capture), sample='orange-real/s0/p01', noise='sigma3', seed=1)
     return [camera.capture(stage_artifact.led_patterns[:, i], 22500, 17.5) for i in range(8)]

@@ -1,5 +1,5 @@
 import pytest
-from lightstage_camera.capture_format import write_capture
+from lightstage_physics.capture_format import write_capture
 
 from trainer_helpers import make_search_data
 

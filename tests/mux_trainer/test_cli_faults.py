@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 import pytest
-from lightstage_camera.workers import usable_cores
+from lightstage_physics.workers import usable_cores
 from mux_classifier.artifact import TrainedArtifact
 
 import mux_trainer.report as report

@@ -3,8 +3,8 @@ import json
 
 import numpy as np
 import pytest
-from lightstage_camera.capture_format import write_capture
-from lightstage_camera.rig import DEFAULT_DIMMER
+from lightstage_physics.capture_format import write_capture
+from lightstage_physics.rig import DEFAULT_DIMMER
 from mux_classifier.artifact import TrainedArtifact
 
 from mux_trainer.cli import eval_main, train_main
@@ -154,7 +154,7 @@ def test_train_with_a_calibrated_noise_file(capture, tmp_path, capsys):
     """A noise file of `lightstage calibrate` trains exactly like a preset with the same
     numbers, NOISE.yaml@GAIN:EXPOSURE generalizes it, and the artifact carries the camera
     setting the classifier node then asks the stage for."""
-    from lightstage_camera.noise import PAPER_CALIBRATION, preset, save_noise_file
+    from lightstage_physics.noise import PAPER_CALIBRATION, preset, save_noise_file
     sigma3 = preset('sigma3')
 
     def train(noise, name):

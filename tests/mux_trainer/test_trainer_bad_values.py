@@ -3,8 +3,8 @@ specs and files out of range, --seed and --repeats bounds, Dask addresses refuse
 Each refused before any work, naming the option or key."""
 import pytest
 import yaml
-from lightstage_camera.noise import NoiseModel, load_noise_file, save_noise_file
-from lightstage_camera.errors import NoiseFileError
+from lightstage_physics.noise import NoiseModel, load_noise_file, save_noise_file
+from lightstage_physics.errors import NoiseFileError
 
 from mux_trainer.cli import eval_main, train_main
 from mux_trainer.cluster import ClusterUnavailable, DaskCluster

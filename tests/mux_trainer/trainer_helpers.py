@@ -7,8 +7,8 @@ informative sites helps; lighting the others only adds nuisance and noise, so th
 search has real choices to make.
 """
 import numpy as np
-from lightstage_camera.rig import Rig
-from lightstage_camera.scene_models import ModelSet
+from lightstage_physics.rig import Rig
+from lightstage_physics.scene_models import ModelSet
 from mux_classifier.hog import HogConfig
 
 from mux_trainer.rendering import SearchData

@@ -298,7 +298,7 @@ def capture_main(argv: list[str] | None = None) -> int:
 
 
 def _write_rescued(args) -> int:
-    from lightstage_camera.errors import DestinationError
+    from lightstage_physics.errors import DestinationError
     from lightstage_camera.rescue import write_rescued
     if args.targets:
         print('lightstage capture: --from-rescued writes the pose named in the file; give no '
@@ -322,7 +322,7 @@ def _write_rescued(args) -> int:
 
 def format_calibration(r) -> str:
     """The fit, its standard errors and the generalization to Sigma1..3."""
-    from lightstage_camera.noise import SETTINGS, NoiseModel
+    from lightstage_physics.noise import SETTINGS, NoiseModel
     model = NoiseModel(r['sigma_p2'], r['sigma_r2'], gain_db=r['gain_db'],
                        exposure_ms=r['exposure_ms'])
     lines = [f'variance = {r["sigma_p2"]:.4f} (+-{r["sigma_p2_stderr"]:.4f}) * mean + '

@@ -29,7 +29,7 @@ VERBS: dict[str, tuple[str, str, str]] = {
              'play a bag into the graph with its recorded QoS and timing'),
     'bag': ('lightstage_recording.bag_cli', 'bag_main',
             'bag info (summary like `ros2 bag info`) / bag recover (complete copy of a damaged bag)'),
-    'synth': ('lightstage_camera.synth', 'main',
+    'synth': ('lightstage_physics.synth', 'main',
               'write the synthetic light-stage dataset (a capture folder)'),
     'capture': ('lightstage_bringup.acquisition_cli', 'capture_main',
                 'capture relightable models of the sample on the stage into a capture folder'),

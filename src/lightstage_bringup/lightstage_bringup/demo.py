@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 
 from lightstage_bringup.launcher import DEFAULT_NODES, RECORDER
-from lightstage_camera.workers import jobs_type
+from lightstage_physics.workers import jobs_type
 from lightstage_graph.names import (APPLY_PATTERNS_SERVICE, CAMERA_NODE, CLASSIFIER_NODE,
                                     CLASSIFY_SERVICE, IMAGE_TOPIC, ILLUMINATION_TOPIC,
                                     RESULT_TOPIC, resolved, service_event_topic)
@@ -63,7 +63,7 @@ def _parser() -> argparse.ArgumentParser:
 
 # ----------------------------------------------------------------------------- offline part
 def _dataset(out: Path, args) -> Path:
-    from lightstage_camera import synth
+    from lightstage_physics import synth
 
     capture = out / 'capture'
     if (capture / 'rig.yaml').is_file() and not args.fresh:
@@ -91,7 +91,7 @@ def _split_by_instance(modelset):
 
 
 def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
-    from lightstage_camera.capture_format import load_capture
+    from lightstage_physics.capture_format import load_capture
     from mux_trainer.baselines import NaiveClassifier
     from mux_trainer.greedy import GreedyPatternSelector
 

@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from lightstage_camera.rig import CHANNELS, N_LEDS, Rig
+from lightstage_physics.rig import CHANNELS, N_LEDS, Rig
 
 THUMBNAIL_PX = 240      # images kept with a classification: at most this many pixels a side
 LIVE_MAX_PX = 800       # the live image: at most this many pixels a side

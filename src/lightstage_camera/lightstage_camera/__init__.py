@@ -1,1 +1,1 @@
-"""Camera and stage physics: capture format, model store, rendering, noise model, calibration, synthetic data and the camera node."""
+"""Camera hardware and acquisition: the camera node and its backends (simulated, pypylon, Aravis), trigger pairing, model capture and noise calibration (the acquisition node)."""

@@ -33,10 +33,13 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 
-from .acquisition import CaptureCancelled, CaptureSettings, DestinationError, acquire_pose
+from lightstage_physics.rig import MAX_FRAMES_AVERAGED, N_SITES, Rig
+
+from .acquisition import CaptureCancelled, DestinationError, acquire_pose
 from .calibration import CalibrationSettings, calibrate_noise
 from .calibration_outputs import check_calibration_outputs, write_calibration_outputs
-from .rig import MAX_FRAMES_AVERAGED, N_SITES, Rig
+from .capture_settings import CaptureSettings
+
 START_HINT = 'lightstage up driver camera acquisition'
 
 PARAMETERS = {

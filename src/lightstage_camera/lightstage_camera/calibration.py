@@ -14,17 +14,17 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
-from lightstage_graph.limits import check_camera_setting
-
-from .acquisition import MAX_FRAMES_PER_REQUEST
 from lightstage_graph.frames import mono16_to_gray
+from lightstage_graph.limits import check_camera_setting
+from lightstage_physics.errors import AcquisitionError, CaptureCancelled
+from lightstage_physics.noise import SETTINGS, NoiseModel
+from lightstage_physics.noise_fit import (MIN_FRAMES_PER_LEVEL, MIN_FRAMES_REASON,
+                                          NoiseCharacteristic, SplitMoments,
+                                          characteristic_from_moments, excess_scatter,
+                                          fit_noise_model, fit_uncertainty)
+from lightstage_physics.rig import N_CHANNELS, N_SITES
 
-from .errors import AcquisitionError, CaptureCancelled
-from .noise import SETTINGS, NoiseModel
-from .noise_fit import (MIN_FRAMES_PER_LEVEL, MIN_FRAMES_REASON, NoiseCharacteristic,
-                        SplitMoments, characteristic_from_moments, excess_scatter,
-                        fit_noise_model, fit_uncertainty)
-from .rig import N_CHANNELS, N_SITES
+from .capture_settings import MAX_FRAMES_PER_REQUEST
 
 __all__ = ["calibration_led_order", "calibration_patterns", "CalibrationSettings",
            "CalibrationResult", "calibrate_noise"]

@@ -9,9 +9,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .errors import DestinationError
-from .noise import save_noise_file
-from .output_files import check_output_file
+from lightstage_physics.errors import DestinationError
+from lightstage_physics.noise import save_noise_file
+from lightstage_physics.output_files import check_output_file
 
 if TYPE_CHECKING:
     from .calibration import CalibrationResult
@@ -82,7 +82,7 @@ def _write_calibration_files(result: "CalibrationResult", targets, measured_at: 
         save_noise_file(targets[0], result.model, result.stderr, measured)
         written[0] = str(targets[0])
     if targets[1] is not None:
-        from .camera_plots import plot_noise_characteristic  # matplotlib: only when asked
+        from lightstage_physics.camera_plots import plot_noise_characteristic  # matplotlib: only when asked
         plot_noise_characteristic(targets[1], result.characteristic, result.model,
                                   result.generalized())
         written[1] = str(targets[1])

@@ -48,8 +48,8 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from .camera_backend import CameraBackend, Frame, LostFrame, Trigger, hand_trigger
 from .camera_info import Calibration, load_calibration
-from .noise import PAPER_CALIBRATION, NoiseModel, load_noise_file
-from .rig import DEFAULT_DIMMER
+from lightstage_physics.noise import PAPER_CALIBRATION, NoiseModel, load_noise_file
+from lightstage_physics.rig import DEFAULT_DIMMER
 from .sim_camera import NOISE_CHOICES, SimCameraBackend, parse_noise, resolve_sample
 from .triggered_backend import PIXEL_FORMATS, parse_features
 

@@ -15,17 +15,15 @@ import shutil
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .capture_format import RIG_FILE, image_name, write_pose
-from .errors import DestinationError
-from .output_files import writable_dir
-from .rig import CHANNELS, N_CHANNELS, N_SITES, Rig
+from lightstage_physics.capture_format import RIG_FILE, image_name, write_pose
+from lightstage_physics.errors import DestinationError
+from lightstage_physics.output_files import writable_dir
+from lightstage_physics.rig import CHANNELS, N_CHANNELS, N_SITES, Rig
 
-if TYPE_CHECKING:
-    from .acquisition import CaptureSettings
+from .capture_settings import CaptureSettings
 
 __all__ = ["Destination", "check_destination", "write_model", "capture_rig", "validate_name",
            "rig_differences", "folder_rig", "model_files", "STAGING_DIR"]
@@ -46,7 +44,7 @@ def validate_name(kind: str, value: str) -> str:
     return text
 
 
-def capture_rig(settings: "CaptureSettings", image_shape: tuple[int, int],
+def capture_rig(settings: CaptureSettings, image_shape: tuple[int, int],
                 base: Rig | None = None) -> Rig:
     """The rig.yaml of this capture: `base`'s sites (default: the paper's stage) with the
     capture's camera setting, image size and frame count."""

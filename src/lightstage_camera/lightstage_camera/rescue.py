@@ -2,29 +2,27 @@
 
 A captured pose that cannot be written (disk full, the pose appeared meanwhile) goes to a
 rescue file (`save_rescued`) that `write_rescued` (``lightstage capture DIR --from-rescued
-FILE``) writes into a capture folder later; `save_in_rescue_dir` keeps any other output
-(a trained artifact, evaluation results) the same way.
+FILE``) writes into a capture folder later. The rescue folders and `save_in_rescue_dir`,
+which keeps any other output (a trained artifact, evaluation results) the same way, are
+`lightstage_physics.output_files`.
 """
 from __future__ import annotations
 
 import json
 import os
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
+from lightstage_physics.errors import DestinationError
+from lightstage_physics.output_files import save_in_rescue_dir
+from lightstage_physics.rig import Rig
 
 from .capture_destination import check_destination, write_model
-from .errors import DestinationError
-from .rig import Rig
 
-__all__ = ["RescuedModel", "rescue_dirs", "save_in_rescue_dir", "save_rescued", "load_rescued",
-           "write_rescued", "rescue_message", "RESCUE_DIR_ENV"]
+__all__ = ["RescuedModel", "save_rescued", "load_rescued", "write_rescued", "rescue_message"]
 
-RESCUE_DIR_ENV = "LIGHTSTAGE_RESCUE_DIR"
 RESCUE_KIND = "lightstage-rescued-model"
 RESCUE_VERSION = 1
 
@@ -38,34 +36,6 @@ class RescuedModel:
     pose: str
     rig: Rig
     model: np.ndarray
-
-
-def rescue_dirs() -> list[Path]:
-    """Where rescue files go, in order of preference: $LIGHTSTAGE_RESCUE_DIR, the user's
-    cache folder, the temporary folder (another file system than a full capture disk, often)."""
-    dirs = [Path(os.environ[RESCUE_DIR_ENV]).expanduser()] if os.environ.get(RESCUE_DIR_ENV) else []
-    cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return dirs + [Path(cache) / "lightstage" / "rescued",
-                   Path(tempfile.gettempdir()) / "lightstage-rescued"]
-
-
-def save_in_rescue_dir(file_name: str, write: Callable[[Path], None]) -> Path:
-    """`write(path)` a file named `file_name` into the first rescue folder that takes it;
-    returns its path. Raises OSError naming each folder's error when none does."""
-    errors = []
-    for folder in rescue_dirs():
-        path = folder / file_name
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-            write(path)
-            return path
-        except OSError as exc:
-            errors.append(f"{folder}: {exc.strerror or exc}")
-            try:
-                path.unlink()
-            except OSError:
-                pass
-    raise OSError("; ".join(errors))
 
 
 def save_rescued(rescued: RescuedModel) -> Path:

@@ -24,12 +24,12 @@ from typing import Callable
 import numpy as np
 
 from .camera_backend import BackendStatus, CameraBackend, Frame, Trigger
-from .capture_format import load_capture
-from .errors import SampleError
-from .noise import PAPER_CALIBRATION, PRESETS, NoiseModel
-from .render import render_led_patterns
-from .rig import DEFAULT_DIMMER
-from .scene_models import ModelSet
+from lightstage_physics.capture_format import load_capture
+from lightstage_physics.errors import SampleError
+from lightstage_physics.noise import PAPER_CALIBRATION, PRESETS, NoiseModel
+from lightstage_physics.render import render_led_patterns
+from lightstage_physics.rig import DEFAULT_DIMMER
+from lightstage_physics.scene_models import ModelSet
 
 NOISE_CHOICES = ('auto', 'none', *PRESETS)
 

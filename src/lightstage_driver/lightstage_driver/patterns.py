@@ -12,11 +12,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from lightstage_graph.leds import site_and_channel
 
 from .errors import PatternError
 from .protocol import LED_COUNT
 
 ON_THRESHOLD = 0.5
+
+
+def led_name(led: int) -> str:
+    """'LED 13 (site 3, channel 1)': an LED of a pattern as the error messages name it."""
+    site, channel = site_and_channel(led)
+    return f'LED {led} (site {site}, channel {channel})'
 
 
 def validate_patterns(patterns, led_count: int = LED_COUNT) -> np.ndarray:
@@ -39,7 +46,7 @@ def validate_patterns(patterns, led_count: int = LED_COUNT) -> np.ndarray:
                       ('negative', array < 0), ('above 1', array > 1)):
         if bad.any():
             k, led = map(int, np.argwhere(bad)[0])
-            raise PatternError(f'pattern {k}, LED {led} (site {led // 4}, channel {led % 4}) is {what}: '
+            raise PatternError(f'pattern {k}, {led_name(led)} is {what}: '
                                f'{float(array[k, led])!r}; LED drives must be in [0, 1]')
     return array
 
@@ -49,7 +56,7 @@ def check_on_off(array: np.ndarray, board: str) -> None:
     graded = (array != 0) & (array != 1)
     if graded.any():
         k, led = map(int, np.argwhere(graded)[0])
-        raise PatternError(f'pattern {k}, LED {led} (site {led // 4}, channel {led % 4}) is '
+        raise PatternError(f'pattern {k}, {led_name(led)} is '
                            f'{float(array[k, led])!r}, a graded level, but {board} switches LEDs '
                            f'on/off only (pwm_bits 0): send 0 or 1, or use firmware with graded '
                            f'levels (pwm_bits 8, firmware 1.1 or later)')

@@ -9,6 +9,7 @@ import numpy as np
 from lightstage_graph.limits import LimitError, check_gain_db
 
 from .errors import PatternError
+from .patterns import led_name
 from .protocol import LED_COUNT
 
 # More triggers than one call should hold: 1024 x the longest exposure is half an hour.
@@ -45,7 +46,7 @@ def check_request(patterns, default_exposure_us: int, min_exposure_us: int, max_
                           ('above 1', row > 1)):
             if bad.any():
                 led = int(np.flatnonzero(bad)[0])
-                raise PatternError(f'{field}.intensities[{led}]: pattern {k}, LED {led} (site {led // 4}, channel {led % 4}) is '
+                raise PatternError(f'{field}.intensities[{led}]: pattern {k}, {led_name(led)} is '
                                    f'{what}: {row[led]:.7g}; LED drives must be in [0, 1]')
         rows.append(row)
         exposure = pattern.exposure_us

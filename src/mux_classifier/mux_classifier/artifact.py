@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from lightstage_camera.noise import check_noise_coefficients
-from lightstage_camera.rig import DEFAULT_DIMMER, N_LEDS, site_to_led_patterns
+from lightstage_physics.noise import check_noise_coefficients
+from lightstage_physics.rig import DEFAULT_DIMMER, N_LEDS, site_to_led_patterns
 from lightstage_graph.limits import DIMMER_MAX, DIMMER_MIN, LimitError, check_range
 from sklearn.utils.validation import check_is_fitted
 

@@ -18,8 +18,8 @@ import stat
 import zipfile
 
 import numpy as np
-from lightstage_camera.noise import check_noise_coefficients
-from lightstage_camera.rig import DEFAULT_DIMMER
+from lightstage_physics.noise import check_noise_coefficients
+from lightstage_physics.rig import DEFAULT_DIMMER
 from lightstage_graph.limits import DIMMER_MAX, DIMMER_MIN, LimitError, check_range
 
 from .features import DEFAULT_EXTRACTOR, searchable_extractor

@@ -36,10 +36,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .hog_constants import BLOCK_NORM_EPS
+
 __all__ = ["HogConfig", "hog_batch", "hog_batch_numpy", "hog_reference"]
 
 _BLOCK_NORMS = ("L1", "L1-sqrt", "L2", "L2-Hys")
-_EPS = 1e-5  # skimage's block-normalisation epsilon
 
 
 @dataclass(frozen=True)
@@ -220,15 +221,15 @@ def _normalize_blocks(hist: np.ndarray, config: HogConfig) -> np.ndarray:
     flat = np.array(blocks.reshape(n, nb * nb, b * b * config.orientations), dtype=np.float64)
     method = config.block_norm
     if method == "L1":
-        flat /= np.abs(flat).sum(axis=2, keepdims=True) + _EPS
+        flat /= np.abs(flat).sum(axis=2, keepdims=True) + BLOCK_NORM_EPS
     elif method == "L1-sqrt":
-        flat /= np.abs(flat).sum(axis=2, keepdims=True) + _EPS
+        flat /= np.abs(flat).sum(axis=2, keepdims=True) + BLOCK_NORM_EPS
         np.sqrt(flat, out=flat)
     else:
-        flat /= np.sqrt(np.einsum("nbf,nbf->nb", flat, flat) + _EPS ** 2)[:, :, None]
+        flat /= np.sqrt(np.einsum("nbf,nbf->nb", flat, flat) + BLOCK_NORM_EPS ** 2)[:, :, None]
         if method == "L2-Hys":
             np.minimum(flat, 0.2, out=flat)
-            flat /= np.sqrt(np.einsum("nbf,nbf->nb", flat, flat) + _EPS ** 2)[:, :, None]
+            flat /= np.sqrt(np.einsum("nbf,nbf->nb", flat, flat) + BLOCK_NORM_EPS ** 2)[:, :, None]
     return flat.reshape(n, -1).astype(np.float32)
 
 

@@ -38,7 +38,7 @@ import math
 import numba
 import numpy as np
 
-from .hog import _EPS  # skimage's block-normalisation epsilon
+from .hog_constants import BLOCK_NORM_EPS
 
 _EDGE_TOL = 1e-5     # relative distance to a bin edge below which a pixel is binned exactly
 _NORM_CODES = {"L1": 0, "L1-sqrt": 1, "L2": 2, "L2-Hys": 3}
@@ -142,7 +142,7 @@ def _normalize_blocks(cells, block, norm_code, out):
     size = block * block * o
     buf = np.empty(size)
     k = 0
-    eps = _EPS
+    eps = BLOCK_NORM_EPS
     for br in range(n_blocks):
         for bc in range(n_blocks):
             j = 0

@@ -12,7 +12,7 @@ One classification (the classifier node maps ROS onto this; nothing here imports
    known (the camera can be faster than the driver's reply) wait in a small buffer; a
    missing image fails the call at once when the camera reports it lost;
 4. `classify_frames`: mono16 -> gray levels, the same area downscale training used
-   (`lightstage_camera.scene_models.downscale_images`), HOG, the artifact's classifier for k.
+   (`lightstage_physics.scene_models.downscale_images`), HOG, the artifact's classifier for k.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from typing import Callable, Sequence
 import numpy as np
 # The downscale training uses (ModelSet.downscaled / load_capture(downscale_to=...)): the
 # classifier must see images prepared exactly as the training renders were.
-from lightstage_camera.scene_models import downscale_images
+from lightstage_physics.scene_models import downscale_images
 # Stamped-frame matching and mono16 decoding are the graph contract's (lightstage_graph),
 # shared with model acquisition; re-exported here as part of this module's API.
 from lightstage_graph.errors import MissingImagesError, StageError

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 from joblib import Parallel
-from lightstage_camera.rig import DEFAULT_DIMMER
+from lightstage_physics.rig import DEFAULT_DIMMER
 from mux_classifier.features import DEFAULT_EXTRACTOR
 from sklearn.base import BaseEstimator
 

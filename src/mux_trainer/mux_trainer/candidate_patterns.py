@@ -8,7 +8,7 @@ yields one image. Matrices of k patterns are `(8, k)` and `(32, k)` (docs/ARCHIT
 from __future__ import annotations
 
 import numpy as np
-from lightstage_camera.rig import N_LEDS, N_SITES
+from lightstage_physics.rig import N_LEDS, N_SITES
 
 __all__ = ['all_leds_on', 'bits_of', 'gray_code', 'pattern_code', 'site_pattern_candidates']
 

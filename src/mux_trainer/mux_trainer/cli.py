@@ -10,8 +10,8 @@ import json
 import sys
 from pathlib import Path
 
-from lightstage_camera.rig import DEFAULT_DIMMER
-from lightstage_camera.workers import jobs_type, usable_cores
+from lightstage_physics.rig import DEFAULT_DIMMER
+from lightstage_physics.workers import jobs_type, usable_cores
 
 from .column_count import COUNT_RULES
 from .cluster import DASK_SCHEDULER_ENV, DEFAULT_TIMEOUT_S, scheduler_from_env

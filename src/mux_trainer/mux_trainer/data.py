@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import numpy as np
-from lightstage_camera.noise import EXPOSURE_MS_RANGE, NoiseModel, load_noise_file, noise_setting
-from lightstage_camera.rig import DEFAULT_DIMMER
-from lightstage_camera.scene_models import object_type_of
+from lightstage_physics.noise import EXPOSURE_MS_RANGE, NoiseModel, load_noise_file, noise_setting
+from lightstage_physics.rig import DEFAULT_DIMMER
+from lightstage_physics.scene_models import object_type_of
 from lightstage_graph.limits import check_gain_db, check_range
 from mux_classifier.features import DEFAULT_EXTRACTOR
 from mux_classifier.hog import HogConfig

@@ -32,7 +32,7 @@ import time
 
 import numpy as np
 from joblib import Parallel
-from lightstage_camera.rig import DEFAULT_DIMMER, N_LEDS
+from lightstage_physics.rig import DEFAULT_DIMMER, N_LEDS
 from mux_classifier.features import DEFAULT_EXTRACTOR
 from sklearn.base import BaseEstimator
 

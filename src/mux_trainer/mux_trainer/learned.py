@@ -4,7 +4,7 @@ The patterns are a (32, k) matrix of LED levels, ``sigmoid(theta)`` (graded) or 
 straight-through binarisation (``binary=True``: on/off, runs on ``pwm_bits = 0``
 firmware), one image per column (k exposures = k images, the budget of the other methods:
 greedy's per-colour column is 4 images). Each training step renders a batch of training
-samples under the current levels (`lightstage_camera.render_jax`: the relit images as
+samples under the current levels (`lightstage_physics.render_jax`: the relit images as
 `rendering.clean_led_images`, the calibrated affine noise drawn afresh by
 reparameterisation, the saturation clip, at the classifier's 120 px), computes per image
 the 9 pose-robust object statistics of `intensity_stats` made differentiable
@@ -30,7 +30,7 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-from lightstage_camera.render_jax import render_noisy
+from lightstage_physics.render_jax import render_noisy
 from mux_classifier.intensity_stats import GRADIENT_QUANTILES, LEVEL_QUANTILES, N_STATS
 from mux_classifier.learned_model import LearnedModel
 from mux_classifier.object_mask import image_masks

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 from joblib import Parallel, delayed
-from lightstage_camera.rig import N_CHANNELS
+from lightstage_physics.rig import N_CHANNELS
 from mux_classifier.artifact import TrainedArtifact
 from mux_classifier.estimator import MuxClassifier
 

@@ -21,7 +21,7 @@ import numpy as np
 from mux_classifier.features import DEFAULT_EXTRACTOR, column_scaling, searchable_extractor
 from mux_classifier.hog import HogConfig
 
-from lightstage_camera.rig import DEFAULT_DIMMER
+from lightstage_physics.rig import DEFAULT_DIMMER
 
 from .cluster import ArraySized
 

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from lightstage_camera.workers import check_jobs
+from lightstage_physics.workers import check_jobs
 
 from .baselines import NaiveClassifier, SnrOptimalClassifier
 from .data import search_data
@@ -171,8 +171,8 @@ def check_output_dir(out_dir) -> Path:
     """Refuse, before an evaluation, an output folder that cannot take its files: a regular
     file, a path under one, a folder this user cannot create files in (checked by creating
     one). Raises ValueError naming the folder and what to do."""
-    from lightstage_camera.errors import DestinationError
-    from lightstage_camera.output_files import check_output_file
+    from lightstage_physics.errors import DestinationError
+    from lightstage_physics.output_files import check_output_file
     try:
         return check_output_file(Path(out_dir) / RESULTS_FILE, overwrite=True).parent
     except DestinationError as exc:
@@ -182,7 +182,7 @@ def check_output_dir(out_dir) -> Path:
 def keep_outputs(doc: dict, out_dir, error: Exception) -> str:
     """Keep a JSON-ready result document whose outputs could not be written into `out_dir`
     in a rescue folder; returns the message saying where (or that it could not be kept)."""
-    from lightstage_camera.rescue import save_in_rescue_dir
+    from lightstage_physics.output_files import save_in_rescue_dir
     failed = f'could not write the results into {out_dir} ({getattr(error, "strerror", None) or error})'
     name = f'eval-{time.strftime("%Y%m%d-%H%M%S")}.{os.getpid()}.{RESULTS_FILE}'
     try:

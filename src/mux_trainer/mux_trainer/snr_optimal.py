@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
-from lightstage_camera.rig import DEFAULT_DIMMER, N_SITES
+from lightstage_physics.rig import DEFAULT_DIMMER, N_SITES
 from sklearn.base import BaseEstimator
 
 __all__ = [
@@ -55,7 +55,7 @@ def noise_coefficients(noise) -> tuple[float, float]:
     """(sigma_p2, sigma_r2) from a preset name ("sigma1".."sigma3"), a NoiseModel-like
     object, a dict or a (sigma_p2, sigma_r2) pair."""
     if isinstance(noise, str):
-        from lightstage_camera.noise import preset
+        from lightstage_physics.noise import preset
 
         model = preset(noise)
         if model is None:

@@ -13,7 +13,8 @@ import sys
 import threading
 import time
 
-from lightstage_camera.workers import usable_cores
+from lightstage_physics.workers import usable_cores
+from lightstage_graph.leds import n_site_subsets
 from lightstage_graph.names import TRAINER_NODE, TRAIN_ACTION
 from lightstage_graph.params import declare_parameters, floating, integer, string
 from mux_classifier.features import DEFAULT_EXTRACTOR, EXTRACTORS
@@ -28,7 +29,7 @@ from .cluster import DEFAULT_TIMEOUT_S
 from .greedy import REFINE_TOP
 from .training import train_from_capture
 
-SITE_CANDIDATES = 254  # per-colour mode: patterns with 1..7 of 8 sites lit
+SITE_CANDIDATES = n_site_subsets()  # per-colour mode: patterns with 1..7 of 8 sites lit
 MAX_JOBS = 256
 
 

@@ -9,7 +9,7 @@ import os
 import time
 from pathlib import Path
 
-from lightstage_camera.workers import check_jobs
+from lightstage_physics.workers import check_jobs
 
 from .cluster import DEFAULT_TIMEOUT_S, dask_cluster
 from .data import resolve_noise
@@ -70,8 +70,8 @@ def check_artifact_path(out_path, force: bool = False) -> Path:
     one), and an existing file that is not a trained artifact (a capture's rig.yaml, any user
     file) unless `force`; an artifact is replaced (retraining). Raises ValueError naming the
     path and what to do."""
-    from lightstage_camera.errors import DestinationError
-    from lightstage_camera.output_files import check_output_file
+    from lightstage_physics.errors import DestinationError
+    from lightstage_physics.output_files import check_output_file
     try:
         path = check_output_file(out_path, overwrite=True)
     except DestinationError as exc:
@@ -90,7 +90,7 @@ def check_artifact_path(out_path, force: bool = False) -> Path:
 def _save_artifact(artifact, out: Path, summary: dict) -> None:
     """Save to `out`; if that fails after all, keep it in a rescue folder and raise
     ArtifactNotWritten saying where (the training is not lost)."""
-    from lightstage_camera.rescue import save_in_rescue_dir
+    from lightstage_physics.output_files import save_in_rescue_dir
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         artifact.save(out)
@@ -152,7 +152,7 @@ def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8
 def load_training_set(capture_dir, image_size: int = 120):
     """The capture folder's models, downscaled to the classifier's image size; every class
     must have the same number of poses (the pose splits need it)."""
-    from lightstage_camera.capture_format import check_equal_poses, load_capture
+    from lightstage_physics.capture_format import check_equal_poses, load_capture
 
     path = Path(capture_dir)
     if not path.is_dir():

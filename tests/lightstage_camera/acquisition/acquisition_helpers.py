@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 
-from lightstage_camera.rig import Rig
-from lightstage_camera.scene_models import ModelSet
+from lightstage_physics.rig import Rig
+from lightstage_physics.scene_models import ModelSet
 from suite_helpers import GraphClient, lightstage_command, start_nodes
 
 

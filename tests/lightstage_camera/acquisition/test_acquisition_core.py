@@ -9,11 +9,13 @@ from acquisition_helpers import (averaged_capture_z, check_z, gaussian_regime, s
                                  smooth_modelset)
 from lightstage_camera import acquisition as acq
 from lightstage_camera import capture_destination as dest
-from lightstage_camera import errors, output_files, rescue
-from lightstage_camera.capture_format import load_capture
-from lightstage_camera.errors import AcquisitionError
-from lightstage_camera.noise import PAPER_CALIBRATION
+from lightstage_camera import rescue
+from lightstage_camera.capture_settings import CaptureSettings
 from lightstage_camera.sim_camera import SimCamera
+from lightstage_physics import errors, output_files
+from lightstage_physics.capture_format import load_capture
+from lightstage_physics.errors import AcquisitionError
+from lightstage_physics.noise import PAPER_CALIBRATION
 
 EXPOSURE_US, GAIN_DB = 30000, 15.0
 
@@ -24,14 +26,14 @@ def test_single_led_plan_names_and_settings():
     assert [acq.led_name(i) for i in (0, 1, 3, 4, 31)] == ['s0_red', 's0_green', 's0_nir',
                                                             's1_red', 's7_nir']
     assert dest.model_files()[:2] == ['s0_red.png', 's0_green.png']
-    s = acq.CaptureSettings(exposure_us=1000, frames=5)
+    s = CaptureSettings(exposure_us=1000, frames=5)
     assert (s.n_leds, s.total_frames, s.max_level) == (32, 160, 1023)
     for bad, match in ((dict(exposure_us=0), 'exposure_us'), (dict(frames=0), 'frames'),
                        (dict(gain_db=float('nan')), 'gain_db'),
                        (dict(frames_per_request=33), 'frames_per_request'),
                        (dict(max_saturated_fraction=2.0), 'max_saturated_fraction')):
         with pytest.raises(ValueError, match=match):
-            acq.CaptureSettings(**bad)
+            CaptureSettings(**bad)
 
 
 def test_averager_counts_pixels_that_hit_the_maximum_in_any_frame():
@@ -50,7 +52,7 @@ def test_captured_model_matches_the_stored_model_within_the_noise_of_n_frames():
     ms = smooth_modelset()
     cam = SimCamera(ms, sample=1, dimmer=1.0, seed=5)
     calls = []
-    settings = acq.CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=6,
+    settings = CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=6,
                                    frames_per_request=4)
     progress = []
     captured = acq.capture_model(sim_grab(cam, EXPOSURE_US, GAIN_DB, calls), settings,
@@ -71,7 +73,7 @@ def test_preview_refuses_a_clipping_led_before_the_long_capture():
     ms.models[0, 1, 2] = 1100.0  # s2_green saturates the whole image
     cam = SimCamera(ms, sample=0, dimmer=1.0, seed=1)
     calls = []
-    settings = acq.CaptureSettings(exposure_us=20000, frames=50)
+    settings = CaptureSettings(exposure_us=20000, frames=50)
     with pytest.raises(errors.ExposureError) as info:
         acq.capture_model(sim_grab(cam, 20000, GAIN_DB, calls), settings)
     message = str(info.value)
@@ -88,7 +90,7 @@ def test_preview_refuses_a_clipping_led_before_the_long_capture():
 
 
 def test_preview_suggests_an_exposure_from_the_brightest_led():
-    check = acq.ExposureCheck(acq.CaptureSettings(exposure_us=30000), np.array([100.0, 409.2]),
+    check = acq.ExposureCheck(CaptureSettings(exposure_us=30000), np.array([100.0, 409.2]),
                               np.zeros(2), (4, 4))
     assert check.brightest_led == 1
     assert check.suggested_exposure_us() == int(30000 * 0.8 * 1023 / 409.2)
@@ -98,7 +100,7 @@ def test_cancel_between_images_raises_and_nothing_is_written(tmp_path):
     cam = SimCamera(smooth_modelset(), dimmer=1.0, seed=2)
     done = []
     with pytest.raises(errors.CaptureCancelled, match='s0_nir .*3 of 32.*nothing was written'):
-        acq.capture_model(sim_grab(cam, 1000, GAIN_DB), acq.CaptureSettings(exposure_us=1000, frames=2),
+        acq.capture_model(sim_grab(cam, 1000, GAIN_DB), CaptureSettings(exposure_us=1000, frames=2),
                           on_image=lambda *a: done.append(a), cancelled=lambda: len(done) >= 3)
     assert not any(tmp_path.iterdir())
 
@@ -106,7 +108,7 @@ def test_cancel_between_images_raises_and_nothing_is_written(tmp_path):
 def _captured(seed=0, frames=2, level=None, shape=(24, 32)):
     ms = smooth_modelset(shape=shape, seed=seed)
     cam = SimCamera(ms, dimmer=1.0, seed=seed)
-    settings = acq.CaptureSettings(exposure_us=1000, frames=frames)
+    settings = CaptureSettings(exposure_us=1000, frames=frames)
     model = acq.capture_model(sim_grab(cam, 1000, GAIN_DB), settings, preview=False).model
     if level is not None:
         model = np.full_like(model, level)
@@ -114,7 +116,7 @@ def _captured(seed=0, frames=2, level=None, shape=(24, 32)):
 
 
 def _destination(root, pose='p00', settings=None, shape=(24, 32), overwrite=False, **kw):
-    settings = settings or acq.CaptureSettings(exposure_us=1000, frames=2)
+    settings = settings or CaptureSettings(exposure_us=1000, frames=2)
     return dest.check_destination(root, 'banana-fake', 's0', pose,
                                  dest.capture_rig(settings, shape), overwrite=overwrite, **kw)
 
@@ -159,7 +161,7 @@ def test_an_existing_pose_is_refused_unless_overwrite_and_then_replaced(tmp_path
 def test_a_folder_whose_rig_disagrees_is_refused_naming_each_difference(tmp_path):
     settings, model = _captured(level=50.0)
     dest.write_model(_destination(tmp_path, settings=settings), model)
-    other = acq.CaptureSettings(exposure_us=30000, gain_db=12.0, frames=2)
+    other = CaptureSettings(exposure_us=30000, gain_db=12.0, frames=2)
     with pytest.raises(errors.DestinationError) as info:
         _destination(tmp_path, 'p01', settings=other, shape=(24, 33))
     message = str(info.value)
@@ -178,13 +180,13 @@ def test_a_folder_whose_rig_disagrees_is_refused_naming_each_difference(tmp_path
 @pytest.mark.parametrize('label,sample,pose', [('../x', 's0', 'p0'), ('a/b', 's0', 'p0'),
                                                ('banana', '.hidden', 'p0'), ('x', 's0', '')])
 def test_bad_names_are_refused(tmp_path, label, sample, pose):
-    settings = acq.CaptureSettings()
+    settings = CaptureSettings()
     with pytest.raises(errors.DestinationError, match='not a usable folder name'):
         dest.check_destination(tmp_path, label, sample, pose, dest.capture_rig(settings, (8, 8)))
 
 
 def test_unusable_folders_are_refused_before_anything_is_captured(tmp_path):
-    rig = dest.capture_rig(acq.CaptureSettings(), (8, 8))
+    rig = dest.capture_rig(CaptureSettings(), (8, 8))
     (tmp_path / 'file').write_text('x')
     with pytest.raises(errors.DestinationError, match='not a folder'):
         dest.check_destination(tmp_path / 'file', 'a-b', 's0', 'p0', rig)
@@ -271,7 +273,7 @@ def _failing_once(monkeypatch):
 def test_acquire_pose_checks_first_captures_and_writes(tmp_path):
     ms = smooth_modelset()
     cam = SimCamera(ms, sample=0, dimmer=1.0, seed=2)
-    settings = acq.CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=2)
+    settings = CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=2)
     stages, ready = [], []
     pose_dir, captured = acq.acquire_pose(
         sim_grab(cam, EXPOSURE_US, GAIN_DB), settings, tmp_path / 'cap', 'banana-fake', 's0',
@@ -294,7 +296,7 @@ def test_a_capture_that_cannot_be_written_is_kept_and_written_later(tmp_path, mo
     monkeypatch.setenv('LIGHTSTAGE_RESCUE_DIR', str(tmp_path / 'rescue'))
     ms = smooth_modelset()
     cam = SimCamera(ms, sample=1, dimmer=1.0, seed=3)
-    settings = acq.CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=2)
+    settings = CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=2)
     fail = _failing_once(monkeypatch)
     with pytest.raises(errors.DestinationError) as err:
         acq.acquire_pose(sim_grab(cam, EXPOSURE_US, GAIN_DB), settings, tmp_path / 'cap',
@@ -325,10 +327,10 @@ def test_a_rescue_file_that_is_not_one_is_refused_clearly(tmp_path):
 
 
 def test_nothing_to_keep_the_rescue_in_says_so(tmp_path, monkeypatch):
-    monkeypatch.setattr(rescue, 'rescue_dirs', lambda: [tmp_path / 'file' / 'below-a-file'])
+    monkeypatch.setattr(output_files, 'rescue_dirs', lambda: [tmp_path / 'file' / 'below-a-file'])
     (tmp_path / 'file').write_text('not a folder')
     ms = smooth_modelset()
-    settings = acq.CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=1)
+    settings = CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=1)
     _failing_once(monkeypatch)
     with pytest.raises(errors.DestinationError, match='could not be kept anywhere else'):
         acq.acquire_pose(sim_grab(SimCamera(ms, dimmer=1.0), EXPOSURE_US, GAIN_DB), settings,
@@ -338,7 +340,7 @@ def test_nothing_to_keep_the_rescue_in_says_so(tmp_path, monkeypatch):
 def test_the_capture_command_writes_a_rescued_pose_without_ros(tmp_path, capsys):
     from lightstage_bringup.acquisition_cli import capture_main
     ms = smooth_modelset()
-    settings = acq.CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=1)
+    settings = CaptureSettings(exposure_us=EXPOSURE_US, gain_db=GAIN_DB, frames=1)
     captured = acq.capture_model(sim_grab(SimCamera(ms, dimmer=1.0), EXPOSURE_US, GAIN_DB),
                                  settings, preview=False)
     rescued = rescue.save_rescued(rescue.RescuedModel(

@@ -15,9 +15,9 @@ from lightstage_bringup.supervisor import Supervisor
 
 from acquisition_helpers import StageGraph, averaged_capture_z, check_z, cli, gaussian_regime
 from lightstage_camera.capture_destination import STAGING_DIR
-from lightstage_camera.calibration_target import write_calibration_target
-from lightstage_camera.capture_format import load_capture
-from lightstage_camera.noise import PAPER_CALIBRATION, SETTINGS, load_noise_file
+from lightstage_physics.calibration_target import write_calibration_target
+from lightstage_physics.capture_format import load_capture
+from lightstage_physics.noise import PAPER_CALIBRATION, SETTINGS, load_noise_file
 from lightstage_camera.sim_camera import frame_moments
 from suite_helpers import fresh_domain_id, lightstage_command, write_params
 
@@ -31,7 +31,7 @@ QUANTIZATION = 1.0 / 12.0  # rounding to whole gray levels adds this to a frame'
 @pytest.fixture(scope='module')
 def stage(tmp_path_factory):
     """The stage's capture folder (1 banana of each variant, 48 px) and a calibration target."""
-    from lightstage_camera import synth
+    from lightstage_physics import synth
     root = tmp_path_factory.mktemp('stage')
     fruit = synth.generate(root / 'fruit', image_size=48, n_samples_per_class=1, n_poses=1,
                            object_types=('banana',), n_jobs=1)

@@ -6,13 +6,13 @@ import yaml
 from acquisition_helpers import sim_grab
 from lightstage_camera import calibration as cal
 from lightstage_camera import calibration_outputs as couts
-from lightstage_camera import calibration_target as ctarget
-from lightstage_camera import noise_fit as nfit
-from lightstage_camera.capture_format import load_capture
-from lightstage_camera.errors import (AcquisitionError, CaptureCancelled, DestinationError,
+from lightstage_physics import calibration_target as ctarget
+from lightstage_physics import noise_fit as nfit
+from lightstage_physics.capture_format import load_capture
+from lightstage_physics.errors import (AcquisitionError, CaptureCancelled, DestinationError,
                                      NoiseFileError)
-from lightstage_camera.noise import (PAPER_CALIBRATION, SETTINGS, NoiseModel, load_noise_file,
-                                     noise_setting, save_noise_file)
+from lightstage_physics.noise import (PAPER_CALIBRATION, SETTINGS, NoiseModel, load_noise_file,
+                                      noise_setting, save_noise_file)
 from lightstage_camera.sim_camera import SimCamera
 
 # the 1/12 gray level^2 that rounding to whole gray levels adds to every frame's variance
@@ -168,7 +168,7 @@ def test_calibration_outputs_are_written_and_not_replaced_unless_asked(tmp_path,
 
 
 def test_synth_writes_a_calibration_target_folder(tmp_path):
-    from lightstage_camera import synth
+    from lightstage_physics import synth
     assert synth.main([str(tmp_path / 't'), '--calibration-target', '--size', '16',
                        '--dimmer', '1.0', '--quiet']) == 0
     ms = load_capture(tmp_path / 't', cache=False)
@@ -200,7 +200,7 @@ def test_a_failed_write_keeps_the_fit_in_the_error(tmp_path, target, monkeypatch
     def full_disk(*_a, **_k):
         raise OSError(28, 'No space left on device')
 
-    from lightstage_camera import camera_plots
+    from lightstage_physics import camera_plots
     monkeypatch.setattr(camera_plots, 'plot_noise_characteristic', full_disk)
     with pytest.raises(DestinationError) as err:
         couts.write_calibration_outputs(result, tmp_path / 'noise.yaml', tmp_path / 'noise.png')

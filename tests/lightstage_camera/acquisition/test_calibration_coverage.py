@@ -12,10 +12,10 @@ from scipy.stats import binom
 
 from acquisition_helpers import sim_grab
 from lightstage_camera import calibration as cal
-from lightstage_camera import calibration_target as ctarget
-from lightstage_camera import noise_fit as nfit
-from lightstage_camera.capture_format import load_capture
-from lightstage_camera.noise import PAPER_CALIBRATION, NoiseModel
+from lightstage_physics import calibration_target as ctarget
+from lightstage_physics import noise_fit as nfit
+from lightstage_physics.capture_format import load_capture
+from lightstage_physics.noise import PAPER_CALIBRATION, NoiseModel
 from lightstage_camera.sim_camera import SimCamera
 
 # what a frame of the simulated camera is: N(mean, 0.7 mean + 66), clipped to 0..1023 and

@@ -4,9 +4,9 @@ import math
 import numpy as np
 import pytest
 
-from lightstage_camera import synth
-from lightstage_camera.capture_format import load_capture
-from lightstage_camera.rig import Rig
+from lightstage_physics import synth
+from lightstage_physics.capture_format import load_capture
+from lightstage_physics.rig import Rig
 
 # Per-(colour, site) sums of two 32 px poses made by the generator before placement
 # existed (seed 7, grape and banana): canonical placement must keep reproducing them.

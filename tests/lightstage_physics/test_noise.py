@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from lightstage_camera.noise import (PAPER_CALIBRATION, PRESETS, SETTINGS, NoiseModel,
-                                     choose_gain, gain_ratio, preset)
+from lightstage_physics.noise import (PAPER_CALIBRATION, PRESETS, SETTINGS, NoiseModel,
+                                      choose_gain, gain_ratio, preset)
 
 
 def brightness_factor(gain_db: float, exposure_ms: float, reference_gain_db: float,

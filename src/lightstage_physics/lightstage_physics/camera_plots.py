@@ -99,7 +99,7 @@ def plot_relit_sample(path, modelset, index: int, site_patterns, noise: NoiseMod
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m lightstage_camera.camera_plots OUT_DIR [--capture FOLDER]`: example figures.
+    """`python -m lightstage_physics.camera_plots OUT_DIR [--capture FOLDER]`: example figures.
 
     Writes the noise characteristic of a simulated calibration at the paper's 15 dB / 30 ms
     fit (with the Sigma1..3 lines it generalizes to) and, with --capture, one sample relit
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     from .noise_fit import fit_noise_model, noise_characteristic
     from .noise import PAPER_CALIBRATION, SETTINGS, preset
 
-    parser = argparse.ArgumentParser(prog="python -m lightstage_camera.camera_plots",
+    parser = argparse.ArgumentParser(prog="python -m lightstage_physics.camera_plots",
                                      description=main.__doc__.split("\n")[0])
     parser.add_argument("out_dir")
     parser.add_argument("--capture", help="capture folder for the relit-sample figure")

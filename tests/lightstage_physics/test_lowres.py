@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from scipy import ndimage, stats
 
-from lightstage_camera.noise import PRESETS
-from lightstage_camera.render import render_noisy
-from lightstage_camera.rig import Rig
-from lightstage_camera.scene_models import ModelSet
+from lightstage_physics.noise import PRESETS
+from lightstage_physics.render import render_noisy
+from lightstage_physics.rig import Rig
+from lightstage_physics.scene_models import ModelSet
 
 
 def smooth_models(n=2, size=96, seed=0):

@@ -1,9 +1,11 @@
 """The light stage as data: illumination sites, LED channels and the camera of a capture.
 
-The rig conventions every package shares are defined here once: the channels and their
-order (`CHANNELS`), the paper's stage size (`N_SITES`, `N_LEDS`), the LED order (site-major
-everywhere in the project: ``led = site * 4 + channel``, `led_index`, `site_to_led_patterns`)
-and the authors' `DEFAULT_DIMMER`.
+The rig conventions: the LED layout Pattern.msg fixes (the channels and their order
+`CHANNELS`, the paper's stage size `N_SITES`, `N_LEDS`, the site-major LED order
+``led = site * 4 + channel``, `led_index`, `site_and_channel`, the number of site patterns
+`n_site_subsets`) is `lightstage_graph.leds`, which the driver shares; this module takes
+it from there and adds the physics on top: the per-colour expansion of site patterns
+(`site_to_led_patterns`), the authors' `DEFAULT_DIMMER` and the rig description `Rig`.
 """
 from __future__ import annotations
 
@@ -14,37 +16,16 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from lightstage_graph.leds import (CHANNELS, N_CHANNELS, N_LEDS, N_SITES,  # noqa: F401 (the rig's names)
+                                   WAVELENGTHS_NM, channel_index, led_index, n_site_subsets,
+                                   site_and_channel)
 from lightstage_graph.limits import (EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN,
                                      check_range)
 
-CHANNELS: tuple[str, ...] = ("red", "green", "blue", "nir")
-WAVELENGTHS_NM: dict[str, float] = {"red": 615.0, "green": 515.0, "blue": 460.0, "nir": 850.0}
-N_CHANNELS = len(CHANNELS)
-N_SITES = 8  # the paper's stage: 8 illumination sites of 4 LEDs each
-N_LEDS = N_SITES * N_CHANNELS
 # The authors' scale of the single-LED images before multiplexing, so that many lit LEDs do
 # not saturate. Renders, the simulated camera and the training all use it; a classifier is
 # only right for images taken at the dimmer it was trained with (its artifact records it).
 DEFAULT_DIMMER = 0.45
-
-
-def channel_index(channel: str | int) -> int:
-    """Index of a channel given by name (``"nir"``) or by index (``3``)."""
-    if isinstance(channel, str):
-        if channel not in CHANNELS:
-            raise ValueError(f"unknown channel {channel!r}; use one of {', '.join(CHANNELS)}")
-        return CHANNELS.index(channel)
-    index = int(channel)
-    if not 0 <= index < N_CHANNELS:
-        raise ValueError(f"channel index {index} out of range 0..{N_CHANNELS - 1}")
-    return index
-
-
-def led_index(site: int, channel: str | int) -> int:
-    """Site-major LED number: ``site * 4 + channel_index``."""
-    if int(site) < 0:
-        raise ValueError(f"site must be >= 0, got {site}")
-    return int(site) * N_CHANNELS + channel_index(channel)
 
 
 def site_to_led_patterns(site_patterns, n_channels: int = N_CHANNELS) -> np.ndarray:

@@ -2,12 +2,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from lightstage_camera import synth
-from lightstage_camera.calibration_target import simulate_calibration_frames
-from lightstage_camera.camera_plots import plot_noise_characteristic, plot_relit_sample
-from lightstage_camera.capture_format import load_capture
-from lightstage_camera.noise import PRESETS, NoiseModel
-from lightstage_camera.noise_fit import fit_noise_model, noise_characteristic
+from lightstage_physics import synth
+from lightstage_physics.calibration_target import simulate_calibration_frames
+from lightstage_physics.camera_plots import plot_noise_characteristic, plot_relit_sample
+from lightstage_physics.capture_format import load_capture
+from lightstage_physics.noise import PRESETS, NoiseModel
+from lightstage_physics.noise_fit import fit_noise_model, noise_characteristic
 
 
 @pytest.fixture(scope="module")

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from lightstage_camera.calibration_target import simulate_calibration_frames
-from lightstage_camera.noise_fit import fit_noise_model, noise_characteristic
-from lightstage_camera.noise import PRESETS, SETTINGS, NoiseModel
+from lightstage_physics.calibration_target import simulate_calibration_frames
+from lightstage_physics.noise_fit import fit_noise_model, noise_characteristic
+from lightstage_physics.noise import PRESETS, SETTINGS, NoiseModel
 
 
 @pytest.mark.parametrize("truth", [NoiseModel(0.7, 66.0), NoiseModel(0.25, 8.35),
