@@ -4,8 +4,8 @@ This runs before any test module imports rclpy, so in-process nodes get LOCALHOS
 discovery, the project's Fast DDS profile and a domain id of this run's own (tests that
 start processes choose their own ids through `lightstage_graph.ros_env`).
 
-Loading this file also puts tests/ on sys.path (pytest's "prepend" import mode), so the
-test directories import `suite_helpers`, the helpers they share.
+The test directories import their helpers explicitly from the `helpers` package
+(tests/helpers/; pytest.ini's `pythonpath = tests` puts tests/ on sys.path).
 
 The fixtures below are the stage the node and recording tests share: a tiny synthetic
 capture and an artifact trained on it, made once per run.
@@ -29,7 +29,7 @@ apply_ros_environment(domain_id=int(os.environ.get('LIGHTSTAGE_TEST_DOMAIN_ID', 
 
 
 def pytest_report_header(config):
-    from suite_helpers import network_interfaces
+    from helpers.suite import network_interfaces
     interfaces = network_interfaces()
     if interfaces == ['lo']:
         return 'network: private namespace, loopback only (no packet can leave the machine)'
@@ -78,7 +78,7 @@ def stage_intensity_artifact_path(stage_capture, tmp_path_factory):
 def _train_stage_artifact(stage_capture, tmp_path_factory, features):
     from lightstage_camera.capture_format import load_capture
     from mux_trainer.baselines import FixedPatternClassifier
-    from suite_helpers import TRAIN_SITE_PATTERNS
+    from helpers.suite import TRAIN_SITE_PATTERNS
     modelset = load_capture(stage_capture, downscale_to=120)
     model = FixedPatternClassifier(patterns=TRAIN_SITE_PATTERNS, n_repeats=10, noise='sigma3',
                                    seed=0, features=features).fit(modelset)

@@ -13,9 +13,9 @@ import struct
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from proc_sockets import sockets_of
-from suite_helpers import REPO, GraphClient, fresh_domain_id, start_nodes, write_params
-from web_helpers import served
+from helpers.proc_sockets import sockets_of
+from helpers.suite import REPO, GraphClient, fresh_domain_id, start_nodes, write_params
+from helpers.web import served
 
 pytestmark = pytest.mark.ros
 

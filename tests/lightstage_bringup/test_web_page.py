@@ -20,10 +20,10 @@ import urllib.request
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from browser_helpers import Browser, screenshot_stats
-from proc_sockets import sockets_of
-from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
-from web_helpers import served
+from helpers.browser import Browser, screenshot_stats
+from helpers.proc_sockets import sockets_of
+from helpers.suite import GraphClient, fresh_domain_id, start_nodes, write_params
+from helpers.web import served
 
 pytestmark = pytest.mark.ros
 

@@ -1,6 +1,6 @@
 import pytest
 
-from camera_helpers import make_modelset
+from helpers.camera import make_modelset
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ from lightstage_camera.capture_format import (CaptureFormatError, check_equal_po
                                               load_capture, write_capture)
 from lightstage_camera.rig import Rig
 
-from camera_helpers import make_modelset
+from helpers.camera import make_modelset
 
 
 @pytest.fixture

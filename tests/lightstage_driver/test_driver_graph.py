@@ -11,8 +11,8 @@ import time
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from driver_helpers import child_pids
-from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
+from helpers.driver import child_pids
+from helpers.suite import GraphClient, fresh_domain_id, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
 

@@ -12,20 +12,18 @@ import json
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from lightstage_driver.sim_backend import PythonSimBackend
 
-from driver_helpers import wait_until
+from helpers.driver import wait_until
 
 pytestmark = pytest.mark.ros
 rclpy = pytest.importorskip('rclpy')
 
-sys.path.insert(0, str(Path(__file__).parent / 'firmware'))
-from graded_pins import on_times_us  # noqa: E402
+from helpers.graded_pins import on_times_us
 
 LEDS = list(range(32))     # every LED: the most light a 5 ms exposure gets
 SAMPLE = 'banana-real/s1/p00'
@@ -63,7 +61,7 @@ def test_half_level_for_10_ms_images_like_full_level_for_5_ms_through_the_graph(
     from lightstage_interfaces.srv import ApplyPatterns
     from sensor_msgs.msg import Image
 
-    from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
+    from helpers.suite import GraphClient, fresh_domain_id, start_nodes, write_params
     backend = PythonSimBackend(pwm_bits=8)    # the driver's firmware, its pins seen from here
     backend.start()
     domain_id = fresh_domain_id()
@@ -170,7 +168,7 @@ def test_a_graded_artifact_runs_through_lightstage_classify(stage_capture, grade
     from lightstage_interfaces.msg import IlluminationState
     from mux_classifier.artifact import TrainedArtifact
 
-    from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
+    from helpers.suite import GraphClient, fresh_domain_id, start_nodes, write_params
     artifact = TrainedArtifact.load(graded_artifact_path)
     domain_id = fresh_domain_id()
     params = write_params(tmp_path / 'params.yaml', {

@@ -16,8 +16,8 @@ from rclpy.serialization import deserialize_message
 from lightstage_recording import BagReader, msg_definitions
 from lightstage_graph.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
-from recording_helpers import assert_replayed_results_match, bag_results, replay_into_observing_classifier
-from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
+from helpers.recording import assert_replayed_results_match, bag_results, replay_into_observing_classifier
+from helpers.suite import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
 

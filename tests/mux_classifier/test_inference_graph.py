@@ -26,8 +26,8 @@ from hypothesis import strategies as st
 from lightstage_bringup.supervisor import Supervisor
 from mux_classifier.classify_request import MAX_IMAGES_MAX, TIMEOUT_MAX_S, TIMEOUT_MIN_S
 
-from artifact_mutations import mutated_artifacts
-from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
+from helpers.artifact_mutations import mutated_artifacts
+from helpers.suite import GraphClient, fresh_domain_id, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
 

@@ -1,7 +1,7 @@
 import pytest
 from lightstage_camera.capture_format import write_capture
 
-from trainer_helpers import make_search_data
+from helpers.trainer import make_search_data
 
 
 @pytest.fixture(scope='module')
@@ -19,7 +19,7 @@ def tiny4_data():
 @pytest.fixture(scope='module')
 def capture(tmp_path_factory):
     """A tiny capture folder (4 classes x 8 poses, 24 px) for the CLI tests."""
-    from trainer_helpers import make_modelset
+    from helpers.trainer import make_modelset
     path = tmp_path_factory.mktemp('capture') / 'tiny'
     write_capture(path, make_modelset(n_poses=8))
     return path

@@ -18,7 +18,7 @@ distributed = pytest.importorskip('distributed')
 from mux_trainer.cli import train_main  # noqa: E402
 from mux_trainer.cluster import ClusterUnavailable, DaskCluster, dask_cluster  # noqa: E402
 
-from dask_helpers import start_cluster, start_scheduler  # noqa: E402
+from helpers.dask_cluster import start_cluster, start_scheduler  # noqa: E402
 
 LIGHTSTAGE = str(Path(sys.executable).parent / 'lightstage')
 # small search on the suite's stage capture (4 classes, 120 px): 2 columns, both kept

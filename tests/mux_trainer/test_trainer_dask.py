@@ -4,9 +4,9 @@ naming the address, once the scheduler is gone (not a hang)."""
 import pytest
 import yaml
 
-from dask_helpers import start_cluster
-from ros_helpers import running_nodes
-from suite_helpers import GraphClient, fresh_domain_id
+from helpers.dask_cluster import start_cluster
+from helpers.ros import running_nodes
+from helpers.suite import GraphClient, fresh_domain_id
 
 distributed = pytest.importorskip('distributed')
 

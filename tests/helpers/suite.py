@@ -2,10 +2,8 @@
 which mirrors src/): domain ids, parameter files, node processes (the in-process
 rclpy client is `lightstage_graph.graph_client.GraphClient`); and the site patterns of the suite's small trained artifact (tests/conftest.py).
 
-Imported as `suite_helpers`: pytest puts tests/ on sys.path when it loads tests/conftest.py
-(the default "prepend" import mode), as it puts each test directory there for its own helpers.
-Helpers shared by more than one package's tests live here beside it (ros_helpers,
-proc_sockets, dask_helpers, artifact_mutations).
+Imported as `helpers.suite` (pytest.ini's `pythonpath = tests` puts tests/ on sys.path);
+every helper module of the suite lives beside it in tests/helpers/ (see its __init__).
 """
 from __future__ import annotations
 
@@ -22,7 +20,7 @@ from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 from lightstage_graph.graph_client import GraphClient, parameter_msgs  # noqa: F401 (for the tests)
 from lightstage_graph.ros_env import ros_environment
 
-REPO = Path(__file__).resolve().parents[1]  # the repository: tests/ mirror its src/ packages
+REPO = Path(__file__).resolve().parents[2]  # the repository: tests/ mirror its src/ packages
 
 # two site patterns -> a per-colour artifact with classifiers for 4 and 8 images
 TRAIN_SITE_PATTERNS = np.zeros((8, 2), np.float32)
