@@ -10,7 +10,9 @@ The test directories import their helpers explicitly from the `helpers` package
 The fixtures below are the stage the node and recording tests share: a tiny synthetic
 capture and an artifact trained on it, made once per run.
 """
+import functools
 import os
+import re
 import signal
 
 import pytest
@@ -35,6 +37,41 @@ def pytest_report_header(config):
         return 'network: private namespace, loopback only (no packet can leave the machine)'
     return (f"network: the host's ({', '.join(interfaces) or 'unknown'}), not a private "
             f'namespace; scripts/run_tests.sh runs the suite in one where the platform allows')
+
+
+# A test module that names any of these starts processes (node graphs, CLIs, Dask, simavr, a
+# browser) in some test: all its tests are `process` (pytest.ini), so a new test there cannot
+# slip into the fast selection. Whole modules, not functions: a test often reaches them
+# through a module's own helper.
+STARTS_PROCESSES = re.compile(
+    r'\b(subprocess|Popen|Supervisor|start_nodes|running_nodes|lightstage_command|launcher_argv'
+    r'|GraphClient|GraphWatcher|start_cluster|SimavrBackend|Chromium|rclpy)\b')
+SIMAVR_FIXTURES = {'avr', 'wire'}          # tests/lightstage_driver/firmware/conftest.py
+SIMAVR_PARAMETRIZED = {'firmware': 'avr'}  # tests/lightstage_driver/conftest.py's backends
+NOT_FAST = ('ros', 'process', 'slow')
+
+
+@functools.lru_cache(maxsize=None)
+def _module_starts_processes(path) -> bool:
+    return bool(STARTS_PROCESSES.search(path.read_text()))
+
+
+def _starts_processes(item) -> bool:
+    if _module_starts_processes(item.path) or SIMAVR_FIXTURES & set(item.fixturenames):
+        return True
+    params = getattr(item, 'callspec', None)
+    return any(params is not None and params.params.get(name) == value
+               for name, value in SIMAVR_PARAMETRIZED.items())
+
+
+def pytest_collection_modifyitems(config, items):
+    """Markers by what a test does, so that none is forgotten: `process` (above), and `fast`
+    for every test that is neither `ros`, `process` nor `slow` (the inner loop: `-m fast`)."""
+    for item in items:
+        if _starts_processes(item):
+            item.add_marker('process')
+        if not any(item.get_closest_marker(name) for name in NOT_FAST):
+            item.add_marker('fast')
 
 
 @pytest.fixture(scope='session', autouse=True)

@@ -59,6 +59,18 @@ def write_params(path: Path, sections: dict) -> Path:
     return path
 
 
+def stage_graph_params(capture, sample: str, seed: int, artifact=None, **sections: dict) -> dict:
+    """The params sections ({node: {param: value}}, for `write_params`) of a graph on the
+    simulated stage: the camera showing `sample` of `capture` with noise `seed`, the classifier
+    on `artifact` (10 s timeout) if one is given; `sections` add nodes or override parameters."""
+    params = {'camera': {'capture_dir': str(capture), 'sample': sample, 'seed': seed}}
+    if artifact is not None:
+        params['classifier'] = {'artifact_path': str(artifact), 'timeout_s': 10.0}
+    for node, values in sections.items():
+        params[node] = {**params.get(node, {}), **values}
+    return params
+
+
 def start_nodes(supervisor: Supervisor, client: GraphClient, names, domain_id: int,
                 params: Path | None, timeout_s: float = 30.0) -> None:
     """Start project nodes (`lightstage up` registry names) as processes and wait until they spin.

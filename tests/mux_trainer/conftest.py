@@ -34,3 +34,20 @@ def no_work(monkeypatch):
         raise AssertionError('the capture was loaded although the command should have been '
                              'refused before')
     monkeypatch.setattr(cli, '_load', load)
+
+
+@pytest.fixture
+def dask_scheduler(request, tmp_path):
+    """A `dask scheduler` process on 127.0.0.1 without workers, stopped at the end of the test:
+    (address, process)."""
+    from helpers.dask_cluster import start_scheduler
+    return start_scheduler(request, tmp_path)
+
+
+@pytest.fixture
+def cluster(request, tmp_path, dask_scheduler):
+    """`dask_scheduler` and two one-thread `dask worker` processes `a` and `b` that have joined
+    it, stopped at the end of the test: (address, {name: worker process})."""
+    from helpers.dask_cluster import start_workers
+    address, _ = dask_scheduler
+    return address, start_workers(request, tmp_path, address)
