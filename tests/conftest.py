@@ -45,7 +45,7 @@ def pytest_report_header(config):
 # through a module's own helper.
 STARTS_PROCESSES = re.compile(
     r'\b(subprocess|Popen|Supervisor|start_nodes|running_nodes|lightstage_command|launcher_argv'
-    r'|GraphClient|GraphWatcher|start_cluster|SimavrBackend|Chromium|rclpy)\b')
+    r'|GraphClient|GraphWatcher|dask_scheduler|SimavrBackend|Chromium|rclpy)\b')
 SIMAVR_FIXTURES = {'avr', 'wire'}          # tests/lightstage_driver/firmware/conftest.py
 SIMAVR_PARAMETRIZED = {'firmware': 'avr'}  # tests/lightstage_driver/conftest.py's backends
 NOT_FAST = ('ros', 'process', 'slow')
@@ -62,6 +62,15 @@ def _starts_processes(item) -> bool:
     params = getattr(item, 'callspec', None)
     return any(params is not None and params.params.get(name) == value
                for name, value in SIMAVR_PARAMETRIZED.items())
+
+
+def pytest_ignore_collect(collection_path, config):
+    """`-m fast` does not even import the modules it would run nothing of (their imports,
+    rclpy's among them, cost seconds of the inner loop)."""
+    if (config.option.markexpr == 'fast' and collection_path.name.startswith('test_')
+            and (_module_starts_processes(collection_path) or _slow_module(collection_path))):
+        return True
+    return None
 
 
 def pytest_collection_modifyitems(config, items):

@@ -16,5 +16,6 @@ One package's tests (tests/<package>/...):
   trainer                            mux_trainer (small structured search data)
 nodes/ holds stand-in node scripts that tests start as processes by module name
 (`ros_fake_driver_node`, `bringup_fake_node`, `bringup_no_graph_node`; `ros.NODE_SCRIPTS` is
-put on their PYTHONPATH); they are not imported by the tests.
+put on the children's PYTHONPATH, and pytest.ini's `pythonpath` on the run's, where `lightstage
+up` checks in-process that a node's module exists); the tests do not import them.
 """
