@@ -14,6 +14,7 @@ import functools
 import os
 import re
 import signal
+from pathlib import Path
 
 import pytest
 
@@ -50,10 +51,46 @@ SIMAVR_FIXTURES = {'avr', 'wire'}          # tests/lightstage_driver/firmware/co
 SIMAVR_PARAMETRIZED = {'firmware': 'avr'}  # tests/lightstage_driver/conftest.py's backends
 NOT_FAST = ('ros', 'process', 'slow')
 
+# Tests that start no process but compute for seconds (searches, training, statistics over many
+# renders; measured with `--durations=0`): `slow`. Whole modules (paths under tests/) where most
+# tests do; single tests (any parametrization) elsewhere; and every test that needs the
+# suite's rendered capture (`stage_capture`: seconds of rendering on two worker processes).
+SLOW_MODULES = {
+    'mux_trainer/test_greedy.py', 'mux_trainer/test_learned.py', 'mux_trainer/test_evaluation.py',
+    'mux_trainer/test_cli_trainer.py', 'mux_trainer/test_search_features.py',
+    'lightstage_camera/test_lowres.py', 'lightstage_camera/test_render_jax.py',
+    'lightstage_camera/acquisition/test_calibration_coverage.py',
+}
+SLOW_TESTS = {
+    'lightstage_camera/test_plots_synth.py::test_synth_is_deterministic',
+    'lightstage_driver/test_fuzz.py::test_stream_decoder_never_raises_and_finds_every_intact_frame_after_noise',
+    'lightstage_driver/test_request_fuzz.py::test_every_field_is_checked_and_a_refusal_names_it',
+    'lightstage_driver/test_schedule.py::test_off_instants_within_the_bound_and_latches_a_shift_out_apart',
+    'mux_classifier/test_artifact.py::test_fuzz_malformed_files_raise_only_artifact_error',
+    'mux_classifier/test_artifact.py::test_fuzz_every_header_field_out_of_range_is_refused_naming_it',
+    'mux_classifier/test_bow.py::test_stacks_concatenate_per_image_histograms',
+    'mux_classifier/test_feature_extractors.py::test_fit_never_sees_a_test_pose',
+    'mux_classifier/test_hog.py::test_other_configurations_match_skimage',
+    'mux_classifier/test_hog.py::test_compiled_kernel_other_configurations',
+    'mux_trainer/test_snr_optimal.py::test_compare_with_hadamard_reports_side_by_side',
+    'mux_trainer/test_trainer_bad_values.py::test_train_out_replaces_an_artifact_and_with_force_anything',
+}
+SLOW_FIXTURES = {'stage_capture'}
+TESTS = Path(__file__).resolve().parent
+
 
 @functools.lru_cache(maxsize=None)
 def _module_starts_processes(path) -> bool:
     return bool(STARTS_PROCESSES.search(path.read_text()))
+
+
+def _slow_module(path) -> bool:
+    return path.relative_to(TESTS).as_posix() in SLOW_MODULES
+
+
+def _slow(item) -> bool:
+    return (_slow_module(item.path) or SLOW_FIXTURES & set(item.fixturenames)
+            or f'{item.path.relative_to(TESTS).as_posix()}::{item.originalname}' in SLOW_TESTS)
 
 
 def _starts_processes(item) -> bool:
@@ -74,11 +111,14 @@ def pytest_ignore_collect(collection_path, config):
 
 
 def pytest_collection_modifyitems(config, items):
-    """Markers by what a test does, so that none is forgotten: `process` (above), and `fast`
-    for every test that is neither `ros`, `process` nor `slow` (the inner loop: `-m fast`)."""
+    """Markers by what a test does, so that none is forgotten: `process` and `slow` (above),
+    and `fast` for every test that is neither `ros`, `process` nor `slow` (the inner loop:
+    `-m fast`)."""
     for item in items:
         if _starts_processes(item):
             item.add_marker('process')
+        if _slow(item):
+            item.add_marker('slow')
         if not any(item.get_closest_marker(name) for name in NOT_FAST):
             item.add_marker('fast')
 
