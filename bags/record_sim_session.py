@@ -27,9 +27,9 @@ from pathlib import Path
 from lightstage_graph.ros_env import apply_ros_environment, ros_environment
 
 HERE = Path(__file__).resolve().parent
-sys.path[:0] = [str(HERE.parent / 'tests' / d) for d in ('', 'recording')]
-from recording_helpers import bag_results  # noqa: E402  (the tests' bag and ROS helpers)
-from suite_helpers import GraphClient, start_nodes, write_params  # noqa: E402
+sys.path[:0] = [str(HERE.parent / 'tests')]  # the tests' helpers package
+from helpers.recording import bag_results  # noqa: E402  (the tests' bag and ROS helpers)
+from helpers.suite import GraphClient, start_nodes, write_params  # noqa: E402
 
 SAMPLES = ['banana-fake/s1/p02', 'banana-real/s0/p01', 'orange-fake/s1/p00', 'orange-real/s0/p02']
 RECORDED = ['/illumination', '/camera/image_raw', '/lightstage/result',

@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests' / d) for d in ('', 'acquisition')]
-from acquisition_helpers import GraphClient  # noqa: E402  (the tests' ROS client and node start-up)
-from suite_helpers import fresh_domain_id, write_params  # noqa: E402
+sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests')]  # the tests' helpers package
+from helpers.acquisition import GraphClient  # noqa: E402  (the tests' ROS client and node start-up)
+from helpers.suite import fresh_domain_id, write_params  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -165,7 +165,7 @@ def main(argv=None) -> int:
 
 def core_calibration(args) -> int:
     """The calibration cases through the pure core on sim camera frames (see the docstring)."""
-    from acquisition_helpers import sim_grab
+    from helpers.acquisition import sim_grab
     from lightstage_camera import calibration as cal
     from lightstage_physics.calibration_target import write_calibration_target
     from lightstage_physics.capture_format import load_capture

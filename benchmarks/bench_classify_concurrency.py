@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests')]
-from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params  # noqa: E402
+from helpers.suite import GraphClient, fresh_domain_id, start_nodes, write_params  # noqa: E402
 
 
 def _artifact(folder: Path) -> tuple[Path, Path]:

@@ -38,9 +38,9 @@ import numpy as np
 
 from lightstage_graph.ros_env import apply_ros_environment, ros_environment
 
-sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests' / d) for d in ('', 'recording')]
-from recording_helpers import bag_results  # noqa: E402  (the tests' bag and ROS helpers)
-from suite_helpers import GraphClient, write_params  # noqa: E402
+sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests')]  # the tests' helpers package
+from helpers.recording import bag_results  # noqa: E402  (the tests' bag and ROS helpers)
+from helpers.suite import GraphClient, write_params  # noqa: E402
 
 
 def frames(n: int, size: int, seed: int = 0) -> list[bytes]:

@@ -4,14 +4,17 @@ This runs before any test module imports rclpy, so in-process nodes get LOCALHOS
 discovery, the project's Fast DDS profile and a domain id of this run's own (tests that
 start processes choose their own ids through `lightstage_graph.ros_env`).
 
-Loading this file also puts tests/ on sys.path (pytest's "prepend" import mode), so the
-test directories import `suite_helpers`, the helpers they share.
+The test directories import their helpers explicitly from the `helpers` package
+(tests/helpers/; pytest.ini's `pythonpath = tests` puts tests/ on sys.path).
 
 The fixtures below are the stage the node and recording tests share: a tiny synthetic
 capture and an artifact trained on it, made once per run.
 """
+import functools
 import os
+import re
 import signal
+from pathlib import Path
 
 import pytest
 
@@ -29,12 +32,123 @@ apply_ros_environment(domain_id=int(os.environ.get('LIGHTSTAGE_TEST_DOMAIN_ID', 
 
 
 def pytest_report_header(config):
-    from suite_helpers import network_interfaces
+    from helpers.suite import network_interfaces
     interfaces = network_interfaces()
     if interfaces == ['lo']:
         return 'network: private namespace, loopback only (no packet can leave the machine)'
     return (f"network: the host's ({', '.join(interfaces) or 'unknown'}), not a private "
             f'namespace; scripts/run_tests.sh runs the suite in one where the platform allows')
+
+
+# A test module that names any of these starts processes (node graphs, CLIs, Dask, simavr, a
+# browser) in some test: all its tests are `process` (pytest.ini), so a new test there cannot
+# slip into the fast selection. Whole modules, not functions: a test often reaches them
+# through a module's own helper.
+STARTS_PROCESSES = re.compile(
+    r'\b(subprocess|Popen|Supervisor|start_nodes|running_nodes|lightstage_command|launcher_argv'
+    r'|GraphClient|GraphWatcher|dask_scheduler|SimavrBackend|Chromium|rclpy)\b')
+SIMAVR_FIXTURES = {'avr', 'wire'}          # tests/lightstage_driver/firmware/conftest.py
+SIMAVR_PARAMETRIZED = {'firmware': 'avr'}  # tests/lightstage_driver/conftest.py's backends
+NOT_FAST = ('ros', 'process', 'slow')
+
+# Tests that start no process but compute for seconds (searches, training, statistics over many
+# renders; measured with `--durations=0`): `slow`. Whole modules (paths under tests/) where most
+# tests do; single tests (any parametrization) elsewhere; and every test that needs the
+# suite's rendered capture (`stage_capture`: seconds of rendering on two worker processes).
+SLOW_MODULES = {
+    'mux_trainer/test_greedy.py', 'mux_trainer/test_learned.py', 'mux_trainer/test_evaluation.py',
+    'mux_trainer/test_cli_trainer.py', 'mux_trainer/test_search_features.py',
+    'lightstage_physics/test_lowres.py', 'lightstage_physics/test_render_jax.py',
+    'lightstage_camera/acquisition/test_calibration_coverage.py', 'lightstage_physics/test_plots_synth.py',
+    'lightstage_camera/backends/test_aravis.py', 'lightstage_driver/test_fuzz.py',
+    'mux_classifier/test_bow.py', 'mux_trainer/test_snr_optimal.py',
+}
+SLOW_TESTS = {
+    'lightstage_camera/acquisition/test_calibration_core.py::test_calibration_outputs_are_written_and_not_replaced_unless_asked',
+    'lightstage_camera/test_bad_trigger_values.py::test_fuzz_trigger_values_never_escape_and_name_the_field',
+    'lightstage_physics/test_capture_format.py::test_cache_gives_identical_arrays_and_tracks_changes',
+    'lightstage_driver/test_faults.py::test_a_noisy_line_never_double_triggers',
+    'lightstage_driver/test_faults.py::test_a_sequence_that_never_ends_on_a_dead_line_does_not_claim_the_leds_are_off',
+    'lightstage_driver/test_faults.py::test_latency_within_the_timeout_is_fine_beyond_it_is_an_error',
+    'lightstage_driver/test_faults.py::test_a_hung_firmware_gives_no_reply_error_in_time_and_its_watchdog_darkens',
+    'lightstage_driver/test_faults.py::test_a_silent_device_is_not_taken_for_a_stage',
+    'lightstage_driver/test_request_fuzz.py::test_every_field_is_checked_and_a_refusal_names_it',
+    'lightstage_driver/test_schedule.py::test_off_instants_within_the_bound_and_latches_a_shift_out_apart',
+    'mux_classifier/test_artifact.py::test_fuzz_malformed_files_raise_only_artifact_error',
+    'mux_classifier/test_artifact.py::test_fuzz_every_header_field_out_of_range_is_refused_naming_it',
+    'mux_classifier/test_bow.py::test_stacks_concatenate_per_image_histograms',
+    'mux_classifier/test_feature_extractors.py::test_fit_never_sees_a_test_pose',
+    'mux_classifier/test_feature_extractors.py::test_layout_is_per_image_and_prefix',
+    'mux_classifier/test_stage_queue.py::test_a_call_with_nothing_ahead_always_starts_and_a_full_queue_refuses',
+    'mux_trainer/test_baselines.py::test_snr_optimal_uses_the_multiplexer_matrix_and_scores_each_prefix',
+    'mux_classifier/test_hog.py::test_other_configurations_match_skimage',
+    'mux_classifier/test_hog.py::test_compiled_kernel_other_configurations',
+    'mux_trainer/test_trainer_bad_values.py::test_train_out_replaces_an_artifact_and_with_force_anything',
+}
+SLOW_FIXTURES = {'stage_capture'}
+TESTS = Path(__file__).resolve().parent
+
+
+def _stale_slow_entries() -> list[str]:
+    """Listed slow modules or tests that no longer exist: a moved or renamed test would
+    otherwise fall back into `-m fast` without a word."""
+    stale = [m for m in SLOW_MODULES if not (TESTS / m).is_file()]
+    for entry in SLOW_TESTS:
+        module, name = entry.split('::')
+        path = TESTS / module
+        if not path.is_file() or not re.search(rf'^\s*def {re.escape(name)}\(', path.read_text(), re.M):
+            stale.append(entry)
+    return sorted(stale)
+
+
+def pytest_configure(config):
+    if stale := _stale_slow_entries():
+        raise pytest.UsageError('tests/conftest.py lists slow tests that do not exist (moved or '
+                                f'renamed? update SLOW_MODULES / SLOW_TESTS): {stale}')
+
+
+@functools.lru_cache(maxsize=None)
+def _module_starts_processes(path) -> bool:
+    return bool(STARTS_PROCESSES.search(path.read_text()))
+
+
+def _slow_module(path) -> bool:
+    return path.relative_to(TESTS).as_posix() in SLOW_MODULES
+
+
+def _slow(item) -> bool:
+    return (_slow_module(item.path) or SLOW_FIXTURES & set(item.fixturenames)
+            or f'{item.path.relative_to(TESTS).as_posix()}::{item.originalname}' in SLOW_TESTS)
+
+
+def _starts_processes(item) -> bool:
+    if _module_starts_processes(item.path) or SIMAVR_FIXTURES & set(item.fixturenames):
+        return True
+    params = getattr(item, 'callspec', None)
+    return any(params is not None and params.params.get(name) == value
+               for name, value in SIMAVR_PARAMETRIZED.items())
+
+
+def pytest_ignore_collect(collection_path, config):
+    """`-m fast` does not even import the modules it would run nothing of (their imports,
+    rclpy's among them, cost seconds of the inner loop)."""
+    if (config.option.markexpr == 'fast' and collection_path.name.startswith('test_')
+            and (_module_starts_processes(collection_path) or _slow_module(collection_path))):
+        return True
+    return None
+
+
+def pytest_collection_modifyitems(config, items):
+    """Markers by what a test does, so that none is forgotten: `process` and `slow` (above),
+    and `fast` for every test that is neither `ros`, `process` nor `slow` (the inner loop:
+    `-m fast`)."""
+    for item in items:
+        if _starts_processes(item):
+            item.add_marker('process')
+        if _slow(item):
+            item.add_marker('slow')
+        if not any(item.get_closest_marker(name) for name in NOT_FAST):
+            item.add_marker('fast')
 
 
 @pytest.fixture(scope='session', autouse=True)
@@ -78,7 +192,7 @@ def stage_intensity_artifact_path(stage_capture, tmp_path_factory):
 def _train_stage_artifact(stage_capture, tmp_path_factory, features):
     from lightstage_physics.capture_format import load_capture
     from mux_trainer.baselines import FixedPatternClassifier
-    from suite_helpers import TRAIN_SITE_PATTERNS
+    from helpers.suite import TRAIN_SITE_PATTERNS
     modelset = load_capture(stage_capture, downscale_to=120)
     model = FixedPatternClassifier(patterns=TRAIN_SITE_PATTERNS, n_repeats=10, noise='sigma3',
                                    seed=0, features=features).fit(modelset)
@@ -91,3 +205,10 @@ def _train_stage_artifact(stage_capture, tmp_path_factory, features):
 def stage_artifact(stage_artifact_path):
     from mux_classifier.artifact import TrainedArtifact
     return TrainedArtifact.load(stage_artifact_path)
+
+
+@pytest.fixture
+def small_modelset():
+    """A small ModelSet (helpers.camera.make_modelset) for the physics and camera tests."""
+    from helpers.camera import make_modelset
+    return make_modelset()

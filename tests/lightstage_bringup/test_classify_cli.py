@@ -3,7 +3,7 @@ import subprocess
 
 from lightstage_bringup import classify_cli
 
-from suite_helpers import lightstage_command
+from helpers.suite import lightstage_command
 
 
 def test_answer_lists_the_label_then_scores_best_first():

@@ -7,7 +7,7 @@ import pytest
 
 from lightstage_bringup import cli
 
-from suite_helpers import REPO
+from helpers.suite import REPO
 
 
 def test_help_lists_every_verb(capsys):

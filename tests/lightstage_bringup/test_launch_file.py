@@ -10,7 +10,7 @@ import yaml
 
 from lightstage_bringup import launcher
 
-from suite_helpers import REPO
+from helpers.suite import REPO
 
 PKG = REPO / 'src' / 'lightstage_bringup'
 LAUNCH = PKG / 'launch' / 'lightstage.launch.py'

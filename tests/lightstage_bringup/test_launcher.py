@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from bringup_helpers import child_environment, fresh_domain_id, launcher_argv, pid_alive
+from helpers.bringup import child_environment, fresh_domain_id, launcher_argv, pid_alive
 from lightstage_bringup import launcher
 
-from suite_helpers import REPO
+from helpers.suite import REPO
 
 pytestmark = pytest.mark.ros
 

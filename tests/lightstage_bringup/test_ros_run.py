@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from ros_helpers import running_nodes
-from suite_helpers import REPO, GraphClient, fresh_domain_id
+from helpers.ros import running_nodes
+from helpers.suite import REPO, GraphClient, fresh_domain_id
 
 pytestmark = pytest.mark.ros
 

@@ -13,7 +13,7 @@ import pytest
 from lightstage_bringup.supervisor import ExitReport, ProcessSpec, Supervisor
 from lightstage_graph.exits import describe_exit
 
-from bringup_helpers import pid_alive
+from helpers.bringup import pid_alive
 
 PY = sys.executable
 

@@ -13,9 +13,9 @@ import struct
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from proc_sockets import sockets_of
-from suite_helpers import REPO, GraphClient, fresh_domain_id, start_nodes, write_params
-from web_helpers import served
+from helpers.proc_sockets import sockets_of
+from helpers.suite import REPO, GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
+from helpers.web import served
 
 pytestmark = pytest.mark.ros
 
@@ -58,11 +58,8 @@ def test_a_foxglove_client_sees_images_illumination_and_result_of_a_classify(
     import aiohttp
     from lightstage_interfaces.srv import Classify
     domain_id = fresh_domain_id()
-    params = write_params(tmp_path / 'params.yaml', {
-        'driver': {'port': 'sim'},
-        'camera': {'capture_dir': str(stage_capture), 'sample': 'orange-fake/s1/p01', 'seed': 9},
-        'classifier': {'artifact_path': str(stage_artifact_path), 'timeout_s': 10.0},
-    })
+    params = write_params(tmp_path / 'params.yaml', stage_graph_params(
+        stage_capture, 'orange-fake/s1/p01', 9, stage_artifact_path, driver={'port': 'sim'}))
     client = GraphClient(domain_id)
 
     async def watch(url):

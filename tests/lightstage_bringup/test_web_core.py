@@ -257,7 +257,7 @@ def test_bad_arguments_of_web_and_view_exit_2_naming_the_option(capsys):
 def test_a_port_in_use_is_a_clear_error_exit_1():
     import socket
     import subprocess
-    from suite_helpers import fresh_domain_id, lightstage_command
+    from helpers.suite import fresh_domain_id, lightstage_command
     with socket.socket() as taken:
         taken.bind(('127.0.0.1', 0))
         taken.listen()

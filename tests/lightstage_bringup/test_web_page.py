@@ -20,10 +20,10 @@ import urllib.request
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from browser_helpers import Browser, screenshot_stats
-from proc_sockets import sockets_of
-from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
-from web_helpers import served
+from helpers.browser import Browser, screenshot_stats
+from helpers.proc_sockets import sockets_of
+from helpers.suite import GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
+from helpers.web import served
 
 pytestmark = pytest.mark.ros
 
@@ -36,13 +36,11 @@ def stage(stage_capture, stage_artifact_path, tmp_path_factory):
     from lightstage_interfaces.srv import Classify
     tmp = tmp_path_factory.mktemp('web')
     domain_id = fresh_domain_id()
-    params = write_params(tmp / 'params.yaml', {
+    params = write_params(tmp / 'params.yaml', stage_graph_params(
+        stage_capture, 'banana-real/s0/p00', 5, stage_artifact_path,
         # a killed simulator stays down for the fault test (the driver retries every 60 s)
-        'driver': {'port': 'sim', 'reconnect_period_s': 60.0},
-        'camera': {'capture_dir': str(stage_capture), 'sample': 'banana-real/s0/p00', 'seed': 5},
-        'classifier': {'artifact_path': str(stage_artifact_path), 'timeout_s': 10.0},
-        'acquisition': {'preview': False, 'exposure_us': 5000},
-    })
+        driver={'port': 'sim', 'reconnect_period_s': 60.0},
+        acquisition={'preview': False, 'exposure_us': 5000}))
     client = GraphClient(domain_id)
     answers = []   # the Classify service's responses, from its introspection events
     client.node.create_subscription(Classify.Event, '/lightstage/classify/_service_event',

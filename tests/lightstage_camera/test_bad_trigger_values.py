@@ -12,7 +12,7 @@ from lightstage_camera.sim_camera import SimCamera, SimCameraBackend
 from lightstage_graph.limits import (EXPOSURE_US_MAX, GAIN_DB_MAX, GAIN_DB_MIN, LimitError,
                                      check_exposure_us, check_gain_db)
 
-from camera_helpers import make_modelset
+from helpers.camera import make_modelset
 
 LEDS = np.full(32, 0.5, np.float32)
 

@@ -4,7 +4,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
 from lightstage_camera.sim_camera import SimCamera
 
-from suite_helpers import fresh_domain_id
+from helpers.suite import fresh_domain_id
 
 pytestmark = pytest.mark.ros
 OK, ERROR = DiagnosticStatus.OK, DiagnosticStatus.ERROR

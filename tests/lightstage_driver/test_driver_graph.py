@@ -11,8 +11,8 @@ import time
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from driver_helpers import child_pids
-from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
+from helpers.driver import child_pids
+from helpers.suite import GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
 
@@ -23,11 +23,9 @@ def test_classify_after_the_drivers_simulator_is_killed_fails_with_the_reason_th
         stage_capture, stage_artifact_path, tmp_path):
     from lightstage_interfaces.srv import Classify
     domain_id = fresh_domain_id()
-    params = write_params(tmp_path / 'params.yaml', {
-        'driver': {'port': 'sim', 'reconnect_period_s': 5.0},
-        'camera': {'capture_dir': str(stage_capture), 'sample': 'banana-real/s0/p00', 'seed': 3},
-        'classifier': {'artifact_path': str(stage_artifact_path), 'timeout_s': 10.0},
-    })
+    params = write_params(tmp_path / 'params.yaml', stage_graph_params(
+        stage_capture, 'banana-real/s0/p00', 3, stage_artifact_path,
+        driver={'port': 'sim', 'reconnect_period_s': 5.0}))
     client = GraphClient(domain_id)
 
     def classify():

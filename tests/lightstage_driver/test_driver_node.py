@@ -12,7 +12,7 @@ import pytest
 from lightstage_graph.ros_env import ros_environment
 from lightstage_driver.sim_backend import PythonSimBackend
 
-from driver_helpers import child_pids, distinct_words, wait_until
+from helpers.driver import child_pids, distinct_words, wait_until
 
 pytestmark = pytest.mark.ros
 
@@ -24,7 +24,7 @@ from lifecycle_msgs.srv import ChangeState  # noqa: E402
 from lightstage_interfaces.msg import IlluminationState, Pattern  # noqa: E402
 from lightstage_interfaces.srv import ApplyPatterns  # noqa: E402
 
-from suite_helpers import REPO
+from helpers.suite import REPO
 
 SRC = REPO / 'src'
 

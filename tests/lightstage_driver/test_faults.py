@@ -14,7 +14,7 @@ from lightstage_driver.errors import (DisconnectedError, LinkError, NoReplyError
                                       PortNotFoundError, PortPermissionError, ReplyChecksumError)
 from lightstage_driver.stage import LightStage
 
-from driver_helpers import wait_until
+from helpers.driver import wait_until
 
 TIMEOUT_S = 0.1
 RETRIES = 3

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from lightstage_driver.stage import LightStage
 
-from suite_helpers import REPO
+from helpers.suite import REPO
 
 SRC = REPO / 'src' / 'lightstage_driver'
 

@@ -12,20 +12,18 @@ import json
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from lightstage_driver.sim_backend import PythonSimBackend
 
-from driver_helpers import wait_until
+from helpers.driver import wait_until
 
 pytestmark = pytest.mark.ros
 rclpy = pytest.importorskip('rclpy')
 
-sys.path.insert(0, str(Path(__file__).parent / 'firmware'))
-from graded_pins import on_times_us  # noqa: E402
+from helpers.graded_pins import on_times_us
 
 LEDS = list(range(32))     # every LED: the most light a 5 ms exposure gets
 SAMPLE = 'banana-real/s1/p00'
@@ -63,15 +61,13 @@ def test_half_level_for_10_ms_images_like_full_level_for_5_ms_through_the_graph(
     from lightstage_interfaces.srv import ApplyPatterns
     from sensor_msgs.msg import Image
 
-    from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
+    from helpers.suite import GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
     backend = PythonSimBackend(pwm_bits=8)    # the driver's firmware, its pins seen from here
     backend.start()
     domain_id = fresh_domain_id()
-    params = write_params(tmp_path / 'params.yaml', {
-        'driver': {'port': backend.port},
-        'camera': {'capture_dir': str(stage_capture), 'sample': SAMPLE, 'seed': 7,
-                   'noise': 'auto', 'exposure_scales_light': True},
-    })
+    params = write_params(tmp_path / 'params.yaml', stage_graph_params(
+        stage_capture, SAMPLE, 7, driver={'port': backend.port},
+        camera={'noise': 'auto', 'exposure_scales_light': True}))
     client = GraphClient(domain_id)
     states, matcher = [], ImageMatcher(capacity=8)
     client.node.create_subscription(IlluminationState, ILLUMINATION_TOPIC, states.append,
@@ -170,14 +166,12 @@ def test_a_graded_artifact_runs_through_lightstage_classify(stage_capture, grade
     from lightstage_interfaces.msg import IlluminationState
     from mux_classifier.artifact import TrainedArtifact
 
-    from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
+    from helpers.suite import GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
     artifact = TrainedArtifact.load(graded_artifact_path)
     domain_id = fresh_domain_id()
-    params = write_params(tmp_path / 'params.yaml', {
-        'driver': {'port': 'sim://?pwm_bits=8'},
-        'camera': {'capture_dir': str(stage_capture), 'sample': 'banana-real/s1/p00', 'seed': 3},
-        'classifier': {'artifact_path': str(graded_artifact_path), 'timeout_s': 10.0},
-    })
+    params = write_params(tmp_path / 'params.yaml', stage_graph_params(
+        stage_capture, 'banana-real/s1/p00', 3, graded_artifact_path,
+        driver={'port': 'sim://?pwm_bits=8'}))
     client = GraphClient(domain_id)
     seen = []
     client.node.create_subscription(IlluminationState, '/illumination', seen.append, 100)

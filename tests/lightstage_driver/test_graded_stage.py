@@ -2,8 +2,6 @@
 refusal on on/off boards, the applied (rounded) drives on every trigger, and each LED's
 on-time on the pins (the Python model's and the compiled firmware's)."""
 import os
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,10 +11,9 @@ from lightstage_driver.errors import PatternError
 from lightstage_driver.sim_backend import PythonSimBackend
 from lightstage_driver.stage import LightStage
 
-from driver_helpers import wait_until
+from helpers.driver import wait_until
 
-sys.path.insert(0, str(Path(__file__).parent / 'firmware'))
-from graded_pins import on_times_us  # noqa: E402
+from helpers.graded_pins import on_times_us
 
 # off-instants are placed on 0.5 us ticks, at least one shift-out apart (schedule.py)
 TOLERANCE_US = 0.5 + sched.SHIFT_TICKS / sched.TICKS_PER_US

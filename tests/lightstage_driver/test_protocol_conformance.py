@@ -7,7 +7,7 @@ import pytest
 from lightstage_driver import protocol as p
 from lightstage_driver.errors import NakError
 
-from driver_helpers import wait_until
+from helpers.driver import wait_until
 
 
 def raw_exchange(stage, frame: bytes, replies: int, timeout_s: float = 1.0) -> list:

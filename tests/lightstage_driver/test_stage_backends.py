@@ -12,7 +12,7 @@ from lightstage_driver import protocol as p
 from lightstage_driver.errors import DisconnectedError, LightStageError, NakError, PatternError
 from lightstage_driver.stage import LightStage
 
-from driver_helpers import distinct_words, wait_until
+from helpers.driver import distinct_words, wait_until
 
 
 def one_hot(*leds):

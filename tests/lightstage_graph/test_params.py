@@ -10,7 +10,7 @@ from lightstage_camera.camera_node import PARAMETERS as CAMERA
 from lightstage_graph.params import ParameterError, check_values, read_params_file
 from mux_classifier.classifier_node import PARAMETERS as CLASSIFIER
 
-from suite_helpers import REPO, fresh_domain_id
+from helpers.suite import REPO, fresh_domain_id
 
 
 @pytest.mark.parametrize('table, values, message', [

@@ -11,10 +11,10 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from lightstage_graph import ros_env
-from proc_sockets import (InetSocket, ephemeral_port_low, listening_beyond_loopback,
+from helpers.proc_sockets import (InetSocket, ephemeral_port_low, listening_beyond_loopback,
                           parse_address, parse_proc_net, sockets_of)
-from ros_helpers import running_nodes
-from suite_helpers import GraphClient, fresh_domain_id
+from helpers.ros import running_nodes
+from helpers.suite import GraphClient, fresh_domain_id
 
 DRIVER = {'driver': 'ros_fake_driver_node'}
 NS = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
@@ -213,7 +213,7 @@ def test_the_suite_runs_where_no_packet_can_leave_the_machine():
     import errno
     import socket
 
-    from suite_helpers import network_interfaces
+    from helpers.suite import network_interfaces
     assert network_interfaces() == ['lo']
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         with pytest.raises(OSError) as excinfo:

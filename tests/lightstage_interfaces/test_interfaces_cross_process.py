@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from ros_helpers import running_nodes
-from suite_helpers import GraphClient, fresh_domain_id
+from helpers.ros import running_nodes
+from helpers.suite import GraphClient, fresh_domain_id
 
 pytestmark = pytest.mark.ros
 

@@ -5,7 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from suite_helpers import REPO
+from helpers.suite import REPO
 
 SRC = REPO / 'src' / 'lightstage_interfaces'
 PREFIX = Path(sys.prefix)

@@ -12,9 +12,9 @@ from rclpy.serialization import deserialize_message, serialize_message
 import lightstage_recording as lr
 from lightstage_recording.bag_ros import message_class
 from lightstage_recording.qos import INFINITE_NS, dump_qos_profiles, parse_qos_profiles
-from recording_helpers import (apply_event, classify_event, fields_equal, illumination, image,
+from helpers.recording import (apply_event, classify_event, fields_equal, illumination, image,
                                mcap_ros2_decode, recover, result)
-from suite_helpers import lightstage_command
+from helpers.suite import lightstage_command
 
 T0 = 1_700_000_000_000_000_000
 TOPICS = {'/illumination': 'lightstage_interfaces/msg/IlluminationState',

@@ -7,8 +7,8 @@ import struct
 import subprocess
 
 from lightstage_recording.scan import FileScan
-from recording_helpers import REPO
-from suite_helpers import lightstage_command
+from helpers.recording import REPO
+from helpers.suite import lightstage_command
 
 BAG = REPO / 'bags' / 'sim_session'
 CHUNK_CRC_AT = 9 + 8 + 8 + 8  # opcode, length, start time, end time, uncompressed size

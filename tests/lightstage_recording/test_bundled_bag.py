@@ -4,7 +4,7 @@ import pytest
 from rclpy.serialization import deserialize_message
 
 from lightstage_recording import BagReader
-from recording_helpers import (REPO, assert_replayed_results_match, bag_results, mcap_ros2_decode,
+from helpers.recording import (REPO, assert_replayed_results_match, bag_results, mcap_ros2_decode,
                                replay_into_observing_classifier)
 
 BAG = REPO / 'bags' / 'sim_session'

@@ -19,9 +19,9 @@ import pytest
 from lightstage_bringup import demo
 from lightstage_recording import BagReader
 from lightstage_graph.ros_env import ros_environment
-from recording_helpers import bag_results
+from helpers.recording import bag_results
 from lightstage_graph.graph_client import GraphTimeout
-from suite_helpers import GraphClient, fresh_domain_id, lightstage_command
+from helpers.suite import GraphClient, fresh_domain_id, lightstage_command
 
 pytestmark = pytest.mark.ros
 

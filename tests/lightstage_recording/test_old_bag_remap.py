@@ -12,8 +12,8 @@ import lightstage_recording as lr
 from lightstage_graph.names import IMAGE_TOPIC, resolved
 from lightstage_graph.qos import IMAGE_QOS
 from lightstage_graph.ros_env import ros_environment
-from recording_helpers import image
-from suite_helpers import GraphClient, fresh_domain_id, lightstage_command
+from helpers.recording import image
+from helpers.suite import GraphClient, fresh_domain_id, lightstage_command
 
 pytestmark = pytest.mark.ros
 

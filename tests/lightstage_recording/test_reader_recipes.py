@@ -11,7 +11,7 @@ import yaml
 from rclpy.serialization import deserialize_message, serialize_message
 
 from lightstage_recording import BagReader, BagWriter
-from recording_helpers import REPO, apply_event, classify_event, illumination, result
+from helpers.recording import REPO, apply_event, classify_event, illumination, result
 
 BAG = REPO / 'bags' / 'sim_session'
 DOC = REPO / 'docs' / 'RECORDING.md'

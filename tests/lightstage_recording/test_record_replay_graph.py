@@ -16,8 +16,9 @@ from rclpy.serialization import deserialize_message
 from lightstage_recording import BagReader, msg_definitions
 from lightstage_graph.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
-from recording_helpers import assert_replayed_results_match, bag_results, replay_into_observing_classifier
-from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
+from helpers.recording import assert_replayed_results_match, bag_results, replay_into_observing_classifier
+from helpers.suite import (GraphClient, fresh_domain_id, lightstage_command, stage_graph_params, start_nodes,
+                           write_params)
 
 pytestmark = pytest.mark.ros
 
@@ -33,10 +34,9 @@ def session(stage_capture, stage_artifact_path, tmp_path_factory):
     tmp = tmp_path_factory.mktemp('session')
     bag = tmp / 'session'
     domain_id = fresh_domain_id()
-    params = write_params(tmp / 'params.yaml', {
-        'camera': {'capture_dir': str(stage_capture), 'sample': SAMPLES[0], 'seed': 3},
-        'classifier': {'artifact_path': str(stage_artifact_path), 'classify_observed': True},
-    })
+    params = write_params(tmp / 'params.yaml', stage_graph_params(
+        stage_capture, SAMPLES[0], 3,
+        classifier={'artifact_path': str(stage_artifact_path), 'classify_observed': True}))
     from lightstage_interfaces.msg import ClassificationResult
     from lightstage_interfaces.srv import Classify
     client = GraphClient(domain_id)

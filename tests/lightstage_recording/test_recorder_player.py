@@ -9,8 +9,8 @@ import pytest
 from lightstage_recording import BagError, BagReader
 from lightstage_bringup.launcher import node_command
 from lightstage_graph.ros_env import ros_environment
-from recording_helpers import illumination, recover
-from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, write_params
+from helpers.recording import illumination, recover
+from helpers.suite import GraphClient, fresh_domain_id, lightstage_command, write_params
 
 pytestmark = pytest.mark.ros
 

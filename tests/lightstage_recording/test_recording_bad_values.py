@@ -7,7 +7,7 @@ import sys
 import pytest
 from lightstage_recording.player_node import PlayerError, check_remaps
 
-from suite_helpers import REPO
+from helpers.suite import REPO
 
 BAG = REPO / 'bags' / 'sim_session'
 TYPES = {'/illumination': 'lightstage_interfaces/msg/IlluminationState',

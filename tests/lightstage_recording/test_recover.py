@@ -10,8 +10,8 @@ from rclpy.serialization import serialize_message
 
 import lightstage_recording as lr
 from lightstage_recording import bag_cli
-from recording_helpers import image, recover
-from write_faults import FailingDisk
+from helpers.recording import image, recover
+from helpers.write_faults import FailingDisk
 
 T0 = 1_700_000_000_000_000_000
 IMG = 'sensor_msgs/msg/Image'

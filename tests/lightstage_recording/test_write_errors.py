@@ -13,8 +13,8 @@ from rclpy.serialization import serialize_message
 import lightstage_recording as lr
 from lightstage_recording import fileio
 from lightstage_recording.recording import Recording
-from recording_helpers import REPO, illumination, image, recover
-from write_faults import FailingDisk
+from helpers.recording import REPO, illumination, image, recover
+from helpers.write_faults import FailingDisk
 
 T0 = 1_700_000_000_000_000_000
 ILLUM = 'lightstage_interfaces/msg/IlluminationState'
@@ -261,7 +261,7 @@ def test_the_recorder_node_ends_the_recording_on_a_write_error(tmp_path, monkeyp
     from rclpy.signals import SignalHandlerOptions
 
     from lightstage_recording.recorder_node import RecorderNode
-    from suite_helpers import fresh_domain_id
+    from helpers.suite import fresh_domain_id
     disk = FailingDisk(monkeypatch, after_chunks=1)
     context = Context()
     rclpy.init(context=context, domain_id=fresh_domain_id(),

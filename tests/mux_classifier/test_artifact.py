@@ -18,9 +18,9 @@ from mux_classifier.artifact import (FORMAT_VERSION, UNRECORDED_DIMMER, Artifact
                                      noise_to_dict)
 from mux_classifier.estimator import MuxClassifier
 
-from artifact_mutations import mutated_artifacts
+from helpers.artifact_mutations import mutated_artifacts
 
-from suite_helpers import REPO
+from helpers.suite import REPO
 
 SIGMA3 = {"name": "sigma3", "sigma_p2": 0.94, "sigma_r2": 117.37, "gain_db": 17.5,
           "exposure_ms": 22.5}

@@ -2,7 +2,7 @@
 parameter call answers) for failures that validation does not foresee."""
 import pytest
 
-from suite_helpers import fresh_domain_id
+from helpers.suite import fresh_domain_id
 
 pytestmark = pytest.mark.ros
 

@@ -13,7 +13,7 @@ from mux_classifier.inference import (ImageMatcher, InferenceError, MissingImage
                                       classify_frames, classify_on_stage, image_from_buffer,
                                       mono16_to_gray, plan_acquisition)
 
-from suite_helpers import TRAIN_SITE_PATTERNS
+from helpers.suite import TRAIN_SITE_PATTERNS
 
 
 def test_plan_takes_the_first_k_patterns_k_a_trained_count_and_the_artifacts_setting(stage_artifact):

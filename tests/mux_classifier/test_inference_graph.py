@@ -26,8 +26,8 @@ from hypothesis import strategies as st
 from lightstage_bringup.supervisor import Supervisor
 from mux_classifier.classify_request import MAX_IMAGES_MAX, TIMEOUT_MAX_S, TIMEOUT_MIN_S
 
-from artifact_mutations import mutated_artifacts
-from suite_helpers import GraphClient, fresh_domain_id, start_nodes, write_params
+from helpers.artifact_mutations import mutated_artifacts
+from helpers.suite import GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
 
 pytestmark = pytest.mark.ros
 
@@ -65,10 +65,8 @@ class Graph(NamedTuple):
 @pytest.fixture(scope='module')
 def graph(stage_capture, stage_artifact_path, tmp_path_factory):
     domain_id = fresh_domain_id()
-    params = write_params(tmp_path_factory.mktemp('graph') / 'params.yaml', {
-        'camera': {'capture_dir': str(stage_capture), 'sample': SAMPLES[0], 'seed': 3},
-        'classifier': {'artifact_path': str(stage_artifact_path), 'timeout_s': 10.0},
-    })
+    params = write_params(tmp_path_factory.mktemp('graph') / 'params.yaml',
+                          stage_graph_params(stage_capture, SAMPLES[0], 3, stage_artifact_path))
     client = GraphClient(domain_id)
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:

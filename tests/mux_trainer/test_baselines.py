@@ -22,7 +22,7 @@ def test_snr_optimal_uses_the_multiplexer_matrix_and_scores_each_prefix(tiny_dat
 
 
 def test_snr_optimal_without_noise_falls_back_to_the_s_matrix():
-    from trainer_helpers import make_search_data
+    from helpers.trainer import make_search_data
     quiet = make_search_data(noise_a=0.0, noise_b=0.0)
     model = SnrOptimalClassifier(n_images=3, n_repeats=4).fit(quiet)
     np.testing.assert_array_equal(model.patterns_, s_matrix_for_sites(8)[:, :3])
@@ -43,7 +43,7 @@ def test_fixed_patterns_shape_is_checked(tiny_data):
 
 
 def test_the_artifact_records_the_dimmer_the_training_rendered_with():
-    from trainer_helpers import TINY_HOG, make_modelset
+    from helpers.trainer import TINY_HOG, make_modelset
     ms = make_modelset(n_poses=8)
     model = NaiveClassifier(n_repeats=4, dimmer=0.3, hog_config=TINY_HOG).fit(ms)
     basis = model.evaluator_.data.basis  # (sites, channels, samples, pixels), dimmer applied

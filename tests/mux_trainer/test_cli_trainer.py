@@ -9,7 +9,7 @@ from mux_classifier.artifact import TrainedArtifact
 
 from mux_trainer.cli import eval_main, train_main
 
-from trainer_helpers import TINY
+from helpers.trainer import TINY
 
 
 def test_train_json_and_artifact(capture, tmp_path, capsys):
@@ -115,7 +115,7 @@ def test_eval_and_train_with_feature_extractors(capture, tmp_path, capsys):
 
 def test_eval_holds_out_whole_physical_samples(capture, tmp_path, capsys):
     import dataclasses
-    from trainer_helpers import make_modelset
+    from helpers.trainer import make_modelset
     base = make_modelset(n_poses=8)
     path = tmp_path / 'four_samples'
     write_capture(path, dataclasses.replace(base, instance=base.pose_index // 2,

@@ -18,19 +18,10 @@ distributed = pytest.importorskip('distributed')
 from mux_trainer.cli import train_main  # noqa: E402
 from mux_trainer.cluster import ClusterUnavailable, DaskCluster, dask_cluster  # noqa: E402
 
-from dask_helpers import start_cluster, start_scheduler  # noqa: E402
-
 LIGHTSTAGE = str(Path(sys.executable).parent / 'lightstage')
 # small search on the suite's stage capture (4 classes, 120 px): 2 columns, both kept
 SEARCH = ['--repeats', '4', '--max-images', '2', '--fixed-count', '--refine-top', '2',
           '--seed', '3', '--json', '--quiet']
-
-
-@pytest.fixture
-def cluster(request, tmp_path):
-    """A scheduler and two workers `a` and `b`: (address, {name: worker process})."""
-    address, workers, _ = start_cluster(request, tmp_path)
-    return address, workers
 
 
 @pytest.fixture(scope='module')
@@ -122,10 +113,10 @@ def test_an_unreachable_scheduler_from_the_command_line(stage_capture, tmp_path)
     assert 'tcp://127.0.0.1:9' in run.stderr and run.stdout == ''
 
 
-def test_a_scheduler_that_goes_away_is_named(request, tmp_path, tiny_data):
+def test_a_scheduler_that_goes_away_is_named(dask_scheduler, tiny_data):
     from mux_trainer.candidate_patterns import site_pattern_candidates
     from mux_trainer.evaluation import CandidateEvaluator
-    address, scheduler = start_scheduler(request, tmp_path)  # no workers: tasks would wait forever
+    address, scheduler = dask_scheduler  # no workers: tasks would wait forever
     ev = CandidateEvaluator(tiny_data, n_repeats=4, seed=1, chunk_size=10)
     ctx = ev.prepare_column(None)
     with pytest.raises(ClusterUnavailable, match=address.replace('.', r'\.')):

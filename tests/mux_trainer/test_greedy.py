@@ -81,7 +81,7 @@ def test_early_termination_stops_at_the_first_non_improving_column(tiny_data):
 
 
 def test_early_termination_when_one_column_is_perfect():
-    from trainer_helpers import make_search_data
+    from helpers.trainer import make_search_data
     easy = make_search_data(signal=200.0, noise_a=0.0, noise_b=0.0)
     sel = GreedyPatternSelector(n_repeats=10, max_patterns=5, seed=0).fit(easy)
     assert sel.accuracy_by_images_[1] == 1.0
@@ -211,7 +211,7 @@ def test_small_search_selects_the_columns_recorded_before_the_compiled_kernels()
     # recorded with the pure-numpy HOG, numpy noise and the LU-solved exact SVM (commit
     # bdde634): the compiled HOG kernel, the fused noise and the Cholesky Newton solves
     # change no screen score, no SVM score and so no column
-    from trainer_helpers import make_search_data
+    from helpers.trainer import make_search_data
     data = make_search_data(noise_b=3000.0)
     sel = GreedyPatternSelector(n_patterns=3, n_repeats=40, seed=0).fit(data)
     columns = [''.join(str(int(v)) for v in col) for col in sel.patterns_.T]

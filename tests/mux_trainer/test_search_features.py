@@ -11,7 +11,7 @@ from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import test_images as render_test_images
 from mux_trainer.rendering import image_features, scoring_features
 from mux_trainer.report import evaluate_noise_setting
-from trainer_helpers import TINY_HOG, make_modelset
+from helpers.trainer import TINY_HOG, make_modelset
 
 
 def test_scoring_features_are_standardised_for_the_extractors_that_ask(tiny_data):

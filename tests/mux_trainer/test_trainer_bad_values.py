@@ -10,7 +10,7 @@ from mux_trainer.cli import eval_main, train_main
 from mux_trainer.cluster import ClusterUnavailable, DaskCluster
 from mux_trainer.data import resolve_noise
 
-from trainer_helpers import TINY
+from helpers.trainer import TINY
 
 
 def _refused(main, argv, capsys=None):

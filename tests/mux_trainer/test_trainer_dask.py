@@ -4,9 +4,8 @@ naming the address, once the scheduler is gone (not a hang)."""
 import pytest
 import yaml
 
-from dask_helpers import start_cluster
-from ros_helpers import running_nodes
-from suite_helpers import GraphClient, fresh_domain_id
+from helpers.ros import running_nodes
+from helpers.suite import GraphClient, fresh_domain_id
 
 distributed = pytest.importorskip('distributed')
 
@@ -14,12 +13,13 @@ pytestmark = pytest.mark.ros
 TRAIN = '/lightstage/train'
 
 
-def test_train_goal_runs_on_the_cluster_then_aborts_when_it_is_gone(request, tmp_path,
-                                                                    stage_capture):
+def test_train_goal_runs_on_the_cluster_then_aborts_when_it_is_gone(cluster, dask_scheduler,
+                                                                    tmp_path, stage_capture):
     from action_msgs.msg import GoalStatus
     from lightstage_interfaces.action import Train
     from rclpy.action import ActionClient
-    address, workers, scheduler = start_cluster(request, tmp_path)
+    address, workers = cluster
+    _, scheduler = dask_scheduler
     params = tmp_path / 'params.yaml'
     params.write_text(yaml.safe_dump({'trainer': {'ros__parameters': {
         'n_jobs': 1, 'dask_scheduler': address, 'dask_timeout_s': 3.0}}}))

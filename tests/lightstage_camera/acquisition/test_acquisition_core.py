@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import yaml
 
-from acquisition_helpers import (averaged_capture_z, check_z, gaussian_regime, sim_grab,
+from helpers.acquisition import (averaged_capture_z, check_z, gaussian_regime, sim_grab,
                                  smooth_modelset)
 from lightstage_camera import acquisition as acq
 from lightstage_camera import capture_destination as dest

@@ -13,13 +13,13 @@ import pytest
 import yaml
 from lightstage_bringup.supervisor import Supervisor
 
-from acquisition_helpers import StageGraph, averaged_capture_z, check_z, cli, gaussian_regime
+from helpers.acquisition import StageGraph, averaged_capture_z, check_z, cli, gaussian_regime
 from lightstage_camera.capture_destination import STAGING_DIR
 from lightstage_physics.calibration_target import write_calibration_target
 from lightstage_physics.capture_format import load_capture
 from lightstage_physics.noise import PAPER_CALIBRATION, SETTINGS, load_noise_file
 from lightstage_camera.sim_camera import frame_moments
-from suite_helpers import fresh_domain_id, lightstage_command, write_params
+from helpers.suite import fresh_domain_id, lightstage_command, write_params
 
 pytestmark = pytest.mark.ros
 

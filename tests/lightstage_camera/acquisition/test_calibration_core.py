@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import yaml
 
-from acquisition_helpers import sim_grab
+from helpers.acquisition import sim_grab
 from lightstage_camera import calibration as cal
 from lightstage_camera import calibration_outputs as couts
 from lightstage_physics import calibration_target as ctarget

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from acquisition_helpers import sim_grab
+from helpers.acquisition import sim_grab
 from lightstage_camera import calibration as cal
 from lightstage_physics import calibration_target as ctarget
 from lightstage_physics import noise_fit as nfit

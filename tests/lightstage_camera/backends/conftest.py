@@ -12,8 +12,8 @@ import os
 import numpy as np
 import pytest
 
-from emulated_cameras import write_served_images
-from suite_helpers import network_interfaces
+from helpers.emulated_cameras import write_served_images
+from helpers.suite import network_interfaces
 
 os.environ['PYLON_CAMEMU'] = '2'   # two emulated cameras: EMULATED_SERIALS
 

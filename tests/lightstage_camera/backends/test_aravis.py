@@ -16,8 +16,8 @@ from lightstage_camera.camera_backend import Trigger
 from lightstage_graph.frames import image_from_buffer
 from lightstage_graph.stamps import stamp_to_ns
 
-from emulated_cameras import camera_graph
-from suite_helpers import write_params
+from helpers.emulated_cameras import camera_graph
+from helpers.suite import write_params
 
 ADDRESS, SERIAL = '127.0.0.1', 'FAKE-LS-0001'
 SIZE = (48, 64)

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from emulated_cameras import EMULATED_SERIALS, PYLON_TIMEOUT, emulator_features
+from helpers.emulated_cameras import EMULATED_SERIALS, PYLON_TIMEOUT, emulator_features
 from lightstage_camera.basler_backend import BaslerBackend
 from lightstage_camera.camera_backend import CameraError, Trigger
 

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
-from emulated_cameras import (EMULATED_SERIALS, PYLON_TIMEOUT, emulator_features,
+from helpers.emulated_cameras import (EMULATED_SERIALS, PYLON_TIMEOUT, emulator_features,
                               write_served_images)
 from lightstage_physics.capture_format import load_capture
 from lightstage_physics.noise import load_noise_file
 from lightstage_camera.sim_camera import SimCamera, encode_mono16
-from suite_helpers import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
+from helpers.suite import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
 

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import yaml
 
-from emulated_cameras import (EMULATED_SERIALS, PYLON_TIMEOUT, camera_graph, emulator_features,
+from helpers.emulated_cameras import (EMULATED_SERIALS, PYLON_TIMEOUT, camera_graph, emulator_features,
                               write_served_images)
 from lightstage_graph.frames import image_from_buffer
 from lightstage_graph.stamps import stamp_to_ns
-from suite_helpers import write_params
+from helpers.suite import write_params
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
 

@@ -3,8 +3,8 @@ at run time, camera_info_url checks (emulated camera, emulation transport layer 
 
 import pytest
 
-from emulated_cameras import PYLON_TIMEOUT
-from suite_helpers import fresh_domain_id
+from helpers.emulated_cameras import PYLON_TIMEOUT
+from helpers.suite import fresh_domain_id
 
 pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
 

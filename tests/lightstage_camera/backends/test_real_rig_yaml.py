@@ -3,7 +3,7 @@ from pathlib import Path
 
 import yaml
 
-from suite_helpers import REPO
+from helpers.suite import REPO
 
 REAL_RIG = REPO / 'src' / 'lightstage_bringup' / 'config' / 'real_rig.yaml'
 

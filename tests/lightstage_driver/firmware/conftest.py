@@ -9,7 +9,7 @@ import pytest
 
 from lightstage_driver.simavr_backend import SimavrBackend, missing_tools
 
-from firmware_wire import Wire
+from helpers.firmware_wire import Wire
 
 
 @pytest.fixture(scope='module')

@@ -8,7 +8,7 @@ import pytest
 from lightstage_driver import protocol as p
 from lightstage_driver.simavr_backend import SimavrBackend, firmware_dir, missing_tools
 
-from firmware_wire import Wire
+from helpers.firmware_wire import Wire
 
 pytestmark = pytest.mark.skipif(bool(missing_tools()), reason=f'AVR toolchain missing: {missing_tools()}')
 

@@ -12,8 +12,8 @@ import pytest
 from lightstage_driver import protocol as p
 from lightstage_driver.sim_backend import PythonSimBackend
 
-from firmware_wire import Wire
-from graded_pins import on_times_us
+from helpers.firmware_wire import Wire
+from helpers.graded_pins import on_times_us
 
 C = p.Command
 

@@ -7,7 +7,7 @@ import numpy as np
 from lightstage_driver import protocol as p
 from lightstage_driver import schedule as sched
 
-from graded_pins import on_times_us
+from helpers.graded_pins import on_times_us
 
 C = p.Command
 CYCLES_PER_US = 16

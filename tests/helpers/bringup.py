@@ -1,28 +1,19 @@
-"""Shared by the bring-up tests: a domain id per test, and the environment for children."""
-import itertools
+"""Shared by the bring-up tests: a domain id per test (the suite's one counter), and the
+environment for children."""
 import os
 import sys
 from pathlib import Path
 
 from lightstage_graph.ros_env import ros_environment
 
-HERE = Path(__file__).resolve().parent
-_counter = itertools.count()
-
-
-def fresh_domain_id() -> int:
-    """A ROS domain id for one test: 1..99 (apart from the suite's 100..199), from the pid.
-
-    Domains below 100 also keep every RTPS port under 32768, i.e. outside the ephemeral
-    port range (tests/lightstage_graph/test_ros_environment.py relies on that to tell listening ports from send sockets).
-    """
-    return 1 + (os.getpid() * 7 + next(_counter)) % 99
+from helpers.ros import NODE_SCRIPTS
+from helpers.suite import fresh_domain_id  # noqa: F401 (for the tests)
 
 
 def child_environment(domain_id: int, *extra_paths: Path) -> dict[str, str]:
-    """The project ROS environment plus this directory (the fake nodes) on PYTHONPATH."""
+    """The project ROS environment plus the stand-in node scripts (helpers/nodes) on PYTHONPATH."""
     env = ros_environment(domain_id)
-    paths = [str(p) for p in (HERE, *extra_paths)]
+    paths = [str(p) for p in (NODE_SCRIPTS, *extra_paths)]
     if env.get('PYTHONPATH'):
         paths.append(env['PYTHONPATH'])
     env['PYTHONPATH'] = os.pathsep.join(paths)

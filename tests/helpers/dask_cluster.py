@@ -1,6 +1,7 @@
 """A real Dask cluster for the tests: `dask scheduler` and `dask worker`s as separate
 processes bound to 127.0.0.1 (no dashboards, no nanny, so that a worker's PID is the process
-that runs its tasks), always stopped at the end of the test (finalizers)."""
+that runs its tasks), always stopped at the end of the test (finalizers). The fixtures
+`dask_scheduler` and `cluster` (tests/mux_trainer/conftest.py) start them."""
 import json
 import subprocess
 import sys
@@ -41,14 +42,13 @@ def start_scheduler(request, tmp_path):
             time.sleep(0.1)
 
 
-def start_cluster(request, tmp_path, names=('a', 'b')):
-    """A scheduler and one one-thread worker per name:
-    (address, {name: worker process}, scheduler process)."""
-    address, scheduler = start_scheduler(request, tmp_path)
+def start_workers(request, tmp_path, address, names=('a', 'b')):
+    """One one-thread worker per name on the scheduler at `address`, once all have joined:
+    {name: worker process}."""
     workers = {name: start_process(request, [*DASK, 'worker', address, '--host', '127.0.0.1',
                                              '--nthreads', '1', '--no-dashboard', '--no-nanny',
                                              '--name', name], tmp_path / f'worker-{name}.log')
                for name in names}
     with distributed.Client(address, timeout=START_TIMEOUT_S, set_as_default=False) as client:
         client.wait_for_workers(len(names), timeout=START_TIMEOUT_S)
-    return address, workers, scheduler
+    return workers

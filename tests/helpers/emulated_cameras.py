@@ -1,5 +1,5 @@
-"""Shared by the tests of this directory: the emulated cameras' serials and served files, and
-the ROS client of the graph tests."""
+"""Shared by the real-camera backend tests (tests/lightstage_camera/backends): the emulated
+cameras' serials and served files, and the ROS client of the graph tests."""
 import contextlib
 
 import numpy as np
@@ -7,7 +7,7 @@ import pytest
 from lightstage_bringup.supervisor import Supervisor
 
 from lightstage_graph.stamps import stamp_to_ns
-from suite_helpers import GraphClient, fresh_domain_id, start_nodes
+from helpers.suite import GraphClient, fresh_domain_id, start_nodes
 
 EMULATED_SERIALS = ('0815-0000', '0815-0001')   # PYLON_CAMEMU=2, set in conftest.py
 # pylon runs a POSIX timer that signals SIGALRM to a handler it installs when a camera opens;

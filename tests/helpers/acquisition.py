@@ -6,7 +6,7 @@ import numpy as np
 
 from lightstage_physics.rig import Rig
 from lightstage_physics.scene_models import ModelSet
-from suite_helpers import GraphClient, lightstage_command, start_nodes
+from helpers.suite import GraphClient, lightstage_command, start_nodes
 
 
 def smooth_modelset(shape=(24, 32), n_samples=2, seed=0, top=600.0, dark=True) -> ModelSet:

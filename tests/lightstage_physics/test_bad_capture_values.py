@@ -6,7 +6,7 @@ import pytest
 from lightstage_physics import synth
 from lightstage_physics.capture_format import load_capture, write_capture
 
-from camera_helpers import make_modelset
+from helpers.camera import make_modelset
 
 
 def test_a_zeroed_cache_of_the_same_size_is_not_trusted(tmp_path):

@@ -2,10 +2,8 @@
 which mirrors src/): domain ids, parameter files, node processes (the in-process
 rclpy client is `lightstage_graph.graph_client.GraphClient`); and the site patterns of the suite's small trained artifact (tests/conftest.py).
 
-Imported as `suite_helpers`: pytest puts tests/ on sys.path when it loads tests/conftest.py
-(the default "prepend" import mode), as it puts each test directory there for its own helpers.
-Helpers shared by more than one package's tests live here beside it (ros_helpers,
-proc_sockets, dask_helpers, artifact_mutations).
+Imported as `helpers.suite` (pytest.ini's `pythonpath = tests` puts tests/ on sys.path);
+every helper module of the suite lives beside it in tests/helpers/ (see its __init__).
 """
 from __future__ import annotations
 
@@ -22,7 +20,7 @@ from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 from lightstage_graph.graph_client import GraphClient, parameter_msgs  # noqa: F401 (for the tests)
 from lightstage_graph.ros_env import ros_environment
 
-REPO = Path(__file__).resolve().parents[1]  # the repository: tests/ mirror its src/ packages
+REPO = Path(__file__).resolve().parents[2]  # the repository: tests/ mirror its src/ packages
 
 # two site patterns -> a per-colour artifact with classifiers for 4 and 8 images
 TRAIN_SITE_PATTERNS = np.zeros((8, 2), np.float32)
@@ -59,6 +57,18 @@ def write_params(path: Path, sections: dict) -> Path:
     import yaml
     path.write_text(yaml.safe_dump({n: {'ros__parameters': p} for n, p in sections.items()}))
     return path
+
+
+def stage_graph_params(capture, sample: str, seed: int, artifact=None, **sections: dict) -> dict:
+    """The params sections ({node: {param: value}}, for `write_params`) of a graph on the
+    simulated stage: the camera showing `sample` of `capture` with noise `seed`, the classifier
+    on `artifact` (10 s timeout) if one is given; `sections` add nodes or override parameters."""
+    params = {'camera': {'capture_dir': str(capture), 'sample': sample, 'seed': seed}}
+    if artifact is not None:
+        params['classifier'] = {'artifact_path': str(artifact), 'timeout_s': 10.0}
+    for node, values in sections.items():
+        params[node] = {**params.get(node, {}), **values}
+    return params
 
 
 def start_nodes(supervisor: Supervisor, client: GraphClient, names, domain_id: int,

@@ -1,6 +1,6 @@
 """Shared by the tests that start node processes from the ROS side (ros2 run, cross-process
 interfaces, the trainer on Dask): node processes through the supervisor, checked by the graph
-as `lightstage up` does (domain ids and the in-process client are suite_helpers)."""
+as `lightstage up` does (domain ids and the in-process client are helpers.suite)."""
 from __future__ import annotations
 
 import contextlib
@@ -12,12 +12,13 @@ from lightstage_bringup.launcher import GraphWatcher, node_command
 from lightstage_graph.ros_env import ros_environment
 from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 
-HERE = Path(__file__).resolve().parent
+# The stand-in node scripts (run as modules by name: `ros_fake_driver_node`, ...)
+NODE_SCRIPTS = Path(__file__).resolve().parent / 'nodes'
 
 
 def child_environment(domain_id: int, **overrides: str) -> dict[str, str]:
     env = ros_environment(domain_id)
-    env['PYTHONPATH'] = os.pathsep.join(p for p in (str(HERE), env.get('PYTHONPATH', '')) if p)
+    env['PYTHONPATH'] = os.pathsep.join(p for p in (str(NODE_SCRIPTS), env.get('PYTHONPATH', '')) if p)
     env.update(overrides)
     return env
 
@@ -32,7 +33,7 @@ def running_nodes(nodes: dict[str, str | list[str]], domain_id: int, timeout_s: 
     A value may also be a whole command line (e.g. `ros2 run`'s), run as given. `wrap`
     prefixes every command (e.g. strace); `params_file` is a ROS parameters YAML keyed by
     these node names; `env` replaces the children's environment (default: the project's ROS
-    environment with this directory on PYTHONPATH). Children's output is kept in `sup.output`.
+    environment with the stand-in node scripts on PYTHONPATH). Children's output is kept in `sup.output`.
     """
     out = io.StringIO()
     sup = Supervisor(stdout=out, stderr=out, sigint_timeout_s=5, sigterm_timeout_s=2)

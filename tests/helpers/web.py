@@ -12,7 +12,7 @@ from pathlib import Path
 
 from lightstage_graph.ros_env import ros_environment
 
-from suite_helpers import lightstage_command
+from helpers.suite import lightstage_command
 
 
 @contextlib.contextmanager

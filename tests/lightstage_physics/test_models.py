@@ -4,7 +4,7 @@ import pytest
 from lightstage_physics.rig import CHANNELS, Rig, led_index
 from lightstage_physics.scene_models import ModelSet, downscale_images
 
-from camera_helpers import make_modelset
+from helpers.camera import make_modelset
 
 
 def test_rig_yaml_roundtrip(tmp_path):

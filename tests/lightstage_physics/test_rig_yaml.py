@@ -14,7 +14,7 @@ from lightstage_physics.capture_format import (CaptureFormatError, check_equal_p
                                                load_capture, write_capture)
 from lightstage_physics.rig import Rig
 
-from camera_helpers import make_modelset
+from helpers.camera import make_modelset
 
 
 @pytest.fixture

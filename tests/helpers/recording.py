@@ -1,5 +1,5 @@
 """Helpers of the recording tests: real serialized messages, independent decoding, and
-replaying a bag into a classifier that only observes (the graph helpers are suite_helpers)."""
+replaying a bag into a classifier that only observes (the graph helpers are helpers.suite)."""
 from __future__ import annotations
 
 import array
@@ -11,7 +11,7 @@ import numpy as np
 
 from lightstage_graph.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
-from suite_helpers import REPO, GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
+from helpers.suite import REPO, GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
 
 

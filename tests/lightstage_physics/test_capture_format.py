@@ -9,7 +9,7 @@ from PIL import Image
 from lightstage_physics.capture_format import (CaptureFormatError, load_capture, to_raw16,
                                                write_capture)
 
-from camera_helpers import make_modelset
+from helpers.camera import make_modelset
 
 
 @pytest.fixture
