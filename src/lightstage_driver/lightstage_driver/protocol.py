@@ -10,6 +10,8 @@ import struct
 import time
 from dataclasses import dataclass, field
 
+from lightstage_graph.leds import N_LEDS
+
 from .errors import ChecksumError, FramingError, PayloadError
 
 PROTOCOL_VERSION = 1
@@ -22,7 +24,7 @@ MAX_FRAME = MAX_PAYLOAD + OVERHEAD
 INTER_BYTE_TIMEOUT_S = 0.010
 REPLY_BIT = 0x80
 NAK_CMD = 0xFF
-LED_COUNT = 32
+LED_COUNT = N_LEDS  # the firmware's chain: one drive per LED of Pattern.msg
 MAX_SEQUENCE = 16
 MAX_GAP_US = 1_000_000
 WATCHDOG_RANGE_MS = (50, 60000)
