@@ -113,10 +113,8 @@ def run_capture(path, args) -> dict:
     return out
 
 
-def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    p.add_argument('captures', nargs='+')
-    p.add_argument('--seed', type=int, default=0)
+def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_starts'):
+    """The options of `run_capture` (shared with learned_strength_sweep.py)."""
     p.add_argument('--features', default='intensity_stats')
     p.add_argument('--holdout-by', default='poses', choices=('poses', 'instances'))
     p.add_argument('--n-repeats', type=int, default=400, help="greedy's / SNR's inner splits")
@@ -129,9 +127,16 @@ def main(argv=None):
     p.add_argument('--learned-starts', default='per_colour,snr_optimal,greedy',
                    help="learned: start patterns; 'greedy': this run's greedy columns")
     p.add_argument('--progress', action='store_true')
-    p.add_argument('--methods', default='greedy,snr_optimal,learned,learned_starts',
+    p.add_argument('--methods', default=default_methods,
                    help='among greedy, snr_optimal, learned, learned_binary, learned_starts '
                         '(learned without fine-tuning: the best start by the inner splits)')
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    p.add_argument('captures', nargs='+')
+    p.add_argument('--seed', type=int, default=0)
+    add_method_arguments(p)
     p.add_argument('--json', help='write the figures here')
     args = p.parse_args(argv)
     args.methods = args.methods.split(',')
