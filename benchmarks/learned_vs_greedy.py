@@ -8,9 +8,13 @@ split of `holdout.holdout_split` (25 % of the pose indices, or of the physical s
 - greedy per colour, 2 columns (4 and 8 exposures; `GreedyPatternSelector`, n_repeats as
   given, default the method's 400), evaluated by `holdout.method_summary`;
 - SNR-optimal, its first 2 columns, likewise;
-- learned, graded and binary, trained separately for 4 and for 8 images (one exposure
-  each), evaluated by `learned.evaluate_learned_heldout`: the same test-noise stream
-  (`holdout.test_images`) and the same n_renders.
+- learned (graded; on/off as learned_binary), trained separately for 4 and for 8 images
+  (one exposure each), from the per-colour start, SNR-optimal's and this run's greedy
+  columns (expanded to LED levels; the greedy search's seconds are then part of its cost),
+  and learned_starts: the same without fine-tuning (the best start by the inner splits),
+  the control for what the gradient steps add; evaluated by
+  `learned.evaluate_learned_heldout`: the same test-noise stream (`holdout.test_images`)
+  and the same n_renders.
 Prints held-out accuracy and training seconds per method and exposure count, and writes the
 figures as JSON with --json.
 
@@ -30,7 +34,8 @@ from mux_trainer.baselines import SnrOptimalClassifier
 from mux_trainer.data import search_data
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import holdout_split, method_summary, test_images
-from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
+from mux_trainer.learned import (LearnedIlluminationClassifier, evaluate_learned_heldout,
+                                 expand_site_patterns)
 
 
 def classify_ms(model, test, seed, repeats=20) -> float:
@@ -67,46 +72,75 @@ def run_capture(path, args) -> dict:
         res = method_summary(model, test, args.n_renders, args.seed, train_seconds=seconds)
         out[name] = {'4': res['accuracy_by_images']['1'], '8': res['accuracy_by_images']['2'],
                      'train_seconds': seconds}
+        if name == 'greedy':
+            out['_greedy_columns'] = model.patterns_
         print(f'  {name}: 4 exp {out[name]["4"]:.3f}, 8 exp {out[name]["8"]:.3f} '
               f'({seconds:.0f} s)', flush=True)
-    for binary in (False, True):
-        name = 'learned_binary' if binary else 'learned'
+    greedy_columns = out.pop('_greedy_columns', None)
+    variants = (('learned', False, args.fine_tune), ('learned_binary', True, args.fine_tune),
+                ('learned_starts', False, 'none'))
+    for name, binary, fine_tune in variants:
         if name not in args.methods:
             continue
         out[name] = {'train_seconds': 0.0}
         for k in (4, 8):
+            starts = {}
+            if 'greedy' in args.learned_starts:
+                if greedy_columns is None:
+                    raise SystemExit('--learned-starts greedy needs greedy in --methods')
+                starts['greedy'] = expand_site_patterns(greedy_columns[:, :k // 4],
+                                                        train.n_channels)
             model = LearnedIlluminationClassifier(
                 n_images=k, binary=binary, max_steps=args.steps, seed=args.seed,
-                lr_patterns=args.lr_patterns).fit(train)
+                lr_patterns=args.lr_patterns, objective=args.objective, fine_tune=fine_tune,
+                starts=[s for s in args.learned_starts if s != 'greedy'],
+                start_patterns=starts, n_repeats=args.n_repeats,
+                progress=args.progress).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
             out[name][str(k)] = acc
             out[name][f'train_seconds_{k}'] = model.train_seconds_
             out[name][f'best_step_{k}'] = model.best_step_
+            out[name][f'chosen_{k}'] = model.chosen_
+            out[name][f'inner_{k}'] = model.candidate_scores_
             out[name][f'patterns_{k}'] = np.round(model.patterns_, 3).tolist()
-            print(f'  {name}: {k} exp {acc:.3f} ({model.train_seconds_:.0f} s, best step '
-                  f'{model.best_step_})', flush=True)
+            print(f'  {name}: {k} exp {acc:.3f} ({model.train_seconds_:.0f} s, chose '
+                  f'{model.chosen_}; inner ' + ', '.join(
+                      f'{c} {v:.3f}' for c, v in model.candidate_scores_.items()) + ')',
+                  flush=True)
         out[name]['classify_ms_8'] = classify_ms(model, test, args.seed)
         print(f'  {name}: classify {out[name]["classify_ms_8"]:.1f} ms per sample '
               '(numpy model, 8 images at 120 px, one sample at a time)', flush=True)
     return out
 
 
-def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    p.add_argument('captures', nargs='+')
-    p.add_argument('--seed', type=int, default=0)
+def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_starts'):
+    """The options of `run_capture` (shared with learned_strength_sweep.py)."""
     p.add_argument('--features', default='intensity_stats')
     p.add_argument('--holdout-by', default='poses', choices=('poses', 'instances'))
     p.add_argument('--n-repeats', type=int, default=400, help="greedy's / SNR's inner splits")
     p.add_argument('--n-renders', type=int, default=4)
-    p.add_argument('--steps', type=int, default=150, help='learned: most training steps')
-    p.add_argument('--lr-patterns', type=float, default=0.1,
-                   help='learned: Adam step on the LED logits (0: the patterns stay at their '
-                        'per-colour start, a control for what learning the light adds)')
-    p.add_argument('--methods', default='greedy,snr_optimal,learned,learned_binary')
+    p.add_argument('--steps', type=int, default=60, help='learned: gradient steps')
+    p.add_argument('--lr-patterns', type=float, default=0.05,
+                   help='learned: Adam step on the LED logits')
+    p.add_argument('--objective', default='fisher', choices=('fisher', 'cross_entropy'))
+    p.add_argument('--fine-tune', default='best', choices=('best', 'all', 'none'))
+    p.add_argument('--learned-starts', default='per_colour,snr_optimal,greedy',
+                   help="learned: start patterns; 'greedy': this run's greedy columns")
+    p.add_argument('--progress', action='store_true')
+    p.add_argument('--methods', default=default_methods,
+                   help='among greedy, snr_optimal, learned, learned_binary, learned_starts '
+                        '(learned without fine-tuning: the best start by the inner splits)')
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    p.add_argument('captures', nargs='+')
+    p.add_argument('--seed', type=int, default=0)
+    add_method_arguments(p)
     p.add_argument('--json', help='write the figures here')
     args = p.parse_args(argv)
     args.methods = args.methods.split(',')
+    args.learned_starts = args.learned_starts.split(',')
     results = {}
     for path in args.captures:
         results[path] = run_capture(path, args)

@@ -6,10 +6,13 @@ import pytest
 from mux_classifier.intensity_stats import intensity_stats_images_numpy
 from mux_classifier.learned_model import LearnedModel
 
+from helpers.trainer import TINY_HOG
+
 from mux_trainer.holdout import holdout_split
 from mux_trainer.learned import (LearnedIlluminationClassifier, evaluate_learned_heldout,
-                                 forward_features, image_stats, stack_stats)
-from mux_trainer.rendering import SearchData, clean_led_images
+                                 expand_site_patterns, fisher_loss, forward_features,
+                                 image_stats, stack_stats)
+from mux_trainer.rendering import SearchData, clean_led_images, clean_site_images
 
 
 def disk_data(n_classes=3, n_poses=8, size=24, seed=0):
@@ -30,7 +33,7 @@ def disk_data(n_classes=3, n_poses=8, size=24, seed=0):
             poses.append(p)
     return SearchData.from_models(np.stack(models), labels, poses,
                                   [f'c{k}' for k in range(n_classes)], dimmer=1.0,
-                                  noise_a=0.7, noise_b=66.0)
+                                  noise_a=0.7, noise_b=66.0, hog_config=TINY_HOG)
 
 
 def _images(data, k=3, seed=0):
@@ -68,19 +71,61 @@ def fitted():
     train_idx, test_idx = holdout_split(data, 0.25, seed=0)
     train, test = data.subset(train_idx), data.subset(test_idx)
     model = LearnedIlluminationClassifier(n_images=2, max_steps=40, batch_size=16,
-                                          head_steps=100, seed=0).fit(train)
+                                          lr_patterns=0.25, n_repeats=40, seed=0).fit(train)
     return model, test
 
 
 def test_learns_the_classes_above_chance(fitted):
     model, test = fitted
     acc = evaluate_learned_heldout(model, test, n_renders=2, seed=0)['accuracy']
-    # 3 classes (chance 33 %); the cue is strong where the light finds it
-    assert acc >= 0.8, acc
+    # 3 classes (chance 33 %; the start, lighting no NIR, scores at chance on the inner
+    # splits); the cue is strong where the light finds it
+    assert acc >= 0.55, acc
     assert model.patterns_.shape == (32, 2)
     assert model.patterns_.min() >= 0 and model.patterns_.max() <= 1
     assert model.classifiers_ == {2: model.model_} and model.best_n_patterns_ == 2
     assert 0 <= model.accuracy_by_images_[2] <= 1
+
+
+def test_the_kept_patterns_score_best_on_the_inner_splits(fitted):
+    model, _ = fitted
+    scores = model.candidate_scores_
+    # the starts and at least the last snapshot of the fine-tuning were scored
+    assert 'per_colour' in scores and any('+' in name for name in scores)
+    assert model.accuracy_by_images_[2] == scores[model.chosen_] == max(scores.values())
+    # the start lights no NIR, where the classes differ: the gradient must have found it
+    assert model.best_step_ > 0, scores
+    assert scores[model.chosen_] >= scores['per_colour'] + 0.15, scores
+    nir = model.patterns_.reshape(8, 4, 2)[:, 3]
+    assert nir[:3].max(axis=0).min() > 0.5, nir  # each image lights a cue LED (sites 0-2)
+
+
+def test_without_fine_tuning_a_start_is_kept(tiny_data):
+    model = LearnedIlluminationClassifier(n_images=4, fine_tune='none', n_repeats=20,
+                                          seed=0).fit(tiny_data)
+    assert model.chosen_ in ('per_colour', 'snr_optimal') and model.best_step_ == 0
+    assert set(model.candidate_scores_) == {'per_colour', 'snr_optimal'}
+
+
+def test_site_patterns_expand_to_the_same_images(tiny_data):
+    W = np.random.default_rng(0).uniform(0, 1, (8, 2)).astype(np.float32)
+    P = expand_site_patterns(W, tiny_data.n_channels)
+    assert P.shape == (32, 8)
+    np.testing.assert_allclose(clean_led_images(tiny_data, P), clean_site_images(tiny_data, W),
+                               rtol=1e-5, atol=1e-3)
+
+
+def test_fisher_criterion_rewards_separated_classes_at_any_scale():
+    rng = np.random.default_rng(0)
+    y = np.repeat(np.arange(3), 20)
+    onehot = jnp.asarray(np.eye(3, dtype=np.float32)[y])
+    noise = rng.normal(0, 1, (60, 4)).astype(np.float32)
+    centres = np.eye(3, 4, dtype=np.float32)[y]
+    near, far = noise + 0.5 * centres, noise + 3.0 * centres
+    assert float(fisher_loss(jnp.asarray(far), onehot, 1.0)) < float(fisher_loss(jnp.asarray(near), onehot, 1.0))
+    # z-scored inside: brighter light that scales every feature does not pay
+    np.testing.assert_allclose(float(fisher_loss(jnp.asarray(10 * far), onehot, 1.0)),
+                               float(fisher_loss(jnp.asarray(far), onehot, 1.0)), rtol=1e-3)
 
 
 def test_numpy_forward_equals_jax_forward(fitted):
@@ -104,7 +149,7 @@ def test_numpy_forward_equals_jax_forward(fitted):
 
 def test_binary_patterns_are_on_off(tiny_data):
     model = LearnedIlluminationClassifier(n_images=1, binary=True, max_steps=10, batch_size=8,
-                                          head_steps=20, head_renders=2, seed=1).fit(tiny_data)
+                                          eval_every=5, n_repeats=20, seed=1).fit(tiny_data)
     assert set(np.unique(model.patterns_)) <= {0.0, 1.0}
     assert model.patterns_.any()
 
@@ -115,6 +160,11 @@ def test_bad_settings_and_inputs_are_refused(tiny_data, fitted):
         LearnedIlluminationClassifier(max_steps=1).fit(one_pose)
     with pytest.raises(ValueError, match='n_images'):
         LearnedIlluminationClassifier(n_images=0).fit(tiny_data)
+    with pytest.raises(ValueError, match='objective'):
+        LearnedIlluminationClassifier(objective='mse').fit(tiny_data)
+    with pytest.raises(ValueError, match='start pattern'):
+        LearnedIlluminationClassifier(n_images=2, start_patterns={'x': np.ones((8, 2))},
+                                      n_repeats=5).fit(tiny_data)
     model, _ = fitted
     with pytest.raises(ValueError, match='intensity statistics'):
         model.predict_features(np.zeros((3, 5)), 2)

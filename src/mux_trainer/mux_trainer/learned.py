@@ -1,4 +1,4 @@
-"""Learned illumination: LED levels and a small classifier trained together, end to end.
+"""Learned illumination: LED levels learned through the image formation, with a linear classifier.
 
 The patterns are a (32, k) matrix of LED levels, ``sigmoid(theta)`` (graded) or its
 straight-through binarisation (``binary=True``: on/off, runs on ``pwm_bits = 0``
@@ -8,8 +8,8 @@ samples under the current levels (`lightstage_physics.render_jax`: the relit ima
 `rendering.clean_led_images`, the calibrated affine noise drawn afresh by
 reparameterisation, the saturation clip, at the classifier's 120 px), computes per image
 the 9 pose-robust object statistics of `intensity_stats` made differentiable
-(`image_stats`), z-scores them and classifies with a small dense head; the cross-entropy's
-gradient reaches the LED levels through the statistics and the image formation.
+(`image_stats`) and z-scores them; the training criterion's gradient reaches the LED levels
+through the statistics and the image formation.
 
 Why these features and not a CNN: the captures hold 6-20 poses per class, objects lying
 anywhere and any way; the statistics ignore where the object lies by construction (a CNN
@@ -18,24 +18,36 @@ with on free placement (`--features intensity_stats`), so a comparison isolates 
 learning the light adds, and they are cheap (two sorts per image) and exact to reproduce
 in numpy for the node (`mux_classifier.learned_model`).
 
-Training: Adam, a fraction of the training poses held out for early stopping (pose
-indices, the same for every class), then the head refit on all training poses with the
-feature standardisation frozen (statistics of the final patterns' features over several
-noise draws), for the number of steps the held-out poses chose.
+Training (why: docs/LEARNED.md). Start patterns (the per-colour start, the SNR-optimal
+baseline's site columns expanded to LED levels, and any the caller gives, e.g. greedy's)
+are scored with the greedy search's own inner pose splits (`evaluation.CandidateEvaluator`
+in the joint mode); the best is fine-tuned by gradient steps on every training sample
+(Adam on the LED logits, fresh noise and batch each step) against a shrunk Fisher
+discriminant criterion of the batch's z-scored statistics (`fisher_loss`; or
+cross-entropy through a head trained alongside). Snapshots of the levels every few steps are
+scored by the same inner splits, and the best of starts and snapshots is kept (a start wins
+ties): no training poses are spent on early stopping, and the learned light is at least as
+good as its start by the measure greedy uses. The final classifier is greedy's: a linear
+SVM on the chosen patterns' rendered training statistics, stored as one linear layer.
 """
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from joblib import Parallel
 from lightstage_physics.render_jax import render_noisy
+from mux_classifier.estimator import MuxClassifier
 from mux_classifier.intensity_stats import GRADIENT_QUANTILES, LEVEL_QUANTILES, N_STATS
 from mux_classifier.learned_model import LearnedModel
 from mux_classifier.object_mask import image_masks
 
+from .baselines import SnrOptimalClassifier
 from .data import search_data
+from .evaluation import CandidateEvaluator
 from .holdout import test_images
 from .rendering import SearchData
 
@@ -173,68 +185,108 @@ def _init_head(rng, n_in, n_hidden, n_classes):
              jnp.zeros((b,), jnp.float32)) for a, b in zip(sizes[:-1], sizes[1:])]
 
 
-def initial_logits(n_sites: int, n_channels: int, k: int, rng, level: float = 0.9) -> np.ndarray:
-    """Start logits (sites * channels, k), site-major: image j lights colour j mod 4 at
-    level 0.9 (others 0.1), at every site for the first four images and at a random half of
-    the sites for each later group of four. The per-colour start keeps the colours apart (a
-    random mixture of colours would blur the spectral cue the classes differ by) and is where
-    the per-colour methods start too; 0.9 rather than 1 leaves the sigmoid a gradient."""
-    on = np.zeros((n_sites, n_channels, k), bool)
+def per_colour_start(n_sites: int, n_channels: int, k: int, rng) -> np.ndarray:
+    """The per-colour start (sites * channels, k), site-major, 0/1: image j lights colour
+    j mod 4, at every site for the first four images and at a random half of the sites for
+    each later group of four. It keeps the colours apart (a random mixture of colours blurs
+    the spectral cue the classes differ by; measured worse in docs/LEARNED.md)."""
+    on = np.zeros((n_sites, n_channels, k), np.float32)
     for j in range(k):
         sites = (np.arange(n_sites) if j < n_channels
                  else rng.choice(n_sites, max(1, n_sites // 2), replace=False))
-        on[sites, j % n_channels, j] = True
-    logit = np.float32(np.log(level / (1 - level)))
-    return np.where(on, logit, -logit).reshape(n_sites * n_channels, k).astype(np.float32)
+        on[sites, j % n_channels, j] = 1
+    return on.reshape(n_sites * n_channels, k)
 
 
-def _val_split(pose_index, fraction, rng):
-    poses = np.unique(pose_index)
-    if poses.size < 2:
-        raise ValueError('learned illumination needs at least 2 training poses per class '
-                         '(one is held out for early stopping); capture more poses')
-    n_val = min(poses.size - 1, max(1, int(round(fraction * poses.size))))
-    val_poses = rng.choice(poses, n_val, replace=False)
-    val = np.isin(pose_index, val_poses)
-    return np.flatnonzero(~val), np.flatnonzero(val)
+def expand_site_patterns(W: np.ndarray, n_channels: int = 4) -> np.ndarray:
+    """Per-colour site patterns (sites, m) -> the LED matrix (sites * channels, m * channels)
+    that takes the same images in the same order (`rendering.clean_site_images`: pattern j's
+    R, G, B, NIR; image j * channels + c lights colour c at pattern j's site levels)."""
+    W = np.asarray(W, np.float32)
+    S, m = W.shape
+    P = np.zeros((S, n_channels, m, n_channels), np.float32)
+    for c in range(n_channels):
+        P[:, c, :, c] = W
+    return P.reshape(S * n_channels, m * n_channels)
+
+
+def fisher_loss(F: jnp.ndarray, onehot: jnp.ndarray, shrinkage: float) -> jnp.ndarray:
+    """Minus the shrunk Fisher discriminant criterion tr((S_w + shrinkage I)^-1 S_b) of the
+    features F (n, d) z-scored over the batch (differentiably, so scaling the light up does
+    not pay), classes `onehot` (n, classes). S_w, S_b: within- and between-class scatter;
+    every column has unit total variance, so the criterion is the classes' separation
+    measured against the noise and pose spread, and its optimum does not depend on a head's
+    weights (cross-entropy through a head that is learning at the same time is noisier)."""
+    Z = (F - F.mean(axis=0)) / (F.std(axis=0) + 1e-3)
+    counts = onehot.sum(axis=0)
+    mu = (onehot.T @ Z) / jnp.maximum(counts, 1.0)[:, None]
+    n, d = Z.shape
+    Sb = (mu.T * counts) @ mu / n
+    R = Z - onehot @ mu
+    Sw = R.T @ R / n
+    return -jnp.trace(jnp.linalg.solve(Sw + shrinkage * jnp.eye(d, dtype=Z.dtype), Sb))
+
+
+def _logits_of(P: np.ndarray, margin: float = 0.05) -> np.ndarray:
+    """Logits whose sigmoid is P with levels kept `margin` from 0 and 1 (the sigmoid's
+    gradient vanishes at the ends)."""
+    q = np.clip(np.asarray(P, np.float64), margin, 1 - margin)
+    return np.log(q / (1 - q)).astype(np.float32)
 
 
 class LearnedIlluminationClassifier:
-    """LED levels and a classifier over the k images, learned end to end (module docstring).
+    """LED levels and a linear classifier over the k images (module docstring).
 
-    Parameters: n_images (k exposures = k images), binary (on/off levels by
-    straight-through), n_hidden (0: a linear softmax head), batch_size, max_steps,
-    eval_every / patience (early stopping, in evaluations), lr_patterns / lr_head,
-    weight_decay (L2 on the head's weights), val_fraction (training poses held out for
-    early stopping), head_renders (noise draws of the frozen-feature head refit), noise,
-    dimmer, hog_config (the image size) when fitting a ModelSet, seed.
+    Parameters
+    - n_images: k exposures = k images; binary: on/off levels (straight-through).
+    - starts: built-in start patterns, among 'per_colour' (`per_colour_start`) and
+      'snr_optimal' (the SNR-optimal baseline's first k / 4 site columns, expanded to LEDs
+      by `expand_site_patterns`; skipped unless 4 divides k); start_patterns: more starts,
+      {name: (32, k) LED levels} (e.g. greedy's columns expanded).
+    - fine_tune: 'best' (fine-tune the start the inner splits score best), 'all', 'none'.
+    - objective: 'fisher' (`fisher_loss`, no head during training) or 'cross_entropy'
+      (a head of n_hidden units, lr_head, weight_decay, trained together with the light).
+    - max_steps, eval_every (a snapshot of the levels every so many steps), batch_size,
+      lr_patterns (Adam on the logits), fisher_shrinkage.
+    - n_repeats, test_fraction: the inner pose splits that score every start and snapshot
+      (`evaluation.CandidateEvaluator` in the joint mode: greedy's split scoring, its noise
+      streams and its squared-hinge scorer), final_C: the linear SVM head's C.
+    - noise, dimmer, hog_config (the image size) when fitting a ModelSet; seed; progress.
 
-    After fit: patterns_ (32, k) site-major levels, model_ (a numpy `LearnedModel`),
-    classifiers_ {k: model_}, best_n_patterns_ = k, accuracy_by_images_ {k: accuracy on
-    the early-stopping poses}, history_, train_seconds_.
+    After fit: patterns_ (32, k) site-major levels, model_ (a numpy `LearnedModel`: the
+    linear SVM as one layer), classifiers_ {k: model_}, best_n_patterns_ = k,
+    accuracy_by_images_ {k: the chosen candidate's inner split accuracy},
+    candidate_scores_ {name: inner split accuracy}, chosen_ (its name), best_step_ (0: a
+    start was kept), history_, train_seconds_.
     """
 
     method_name = 'learned'
     mode = 'joint'
     images_per_pattern = 1
 
-    def __init__(self, n_images=4, binary=False, n_hidden=0, batch_size=24, max_steps=150,
-                 eval_every=10, patience=6, lr_patterns=0.1, lr_head=0.01, weight_decay=1e-3,
-                 val_fraction=0.25, head_renders=8, head_steps=400, noise='sigma3',
-                 dimmer=None, hog_config=None, seed=0, progress=False):
+    def __init__(self, n_images=4, binary=False, starts=('per_colour', 'snr_optimal'),
+                 start_patterns=None, fine_tune='best', objective='fisher', max_steps=60,
+                 eval_every=20, batch_size=32, lr_patterns=0.05, fisher_shrinkage=1.0,
+                 n_hidden=0, lr_head=0.01, weight_decay=1e-3, n_repeats=400,
+                 test_fraction=0.25, final_C=1.0, noise='sigma3', dimmer=None,
+                 hog_config=None, seed=0, progress=False):
         self.n_images = n_images
         self.binary = binary
-        self.n_hidden = n_hidden
-        self.batch_size = batch_size
+        self.starts = starts
+        self.start_patterns = start_patterns
+        self.fine_tune = fine_tune
+        self.objective = objective
         self.max_steps = max_steps
         self.eval_every = eval_every
-        self.patience = patience
+        self.batch_size = batch_size
         self.lr_patterns = lr_patterns
+        self.fisher_shrinkage = fisher_shrinkage
+        self.n_hidden = n_hidden
         self.lr_head = lr_head
         self.weight_decay = weight_decay
-        self.val_fraction = val_fraction
-        self.head_renders = head_renders
-        self.head_steps = head_steps
+        self.n_repeats = n_repeats
+        self.test_fraction = test_fraction
+        self.final_C = final_C
         self.noise = noise
         self.dimmer = dimmer
         self.hog_config = hog_config
@@ -244,164 +296,168 @@ class LearnedIlluminationClassifier:
     def _check(self):
         if int(self.n_images) < 1:
             raise ValueError(f'n_images must be >= 1, got {self.n_images}')
-        for name in ('batch_size', 'max_steps', 'eval_every', 'patience', 'head_renders'):
+        for name in ('batch_size', 'eval_every', 'n_repeats'):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f'{name} must be >= 1, got {getattr(self, name)}')
-        if not 0 < float(self.val_fraction) < 1:
-            raise ValueError(f'val_fraction must lie in (0, 1), got {self.val_fraction}')
+        if int(self.max_steps) < 0:
+            raise ValueError(f'max_steps must be >= 0, got {self.max_steps}')
+        if self.fine_tune not in ('best', 'all', 'none'):
+            raise ValueError(f"fine_tune must be 'best', 'all' or 'none', got {self.fine_tune!r}")
+        if self.objective not in ('fisher', 'cross_entropy'):
+            raise ValueError(f"objective must be 'fisher' or 'cross_entropy', got {self.objective!r}")
+        unknown = set(self.starts) - {'per_colour', 'snr_optimal'}
+        if unknown:
+            raise ValueError(f'unknown starts {sorted(unknown)}; use per_colour, snr_optimal')
 
     def _data(self, X) -> SearchData:
         if isinstance(X, SearchData):
-            return X
-        kwargs = {} if self.dimmer is None else {'dimmer': self.dimmer}
-        return search_data(X, self.noise, hog_config=self.hog_config,
-                           features='intensity_stats', **kwargs)
+            data = X
+        else:
+            kwargs = {} if self.dimmer is None else {'dimmer': self.dimmer}
+            data = search_data(X, self.noise, hog_config=self.hog_config,
+                               features='intensity_stats', **kwargs)
+        # the inner splits and the head score what the model classifies with
+        return data if data.features == 'intensity_stats' else replace(data, features='intensity_stats')
+
+    def _start_candidates(self, data: SearchData, k: int, rng) -> dict:
+        L = data.n_sites * data.n_channels
+        out = {}
+        if 'per_colour' in self.starts:
+            out['per_colour'] = per_colour_start(data.n_sites, data.n_channels, k, rng)
+        if 'snr_optimal' in self.starts and k % data.n_channels == 0:
+            snr = SnrOptimalClassifier(n_images=k // data.n_channels, seed=int(self.seed))
+            out['snr_optimal'] = expand_site_patterns(snr._patterns_for(data), data.n_channels)
+        for name, P in dict(self.start_patterns or {}).items():
+            P = np.asarray(P, np.float32)
+            if P.shape != (L, k) or P.min() < 0 or P.max() > 1:
+                raise ValueError(f'start pattern {name!r} must be ({L}, {k}) LED levels in '
+                                 f'[0, 1], got shape {P.shape}')
+            out[str(name)] = P
+        if self.binary:
+            out = {name: (P >= 0.5).astype(np.float32) for name, P in out.items()}
+        out = {name: P for name, P in out.items() if P.any()}
+        if not out:
+            raise ValueError('no start pattern: give starts or start_patterns')
+        return out
 
     def fit(self, X, y=None):
         """Fit on a SearchData or a ModelSet (its labels; y is ignored)."""
         self._check()
         t_start = time.perf_counter()
         data = self._data(X)
-        k, binary = int(self.n_images), bool(self.binary)
-        n_classes = len(data.class_names)
+        if np.unique(data.pose_index).size < 2:
+            raise ValueError('learned illumination needs at least 2 training poses per class '
+                             '(the inner splits hold poses out); capture more poses')
+        k = int(self.n_images)
         rng = np.random.default_rng([int(self.seed), 26])
-        key = jax.random.PRNGKey(int(self.seed))
-        fit_idx, val_idx = _val_split(data.pose_index, float(self.val_fraction), rng)
-        L = data.n_sites * data.n_channels
-        basis = jnp.asarray(data.basis.reshape(L, data.n_samples, -1))
-        labels = jnp.asarray(data.labels, jnp.int32)
-        shape, a, b, top = data.image_shape, data.noise_a, data.noise_b, data.max_level
-        wd = float(self.weight_decay)
-
-        def features_of(theta, idx, key):
-            images = render_noisy(jnp.take(basis, idx, axis=1), levels(theta, binary), key, a, b, top)
-            return stack_stats(images, shape)
-
-        def loss_fn(params, idx, key):
-            F = features_of(params['theta'], idx, key)
-            # z-scored by the batch's own statistics, not differentiated (no collapse of scale)
-            mean = jax.lax.stop_gradient(F.mean(axis=0))
-            scale = jax.lax.stop_gradient(F.std(axis=0) + 1e-3)
-            logits = forward_features(params['head'], mean, scale, F)
-            l2 = sum(jnp.sum(W * W) for W, _ in params['head'])
-            return _cross_entropy(logits, labels[idx]) + wd * l2, (mean, scale)
-
-        params = {'theta': jnp.asarray(initial_logits(data.n_sites, data.n_channels, k, rng)),
-                  'head': _init_head(rng, k * N_STATS, int(self.n_hidden), n_classes)}
-        lr = {'theta': jnp.float32(self.lr_patterns),
-              'head': jax.tree_util.tree_map(lambda _: jnp.float32(self.lr_head), params['head'])}
-
-        @jax.jit
-        def step(params, opt, idx, key, ema):
-            (loss, (mean, scale)), grads = jax.value_and_grad(loss_fn, has_aux=True)(params, idx, key)
-            params, opt = _adam_update(params, grads, opt, lr)
-            ema = (0.9 * ema[0] + 0.1 * mean, 0.9 * ema[1] + 0.1 * scale)
-            return params, opt, loss, ema
-
-        @jax.jit
-        def evaluate(params, idx, key, ema):
-            F = features_of(params['theta'], idx, key)
-            logits = forward_features(params['head'], ema[0], ema[1], F)
-            return _cross_entropy(logits, labels[idx]), jnp.mean(jnp.argmax(logits, 1) == labels[idx])
-
-        opt = _adam_init(params)
-        # the first batch's statistics start the running ones
-        _, (m0, s0) = loss_fn(params, jnp.asarray(fit_idx[:min(len(fit_idx), 64)]), key)
-        ema = (m0, s0)
-        val_keys = [jax.random.fold_in(jax.random.PRNGKey(int(self.seed) + 1), r) for r in range(2)]
-        val_j = jnp.asarray(val_idx)
-        best = (-1.0, np.inf)
-        best_state, best_step, bad_evals = None, 0, 0
+        ev = CandidateEvaluator(data, mode='joint', n_repeats=int(self.n_repeats),
+                                test_fraction=float(self.test_fraction), seed=int(self.seed),
+                                n_jobs=1)
         history = []
-        B = min(int(self.batch_size), len(fit_idx))
-        for it in range(1, int(self.max_steps) + 1):
-            idx = jnp.asarray(rng.choice(fit_idx, B, replace=False))
-            key, sub = jax.random.split(key)
-            params, opt, loss, ema = step(params, opt, idx, sub, ema)
-            if it % int(self.eval_every) and it != int(self.max_steps):
-                continue
-            res = [evaluate(params, val_j, vk, ema) for vk in val_keys]
-            v_loss = float(np.mean([float(r[0]) for r in res]))
-            v_acc = float(np.mean([float(r[1]) for r in res]))
-            history.append({'step': it, 'train_loss': float(loss), 'val_loss': v_loss,
-                            'val_accuracy': v_acc})
-            if self.progress:
-                print(f'[learned k={k}{" binary" if binary else ""}] step {it}: loss '
-                      f'{float(loss):.3f}, held-out poses {v_acc:.3f} ({v_loss:.3f})', flush=True)
-            if (v_acc, -v_loss) > (best[0], -best[1]):
-                best = (v_acc, v_loss)
-                best_state, best_step, bad_evals = jax.tree_util.tree_map(np.asarray, params), it, 0
-            else:
-                bad_evals += 1
-                if bad_evals >= int(self.patience):
-                    break
-        theta = jnp.asarray(best_state['theta'])
-        patterns = np.asarray(levels(theta, binary), np.float32)
-        self._refit_head(data, basis, patterns, best_state['head'], fit_idx, val_idx, key)
+        with Parallel(n_jobs=1) as parallel:
+            def inner(P):
+                ctx = ev.prepare_column(P[:, :k - 1] if k > 1 else None)
+                return float(ev.score(ctx, P[:, k - 1:], parallel).mean())
+
+            candidates = self._start_candidates(data, k, rng)
+            scores = {name: inner(P) for name, P in candidates.items()}
+            steps = dict.fromkeys(candidates, 0)
+            self._say(k, 'starts', scores)
+            if self.fine_tune != 'none' and int(self.max_steps) > 0:
+                tuned = (list(candidates) if self.fine_tune == 'all'
+                         else [max(scores, key=scores.get)])
+                for name in tuned:
+                    for step, P, loss in self._descend(data, candidates[name], rng):
+                        tag = f'{name}+{step}'
+                        candidates[tag], steps[tag], scores[tag] = P, step, inner(P)
+                        history.append({'start': name, 'step': step, 'loss': loss,
+                                        'inner_accuracy': scores[tag]})
+                        self._say(k, tag, {tag: scores[tag]}, loss)
+            # the best inner score; a tie keeps the earlier candidate (a start before its tuning)
+            chosen = max(scores, key=scores.get)
+            patterns = candidates[chosen]
+            self.model_ = self._svm_head(data, ev, patterns)
         self.patterns_ = patterns
         self.class_names_ = list(data.class_names)
         self.classifiers_ = {k: self.model_}
         self.best_n_patterns_ = k
-        self.accuracy_by_images_ = {k: float(best[0])}
-        self.best_step_ = int(best_step)
+        self.accuracy_by_images_ = {k: scores[chosen]}
+        self.candidate_scores_ = scores
+        self.chosen_ = chosen
+        self.best_step_ = int(steps[chosen])
         self.history_ = history
         self.train_seconds_ = time.perf_counter() - t_start
         return self
 
-    def _refit_head(self, data, basis, patterns, head, fit_idx, val_idx, key):
-        """Freeze the standardisation at the final patterns' training features (several
-        noise draws), fit the head on the early-stopping split to choose the step count,
-        then refit it on every training pose for that many steps."""
+    def _say(self, k, what, scores, loss=None):
+        if self.progress:
+            text = ', '.join(f'{n} {s:.3f}' for n, s in scores.items())
+            extra = '' if loss is None else f' (loss {loss:.3f})'
+            print(f'[learned k={k}{" binary" if self.binary else ""}] {what}: inner {text}{extra}',
+                  flush=True)
+
+    def _descend(self, data: SearchData, P0: np.ndarray, rng):
+        """Gradient steps on the LED logits from P0 on every training sample (fresh noise and
+        a fresh batch each step); yields (step, levels, loss) every eval_every steps."""
+        k, binary = int(self.n_images), bool(self.binary)
+        L = data.n_sites * data.n_channels
+        basis = jnp.asarray(data.basis.reshape(L, data.n_samples, -1))
+        labels = jnp.asarray(data.labels, jnp.int32)
+        onehot = jax.nn.one_hot(labels, len(data.class_names), dtype=jnp.float32)
         shape, a, b, top = data.image_shape, data.noise_a, data.noise_b, data.max_level
-        P = jnp.asarray(patterns)
+        wd, shrink = float(self.weight_decay), float(self.fisher_shrinkage)
+        fisher = self.objective == 'fisher'
+
+        def loss_fn(params, idx, key):
+            images = render_noisy(jnp.take(basis, idx, axis=1), levels(params['theta'], binary),
+                                  key, a, b, top)
+            F = stack_stats(images, shape)
+            if fisher:
+                return fisher_loss(F, onehot[idx], shrink)
+            # z-scored by the batch's own statistics, not differentiated (no collapse of scale)
+            mean = jax.lax.stop_gradient(F.mean(axis=0))
+            scale = jax.lax.stop_gradient(F.std(axis=0) + 1e-3)
+            l2 = sum(jnp.sum(W * W) for W, _ in params['head'])
+            return _cross_entropy(forward_features(params['head'], mean, scale, F),
+                                  labels[idx]) + wd * l2
+
+        params = {'theta': jnp.asarray(_logits_of(P0)), 'head': []}
+        if not fisher:
+            params['head'] = _init_head(rng, k * N_STATS, int(self.n_hidden), len(data.class_names))
+        lr = {'theta': jnp.float32(self.lr_patterns),
+              'head': jax.tree_util.tree_map(lambda _: jnp.float32(self.lr_head), params['head'])}
 
         @jax.jit
-        def feats(idx, key):
-            return stack_stats(render_noisy(jnp.take(basis, idx, axis=1), P, key, a, b, top), shape)
+        def step(params, opt, idx, key):
+            loss, grads = jax.value_and_grad(loss_fn)(params, idx, key)
+            params, opt = _adam_update(params, grads, opt, lr)
+            return params, opt, loss
 
-        R = int(self.head_renders)
-        keys = jax.random.split(jax.random.fold_in(key, 7), R)
-        every = np.arange(data.n_samples)
-        chunks = np.array_split(every, max(1, data.n_samples // 64))
-        F = np.stack([np.concatenate([np.asarray(feats(jnp.asarray(c), kk)) for c in chunks])
-                      for kk in keys])  # (R, n, features)
-        y = np.asarray(data.labels)
-        mean = F[:, fit_idx].reshape(-1, F.shape[2]).mean(axis=0)
-        scale = F[:, fit_idx].reshape(-1, F.shape[2]).std(axis=0) + 1e-3
-        wd = float(self.weight_decay)
+        opt = _adam_init(params)
+        key = jax.random.PRNGKey(int(self.seed))
+        B = min(int(self.batch_size), data.n_samples)
+        for it in range(1, int(self.max_steps) + 1):
+            key, sub = jax.random.split(key)
+            params, opt, loss = step(params, opt, jnp.asarray(rng.choice(data.n_samples, B, replace=False)), sub)
+            if it % int(self.eval_every) == 0 or it == int(self.max_steps):
+                yield it, np.asarray(levels(params['theta'], binary), np.float32), float(loss)
 
-        def loss_fn(layers, X, yy):
-            l2 = sum(jnp.sum(W * W) for W, _ in layers)
-            return _cross_entropy(forward_features(layers, mean, scale, X), yy) + wd * l2
-
-        @jax.jit
-        def step(layers, opt, X, yy):
-            g = jax.grad(loss_fn)(layers, X, yy)
-            return _adam_update(layers, g, opt, jax.tree_util.tree_map(
-                lambda _: jnp.float32(self.lr_head), layers))
-
-        def fit(idx, n_steps, val=None):
-            X = jnp.asarray(F[:, idx].reshape(-1, F.shape[2]))
-            yy = jnp.asarray(np.tile(y[idx], R))
-            layers = jax.tree_util.tree_map(jnp.asarray, head)
-            opt = _adam_init(layers)
-            best_acc, best_at = -1.0, 0
-            for it in range(1, n_steps + 1):
-                layers, opt = step(layers, opt, X, yy)
-                if val is not None and it % 10 == 0:
-                    Xv = F[:, val].reshape(-1, F.shape[2])
-                    acc = float(np.mean(np.argmax(np.asarray(forward_features(
-                        layers, mean, scale, Xv)), 1) == np.tile(y[val], R)))
-                    if acc > best_acc:
-                        best_acc, best_at = acc, it
-            return layers, best_at
-
-        _, n_steps = fit(fit_idx, int(self.head_steps), val=val_idx)
-        layers, _ = fit(every, max(n_steps, 10))
-        self.model_ = LearnedModel(patterns, mean, scale,
-                                   [(np.asarray(W), np.asarray(bb)) for W, bb in layers],
-                                   list(data.class_names))
-        self.head_steps_ = int(n_steps)
+    def _svm_head(self, data: SearchData, ev, patterns) -> LearnedModel:
+        """The final classifier as greedy's: a linear SVM (`MuxClassifier`, intensity
+        statistics z-scored over the training samples) on the training samples rendered
+        under the patterns with the inner splits' noise; stored as one linear layer on the
+        raw statistics."""
+        clf = MuxClassifier(estimator='linear_svm', C=float(self.final_C),
+                            hog_config=data.hog_config, random_state=int(self.seed),
+                            features='intensity_stats').fit_features(ev.features(patterns),
+                                                                     data.labels)
+        n_classes, n_in = len(data.class_names), clf.coef_.shape[1]
+        W = np.zeros((n_in, n_classes), np.float64)
+        b = np.full(n_classes, np.finfo(np.float32).min / 2)  # no training samples: never wins
+        W[:, clf.classes_] = clf.coef_.T
+        b[clf.classes_] = clf.intercept_
+        return LearnedModel(patterns, np.zeros(n_in), np.ones(n_in), [(W, b)],
+                            list(data.class_names))
 
     # --- prediction ----------------------------------------------------------------------
     def predict_images(self, images: np.ndarray) -> np.ndarray:

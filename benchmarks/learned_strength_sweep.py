@@ -1,0 +1,90 @@
+"""Held-out accuracy against cue strength: learned vs greedy vs SNR-optimal (issue 26's plot).
+
+For each strength S it makes (once; kept for reuse) the capture `lightstage synth
+OUT/weakS --placement free --types coin,note,seal --samples N --poses P --strength S`, then
+for each split seed runs `learned_vs_greedy.run_capture` (the same held-out split, test
+noise and n_renders for every method) and prints a table of held-out accuracy at 4 and 8
+exposures, means over seeds; writes the figures as JSON and the plot as PNG.
+
+    PYTHONPATH=src/lightstage_physics:src/mux_classifier:src/mux_trainer \\
+        .venv/bin/python benchmarks/learned_strength_sweep.py /work/data/sweep \\
+        --strengths 0.05,0.1,0.2,0.3,0.5 --seeds 0,1 --png sweep.png
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from learned_vs_greedy import add_method_arguments, run_capture  # noqa: E402
+
+METHODS = ('greedy', 'snr_optimal', 'learned')
+
+
+def make_capture(path, strength, args):
+    if os.path.exists(os.path.join(path, 'rig.yaml')):
+        return
+    cmd = [os.path.join(os.path.dirname(sys.executable), 'lightstage'), 'synth', path,
+           '--placement', 'free', '--types', args.types, '--samples', str(args.samples),
+           '--poses', str(args.poses), '--strength', str(strength), '--jobs', '1', '--quiet']
+    subprocess.run(cmd, check=True)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    p.add_argument('out', help='folder for the captures (one per strength)')
+    p.add_argument('--strengths', default='0.05,0.1,0.2,0.3,0.5')
+    p.add_argument('--seeds', default='0,1')
+    p.add_argument('--types', default='coin,note,seal')
+    p.add_argument('--samples', type=int, default=10)
+    p.add_argument('--poses', type=int, default=6)
+    p.add_argument('--json')
+    p.add_argument('--png')
+    add_method_arguments(p, default_methods=','.join(METHODS))
+    args = p.parse_args(argv)
+    args.methods = args.methods.split(',')
+    args.learned_starts = args.learned_starts.split(',')
+    strengths = [float(s) for s in args.strengths.split(',')]
+    seeds = [int(s) for s in args.seeds.split(',')]
+    results = {}
+    for S in strengths:
+        path = os.path.join(args.out, f'weak{S:g}')
+        make_capture(path, S, args)
+        for seed in seeds:
+            args.seed = seed
+            results[f'{S:g}/{seed}'] = run_capture(path, args)
+            if args.json:  # after every run: a long sweep keeps what it measured
+                with open(args.json, 'w') as f:
+                    json.dump({'args': vars(args), 'results': results}, f, indent=1)
+    methods = [m for m in args.methods if m in METHODS or m.startswith('learned')]
+    mean = {(S, m, e): float(np.mean([results[f'{S:g}/{s}'][m][e] for s in seeds]))
+            for S in strengths for m in methods for e in ('4', '8')}
+    print('\nheld-out accuracy, mean over seeds ' + ','.join(map(str, seeds)) + ' (4 / 8 exposures)')
+    print('strength  ' + '  '.join(f'{m:>15s}' for m in methods))
+    for S in strengths:
+        print(f'{S:8g}  ' + '  '.join(f'{mean[S, m, "4"]:6.3f} / {mean[S, m, "8"]:5.3f}'
+                                      for m in methods))
+    if args.png:
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+        fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+        for ax, e in zip(axes, ('4', '8')):
+            for m in methods:
+                ax.plot(strengths, [100 * mean[S, m, e] for S in strengths], 'o-', label=m)
+            ax.axhline(95, color='gray', lw=0.5, ls='--')
+            ax.set_xlabel('cue strength (lightstage synth --strength)')
+            ax.set_title(f'{e} exposures, held-out poses, mean of {len(seeds)} splits')
+        axes[0].set_ylabel('held-out accuracy (%)')
+        axes[0].legend()
+        fig.tight_layout()
+        fig.savefig(args.png, dpi=100)
+
+
+if __name__ == '__main__':
+    main()
