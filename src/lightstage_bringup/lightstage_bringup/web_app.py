@@ -47,6 +47,11 @@ class Bridge(Protocol):
     async def cancel_job(self) -> bool: ...
 
 
+# typed application keys (aiohttp's AppKey: no NotAppKeyWarning, and the values' types are known)
+ALLOWED_HOSTS = web.AppKey('allowed_hosts', object)
+WEBSOCKETS = web.AppKey('websockets', set)
+
+
 def _error(status: int, reason: str) -> web.Response:
     return web.json_response({'error': reason}, status=status)
 
@@ -56,7 +61,7 @@ async def api_errors(request: web.Request, handler):
     """Every failure of an /api request as JSON with its reason; nothing escapes as a crash."""
     host = request.host.rsplit(':', 1)[0] if not request.host.startswith('[') else \
         request.host.split(']')[0] + ']'
-    allowed = request.app['allowed_hosts']
+    allowed = request.app[ALLOWED_HOSTS]
     if allowed is not None and host not in allowed:
         return _error(403, f'Host {request.host!r} is not this server ({", ".join(allowed)}): '
                            'open the page at http://127.0.0.1:PORT/')
@@ -95,8 +100,8 @@ def make_app(state: PageState, bridge: Bridge, allowed_hosts=LOOPBACK_HOSTS) -> 
     """`allowed_hosts`: the names the Host header may give (None: any, for a server bound
     to another interface on purpose)."""
     app = web.Application(middlewares=[api_errors], client_max_size=64 * 1024)
-    app['allowed_hosts'] = None if allowed_hosts is None else tuple(allowed_hosts)
-    app['websockets'] = set()
+    app[ALLOWED_HOSTS] = None if allowed_hosts is None else tuple(allowed_hosts)
+    app[WEBSOCKETS] = set()
 
     async def index(_request):
         return web.FileResponse(STATIC_DIR / 'index.html')
@@ -143,12 +148,12 @@ def make_app(state: PageState, bridge: Bridge, allowed_hosts=LOOPBACK_HOSTS) -> 
         await ws.prepare(request)
         try:
             await ws.send_str(json.dumps(state.snapshot()))   # all of it, then the changes
-            app['websockets'].add(ws)
+            app[WEBSOCKETS].add(ws)
             async for msg in ws:  # the page sends nothing; this waits for it to go
                 if msg.type == WSMsgType.ERROR:
                     break
         finally:
-            app['websockets'].discard(ws)
+            app[WEBSOCKETS].discard(ws)
         return ws
 
     api = {'/api/state': ('GET', get_state), '/api/events': ('GET', events),
@@ -177,22 +182,22 @@ def make_app(state: PageState, bridge: Bridge, allowed_hosts=LOOPBACK_HOSTS) -> 
         while True:
             await changed.wait()
             changed.clear()
-            if state.version != sent and app['websockets']:
+            if state.version != sent and app[WEBSOCKETS]:
                 snap = state.snapshot(history_since=sent_history)   # each page got the last one
                 sent, sent_history = snap['version'], snap['history_version']
                 text = json.dumps(snap)
-                for ws in list(app['websockets']):
+                for ws in list(app[WEBSOCKETS]):
                     try:
                         await ws.send_str(text)
                     except (ConnectionError, RuntimeError):
-                        app['websockets'].discard(ws)
+                        app[WEBSOCKETS].discard(ws)
             await asyncio.sleep(PUSH_PERIOD_S)
 
     async def pusher(app_):
         task = asyncio.create_task(push(app_))
         yield
         task.cancel()
-        for ws in list(app['websockets']):
+        for ws in list(app[WEBSOCKETS]):
             await ws.close()
 
     app.cleanup_ctx.append(pusher)
