@@ -39,8 +39,11 @@ RECORDED = ['/illumination', '/camera/image_raw', '/lightstage/result',
 def _train(capture: Path, artifact: Path) -> None:
     from lightstage_physics.capture_format import load_capture
     from mux_trainer.greedy import GreedyPatternSelector
+    from mux_trainer.search_params import Execution, Rendering, SplitScoring
     modelset = load_capture(capture, downscale_to=120)
-    model = GreedyPatternSelector(n_patterns=2, n_repeats=40, noise='sigma3', seed=0, n_jobs=2)
+    model = GreedyPatternSelector(n_patterns=2, scoring=SplitScoring(n_repeats=40),
+                                  rendering=Rendering(noise='sigma3'), seed=0,
+                                  execution=Execution(n_jobs=2))
     model.fit(modelset)
     model.to_artifact(provenance={'made_by': 'bags/record_sim_session.py'}).save(artifact)
 

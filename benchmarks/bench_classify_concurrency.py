@@ -35,10 +35,12 @@ def _artifact(folder: Path) -> tuple[Path, Path]:
     from lightstage_physics import synth
     from lightstage_physics.capture_format import load_capture
     from mux_trainer.baselines import NaiveClassifier
+    from mux_trainer.search_params import Rendering, SplitScoring
     capture = synth.generate(folder / 'capture', image_size=120, n_samples_per_class=2,
                              n_poses=3, object_types=('banana', 'orange'), n_jobs=1)
     path = folder / 'naive.npz'
-    NaiveClassifier(noise='sigma3', n_repeats=10, seed=0).fit(
+    NaiveClassifier(scoring=SplitScoring(n_repeats=10), rendering=Rendering(noise='sigma3'),
+                    seed=0).fit(
         load_capture(capture, downscale_to=120)).to_artifact().save(path)
     return capture, path
 

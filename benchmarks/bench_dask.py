@@ -39,6 +39,7 @@ from lightstage_physics.capture_format import load_capture  # noqa: E402
 from mux_trainer.cluster import dask_cluster, shared_bytes  # noqa: E402
 from mux_trainer.data import search_data  # noqa: E402
 from mux_trainer.greedy import GreedyPatternSelector  # noqa: E402
+from mux_trainer.search_params import Execution, SplitScoring  # noqa: E402
 
 DASK = [sys.executable, '-m', 'dask']
 MB = 1e6
@@ -73,8 +74,9 @@ def start_cluster(folder: Path, n_workers: int = 2):
 
 def search(data, args, n_jobs):
     t0 = time.perf_counter()
-    sel = GreedyPatternSelector(n_patterns=args.columns, n_repeats=args.repeats, seed=args.seed,
-                                n_jobs=n_jobs, progress=True).fit(data)
+    sel = GreedyPatternSelector(n_patterns=args.columns,
+                                scoring=SplitScoring(n_repeats=args.repeats), seed=args.seed,
+                                execution=Execution(n_jobs=n_jobs, progress=True)).fit(data)
     return time.perf_counter() - t0, sel
 
 

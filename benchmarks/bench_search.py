@@ -54,6 +54,7 @@ from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk  # 
 from mux_trainer.greedy import REFINE_TOP, GreedyPatternSelector  # noqa: E402
 from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
 from mux_trainer.reference import reference_candidate_scores  # noqa: E402
+from mux_trainer.search_params import Execution, SplitScoring  # noqa: E402
 from mux_trainer.rendering import SearchData, add_noise, clean_site_images  # noqa: E402
 
 PAPER_SPLITS = 400
@@ -240,8 +241,9 @@ def main(argv=None) -> int:
         print(f'\n[2] full default search: per-colour, 8 columns x 254 candidates x '
               f'{PAPER_SPLITS} splits, {args.jobs} worker(s)', flush=True)
         t0 = time.perf_counter()
-        sel = GreedyPatternSelector(n_patterns=8, n_repeats=PAPER_SPLITS, seed=args.seed,
-                                    n_jobs=args.jobs, progress=True).fit(data)
+        sel = GreedyPatternSelector(n_patterns=8, scoring=SplitScoring(n_repeats=PAPER_SPLITS),
+                                    seed=args.seed,
+                                    execution=Execution(n_jobs=args.jobs, progress=True)).fit(data)
         wall = time.perf_counter() - t0
         screen = sum(h['screen_seconds'] for h in sel.history_)
         refine = sum(h['refine_seconds'] for h in sel.history_)
@@ -272,8 +274,10 @@ def main(argv=None) -> int:
               f'{args.seed}; optimized = the default search (ridge screen, exact SVM race from '
               f'its top {REFINE_TOP}), reference = skimage HOG and one LinearSVC per split for '
               f'every candidate', flush=True)
-        fast = GreedyPatternSelector(n_patterns=args.check_columns, n_repeats=args.check_splits,
-                                     seed=args.seed, n_jobs=args.jobs).fit(small)
+        fast = GreedyPatternSelector(n_patterns=args.check_columns,
+                                     scoring=SplitScoring(n_repeats=args.check_splits),
+                                     seed=args.seed,
+                                     execution=Execution(n_jobs=args.jobs)).fit(small)
         cols = np.zeros((args.check_sites, 0), np.float32)
         ref_cols = []
         t0 = time.perf_counter()

@@ -28,6 +28,7 @@ from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
 from mux_trainer.data import search_data  # noqa: E402
 from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk  # noqa: E402
 from mux_trainer.greedy import GreedyPatternSelector  # noqa: E402
+from mux_trainer.search_params import Execution  # noqa: E402
 from mux_trainer.rendering import compile_kernels  # noqa: E402
 
 
@@ -82,7 +83,8 @@ def main(argv=None) -> int:
               'one extractor after the other')
         for name in names:
             t0 = time.perf_counter()
-            model = GreedyPatternSelector(n_patterns=8, n_jobs=args.jobs, seed=0).fit(
+            model = GreedyPatternSelector(n_patterns=8, execution=Execution(n_jobs=args.jobs),
+                                          seed=0).fit(
                 replace(base, features=name))
             wall = time.perf_counter() - t0
             acc = ', '.join(f'{100 * model.accuracy_by_images_[k]:.1f}'

@@ -36,6 +36,7 @@ from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import holdout_split, method_summary, test_images
 from mux_trainer.learned import (LearnedIlluminationClassifier, evaluate_learned_heldout,
                                  expand_site_patterns)
+from mux_trainer.search_params import SplitScoring
 
 
 def classify_ms(model, test, seed, repeats=20) -> float:
@@ -60,7 +61,7 @@ def run_capture(path, args) -> dict:
     print(f'{path}: {train.n_samples} training, {test.n_samples} held-out samples, '
           f'{len(data.class_names)} classes, held out by {args.holdout_by}', flush=True)
     out = {}
-    common = dict(seed=args.seed, n_jobs=1, n_repeats=args.n_repeats)
+    common = dict(seed=args.seed, scoring=SplitScoring(n_repeats=args.n_repeats))
     for name, make in (('greedy', lambda: GreedyPatternSelector(mode='per_colour', n_patterns=2,
                                                                  **common)),
                        ('snr_optimal', lambda: SnrOptimalClassifier(n_images=2, **common))):

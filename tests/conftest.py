@@ -192,10 +192,13 @@ def stage_intensity_artifact_path(stage_capture, tmp_path_factory):
 def _train_stage_artifact(stage_capture, tmp_path_factory, features):
     from lightstage_physics.capture_format import load_capture
     from mux_trainer.baselines import FixedPatternClassifier
+    from mux_trainer.search_params import Rendering, SplitScoring
     from helpers.suite import TRAIN_SITE_PATTERNS
     modelset = load_capture(stage_capture, downscale_to=120)
-    model = FixedPatternClassifier(patterns=TRAIN_SITE_PATTERNS, n_repeats=10, noise='sigma3',
-                                   seed=0, features=features).fit(modelset)
+    model = FixedPatternClassifier(patterns=TRAIN_SITE_PATTERNS, seed=0,
+                                   scoring=SplitScoring(n_repeats=10),
+                                   rendering=Rendering(noise='sigma3', features=features)
+                                   ).fit(modelset)
     path = tmp_path_factory.mktemp('artifact') / f'classifier_{features}.npz'
     model.to_artifact().save(path)
     return path

@@ -3,11 +3,13 @@ import pytest
 
 from mux_trainer.baselines import FixedPatternClassifier, NaiveClassifier, SnrOptimalClassifier
 from mux_trainer.evaluation import CandidateEvaluator
+from mux_trainer.search_params import Rendering, SplitScoring
 from mux_trainer.snr_optimal import SnrOptimalMultiplexer, s_matrix_for_sites
 
 
 def test_snr_optimal_uses_the_multiplexer_matrix_and_scores_each_prefix(tiny_data):
-    model = SnrOptimalClassifier(n_iter=500, n_repeats=8, seed=2).fit(tiny_data)
+    model = SnrOptimalClassifier(n_iter=500, seed=2,
+                                 scoring=SplitScoring(n_repeats=8)).fit(tiny_data)
     ref = SnrOptimalMultiplexer(n_sites=8, noise=(tiny_data.noise_a, tiny_data.noise_b),
                                 n_iter=500, seed=2).fit(float(tiny_data.basis.mean(dtype=np.float64)))
     np.testing.assert_array_equal(model.patterns_, ref.W_)
@@ -24,13 +26,13 @@ def test_snr_optimal_uses_the_multiplexer_matrix_and_scores_each_prefix(tiny_dat
 def test_snr_optimal_without_noise_falls_back_to_the_s_matrix():
     from helpers.trainer import make_search_data
     quiet = make_search_data(noise_a=0.0, noise_b=0.0)
-    model = SnrOptimalClassifier(n_images=3, n_repeats=4).fit(quiet)
+    model = SnrOptimalClassifier(n_images=3, scoring=SplitScoring(n_repeats=4)).fit(quiet)
     np.testing.assert_array_equal(model.patterns_, s_matrix_for_sites(8)[:, :3])
     assert model.multiplexer_ is None
 
 
 def test_naive_is_one_image_with_every_led_on(tiny_data):
-    model = NaiveClassifier(n_repeats=6).fit(tiny_data)
+    model = NaiveClassifier(scoring=SplitScoring(n_repeats=6)).fit(tiny_data)
     assert model.patterns_.shape == (32, 1) and model.patterns_.min() == 1
     assert list(model.accuracy_by_images_) == [1]
     art = model.to_artifact()
@@ -45,7 +47,8 @@ def test_fixed_patterns_shape_is_checked(tiny_data):
 def test_the_artifact_records_the_dimmer_the_training_rendered_with():
     from helpers.trainer import TINY_HOG, make_modelset
     ms = make_modelset(n_poses=8)
-    model = NaiveClassifier(n_repeats=4, dimmer=0.3, hog_config=TINY_HOG).fit(ms)
+    model = NaiveClassifier(scoring=SplitScoring(n_repeats=4),
+                            rendering=Rendering(dimmer=0.3, hog_config=TINY_HOG)).fit(ms)
     basis = model.evaluator_.data.basis  # (sites, channels, samples, pixels), dimmer applied
     np.testing.assert_allclose(basis[2, 1, 5], 0.3 * ms.models[5, 1, 2].ravel(), rtol=1e-6)
     art = model.to_artifact()

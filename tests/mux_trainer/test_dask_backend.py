@@ -7,6 +7,7 @@ distributed = pytest.importorskip('distributed')
 from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
 from mux_trainer.evaluation import CandidateEvaluator  # noqa: E402
 from mux_trainer.greedy import GreedyPatternSelector  # noqa: E402
+from mux_trainer.search_params import Execution, SplitScoring  # noqa: E402
 
 
 def test_dask_backend_gives_the_same_scores_and_patterns(tiny_data):
@@ -15,7 +16,8 @@ def test_dask_backend_gives_the_same_scores_and_patterns(tiny_data):
     ev = CandidateEvaluator(tiny_data, n_repeats=8, seed=1, chunk_size=10)
     ctx = ev.prepare_column(W[:, [5]])
     local = ev.score(ctx, W)
-    local_sel = GreedyPatternSelector(n_patterns=1, n_repeats=8, seed=1).fit(tiny_data)
+    local_sel = GreedyPatternSelector(n_patterns=1, seed=1,
+                                      scoring=SplitScoring(n_repeats=8)).fit(tiny_data)
     # TCP on loopback (not the in-process transport), so tasks and data are serialised
     with distributed.LocalCluster(host='127.0.0.1', protocol='tcp', n_workers=2,
                                   threads_per_worker=1, processes=False,
@@ -25,7 +27,8 @@ def test_dask_backend_gives_the_same_scores_and_patterns(tiny_data):
         with joblib.parallel_backend('dask'), distributed.get_task_stream(client) as stream:
             ev_dask = CandidateEvaluator(tiny_data, n_repeats=8, seed=1, chunk_size=10, n_jobs=-1)
             remote = ev_dask.score(ev_dask.prepare_column(W[:, [5]]), W)
-            sel = GreedyPatternSelector(n_patterns=1, n_repeats=8, seed=1, n_jobs=-1).fit(tiny_data)
+            sel = GreedyPatternSelector(n_patterns=1, seed=1, scoring=SplitScoring(n_repeats=8),
+                                        execution=Execution(n_jobs=-1)).fit(tiny_data)
         # the candidate chunks really ran on the cluster's workers
         assert len(stream.data) >= 2
     np.testing.assert_array_equal(local, remote)

@@ -7,6 +7,7 @@ from mux_classifier.artifact import ArtifactError, TrainedArtifact
 from mux_trainer.candidate_patterns import pattern_code
 from mux_trainer.greedy import GreedyPatternSelector, could_still_win
 from mux_trainer.reference import reference_candidate_scores
+from mux_trainer.search_params import Refinement, SplitScoring
 
 
 def brute_force_greedy(data, n_columns, n_repeats, seed, classifier='linear_svm'):
@@ -31,7 +32,8 @@ def brute_force_greedy(data, n_columns, n_repeats, seed, classifier='linear_svm'
 def test_greedy_selects_the_brute_force_patterns(tiny4_data):
     """Default search (ridge screen, exact SVM on the screen's top 16, here all 14) against
     the paper's loop with one LinearSVC per split: the same columns, the same SVM scores."""
-    sel = GreedyPatternSelector(n_patterns=3, n_repeats=20, seed=11).fit(tiny4_data)
+    sel = GreedyPatternSelector(n_patterns=3, seed=11,
+                                scoring=SplitScoring(n_repeats=20)).fit(tiny4_data)
     ref_cols, ref_scores = brute_force_greedy(tiny4_data, 3, 20, 11)
     for j, record in enumerate(sel.history_):
         assert len(record['refined']) == 14
@@ -48,8 +50,8 @@ def test_greedy_selects_the_brute_force_patterns(tiny4_data):
 
 
 def test_ridge_screen_alone_selects_the_brute_force_ridge_patterns(tiny4_data):
-    sel = GreedyPatternSelector(n_patterns=3, n_repeats=20, seed=11,
-                                refine_top=0).fit(tiny4_data)
+    sel = GreedyPatternSelector(n_patterns=3, seed=11, scoring=SplitScoring(n_repeats=20),
+                                refinement=Refinement(top=0)).fit(tiny4_data)
     ref_cols, ref_scores = brute_force_greedy(tiny4_data, 3, 20, 11, classifier='ridge')
     for j, record in enumerate(sel.history_):
         assert 'refined' not in record
@@ -64,13 +66,14 @@ def test_ridge_screen_alone_selects_the_brute_force_ridge_patterns(tiny4_data):
 
 
 def test_early_termination_stops_at_the_first_non_improving_column(tiny_data):
-    full = GreedyPatternSelector(n_patterns=4, n_repeats=16, seed=0).fit(tiny_data)
+    full = GreedyPatternSelector(n_patterns=4, seed=0,
+                                 scoring=SplitScoring(n_repeats=16)).fit(tiny_data)
     acc = [full.accuracy_by_images_[k] for k in (1, 2, 3, 4)]
     best = np.maximum.accumulate(acc)
     expected_improved = [True] + [acc[i] > best[i - 1] for i in range(1, 4)]
     np.testing.assert_array_equal(full.improved_, expected_improved)
-    early = GreedyPatternSelector(n_patterns=None, max_patterns=4, n_repeats=16,
-                                  seed=0).fit(tiny_data)
+    early = GreedyPatternSelector(n_patterns=None, max_patterns=4, seed=0,
+                                  scoring=SplitScoring(n_repeats=16)).fit(tiny_data)
     stop = expected_improved.index(False) if False in expected_improved else 4
     assert early.patterns_.shape[1] == stop
     np.testing.assert_array_equal(early.patterns_, full.patterns_[:, :stop])
@@ -83,23 +86,28 @@ def test_early_termination_stops_at_the_first_non_improving_column(tiny_data):
 def test_early_termination_when_one_column_is_perfect():
     from helpers.trainer import make_search_data
     easy = make_search_data(signal=200.0, noise_a=0.0, noise_b=0.0)
-    sel = GreedyPatternSelector(n_repeats=10, max_patterns=5, seed=0).fit(easy)
+    sel = GreedyPatternSelector(max_patterns=5, seed=0,
+                                scoring=SplitScoring(n_repeats=10)).fit(easy)
     assert sel.accuracy_by_images_[1] == 1.0
     assert sel.patterns_.shape[1] == 1 and len(sel.history_) == 2
 
 
 def test_same_seed_same_result_other_seed_other_noise(tiny_data):
-    a = GreedyPatternSelector(n_patterns=2, n_repeats=10, seed=3).fit(tiny_data)
-    b = GreedyPatternSelector(n_patterns=2, n_repeats=10, seed=3).fit(tiny_data)
-    c = GreedyPatternSelector(n_patterns=2, n_repeats=10, seed=4).fit(tiny_data)
+    a = GreedyPatternSelector(n_patterns=2, seed=3,
+                              scoring=SplitScoring(n_repeats=10)).fit(tiny_data)
+    b = GreedyPatternSelector(n_patterns=2, seed=3,
+                              scoring=SplitScoring(n_repeats=10)).fit(tiny_data)
+    c = GreedyPatternSelector(n_patterns=2, seed=4,
+                              scoring=SplitScoring(n_repeats=10)).fit(tiny_data)
     np.testing.assert_array_equal(a.patterns_, b.patterns_)
     np.testing.assert_array_equal(a.history_[1]['scores'], b.history_[1]['scores'])
     assert not np.array_equal(a.history_[0]['scores'], c.history_[0]['scores'])
 
 
 def test_joint_mode_beam_search_over_led_additions(tiny_data):
-    sel = GreedyPatternSelector(mode='joint', n_patterns=2, n_repeats=10, seed=0,
-                                beam_width=2, refine_top=0).fit(tiny_data)
+    sel = GreedyPatternSelector(mode='joint', n_patterns=2, seed=0, beam_width=2,
+                                scoring=SplitScoring(n_repeats=10),
+                                refinement=Refinement(top=0)).fit(tiny_data)
     assert sel.patterns_.shape == (32, 2)
     first = sel.history_[0]
     singles = first['candidates'][:, :32]
@@ -118,7 +126,8 @@ def test_joint_mode_beam_search_over_led_additions(tiny_data):
 
 
 def test_saved_classifier_reloads_and_predicts_identically(tiny_data, tmp_path):
-    sel = GreedyPatternSelector(n_patterns=2, n_repeats=8, seed=0).fit(tiny_data)
+    sel = GreedyPatternSelector(n_patterns=2, seed=0,
+                                scoring=SplitScoring(n_repeats=8)).fit(tiny_data)
     art = sel.to_artifact()
     # the noise setting is the estimator's, recorded at fit from the data it rendered with
     assert sel.noise_['name'] == tiny_data.noise_name
@@ -155,12 +164,12 @@ def test_bad_parameters_fail_clearly(tiny_data):
 
 
 def test_refinement_races_down_the_screens_order_and_picks_the_svm_best(tiny_data):
-    sel = GreedyPatternSelector(n_patterns=2, n_repeats=12, seed=2, refine_top=5,
-                                refine_max=40).fit(tiny_data)
-    ridge_only = GreedyPatternSelector(n_patterns=1, n_repeats=12, seed=2,
-                                       refine_top=0).fit(tiny_data)
-    svm = GreedyPatternSelector(n_patterns=1, n_repeats=12, seed=2,
-                                inner_classifier='squared_hinge').fit(tiny_data)
+    sel = GreedyPatternSelector(n_patterns=2, seed=2, scoring=SplitScoring(n_repeats=12),
+                                refinement=Refinement(top=5, max=40)).fit(tiny_data)
+    ridge_only = GreedyPatternSelector(n_patterns=1, seed=2, scoring=SplitScoring(n_repeats=12),
+                                       refinement=Refinement(top=0)).fit(tiny_data)
+    svm = GreedyPatternSelector(n_patterns=1, seed=2, scoring=SplitScoring(
+        n_repeats=12, classifier='squared_hinge')).fit(tiny_data)
     exact = svm.history_[0]['scores']
     first = sel.history_[0]
     scores = first['scores']
@@ -175,12 +184,12 @@ def test_refinement_races_down_the_screens_order_and_picks_the_svm_best(tiny_dat
     # it stopped because no other candidate could still win, or at the cap
     if k < min(40, scores.size):
         assert not could_still_win(scores[order[:k]], first['refined_scores'], scores[order[k]],
-                                   sel.refine_slack)
+                                   sel.refinement.slack)
     assert first['best'] == first['refined'][np.argmax(first['refined_scores'])]
     assert first['accuracy'] == sel.accuracy_by_images_[1] == exact[first['best']]
     assert 'refined' not in svm.history_[0]  # nothing to refine with the SVM as the screen
     with pytest.raises(ValueError, match='refine_top'):
-        GreedyPatternSelector(refine_top=-1).fit(tiny_data)
+        GreedyPatternSelector(refinement=Refinement(top=-1)).fit(tiny_data)
 
 
 def test_could_still_win_judges_by_how_far_the_svm_rose_above_the_screen():
@@ -192,9 +201,11 @@ def test_could_still_win_judges_by_how_far_the_svm_rose_above_the_screen():
 
 
 def test_joint_mode_refines_among_every_pattern_the_beam_evaluated(tiny_data):
-    common = dict(mode='joint', n_patterns=1, n_repeats=6, seed=0, max_lit_leds=3)
-    screen = GreedyPatternSelector(refine_top=0, **common).fit(tiny_data).history_[0]
-    sel = GreedyPatternSelector(refine_top=4, **common).fit(tiny_data)
+    common = dict(mode='joint', n_patterns=1, scoring=SplitScoring(n_repeats=6), seed=0,
+                  max_lit_leds=3)
+    screen = GreedyPatternSelector(**common,
+                                   refinement=Refinement(top=0)).fit(tiny_data).history_[0]
+    sel = GreedyPatternSelector(**common, refinement=Refinement(top=4)).fit(tiny_data)
     record = sel.history_[0]
     # ridge drives the beam, so the same patterns were evaluated with the same scores
     np.testing.assert_array_equal(record['candidates'], screen['candidates'])
@@ -213,7 +224,7 @@ def test_small_search_selects_the_columns_recorded_before_the_compiled_kernels()
     # change no screen score, no SVM score and so no column
     from helpers.trainer import make_search_data
     data = make_search_data(noise_b=3000.0)
-    sel = GreedyPatternSelector(n_patterns=3, n_repeats=40, seed=0).fit(data)
+    sel = GreedyPatternSelector(n_patterns=3, seed=0, scoring=SplitScoring(n_repeats=40)).fit(data)
     columns = [''.join(str(int(v)) for v in col) for col in sel.patterns_.T]
     assert columns == ['01011111', '01001011', '11011101']
     assert sel.accuracy_by_images_ == pytest.approx({1: 0.44375, 2: 0.440625, 3: 0.271875},
@@ -227,13 +238,14 @@ def test_the_count_rule_decides_the_kept_column_count_from_the_same_search(tiny4
     """'one_se' keeps the fewest columns within one standard error of the best mean split
     accuracy; 'max' the best mean. Both from the chosen columns' own split accuracies."""
     from mux_trainer.column_count import split_standard_error
-    sel = GreedyPatternSelector(n_patterns=3, n_repeats=20, seed=11, count_rule='one_se').fit(tiny4_data)
+    sel = GreedyPatternSelector(n_patterns=3, seed=11, count_rule='one_se',
+                                scoring=SplitScoring(n_repeats=20)).fit(tiny4_data)
     acc = sel.accuracy_by_images_
     assert sorted(sel.split_accuracy_by_images_) == [1, 2, 3]
     for k, splits in sel.split_accuracy_by_images_.items():
         assert splits.shape == (20,) and np.mean(splits) == pytest.approx(acc[k])
     best = max(acc, key=lambda k: (acc[k], -k))
-    se = split_standard_error(sel.split_accuracy_by_images_[best], sel.test_fraction)
+    se = split_standard_error(sel.split_accuracy_by_images_[best], sel.scoring.test_fraction)
     expected = min(k for k in acc if acc[k] >= acc[best] - se)
     assert sel.best_n_patterns_ == expected <= best
     assert sel.set_params(count_rule='max')._best_count() == best

@@ -1,11 +1,12 @@
 """The greedy search reports its progress per column through `callback`."""
 from mux_trainer.greedy import GreedyPatternSelector
+from mux_trainer.search_params import SplitScoring
 
 
 def test_callback_sees_every_column_start_and_result(tiny4_data):
     events = []
-    sel = GreedyPatternSelector(n_patterns=2, n_repeats=10, seed=3,
-                                callback=events.append).fit(tiny4_data)
+    sel = GreedyPatternSelector(n_patterns=2, seed=3, callback=events.append,
+                                scoring=SplitScoring(n_repeats=10)).fit(tiny4_data)
     assert [(e['event'], e['column']) for e in events] == [
         ('column_start', 1), ('column_done', 1), ('column_start', 2), ('column_done', 2)]
     done = [e for e in events if e['event'] == 'column_done']

@@ -1,6 +1,7 @@
 import numpy as np
 
 from mux_trainer.baselines import NaiveClassifier
+from mux_trainer.search_params import SplitScoring
 from mux_trainer.holdout import accuracy_by_type, evaluate_heldout, holdout_split, method_summary
 
 
@@ -16,7 +17,7 @@ def test_holdout_keeps_whole_pose_indices_out_of_training(tiny_data):
 
 def test_heldout_accuracy_is_reproducible_and_groups_types(tiny_data):
     train, test = holdout_split(tiny_data, 0.25, seed=0)
-    model = NaiveClassifier(n_repeats=4).fit(tiny_data.subset(train))
+    model = NaiveClassifier(scoring=SplitScoring(n_repeats=4)).fit(tiny_data.subset(train))
     test_data = tiny_data.subset(test)
     a = evaluate_heldout(model, test_data, n_renders=2, seed=1)
     b = evaluate_heldout(model, test_data, n_renders=2, seed=1)

@@ -11,6 +11,7 @@ from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import test_images as render_test_images
 from mux_trainer.rendering import image_features, scoring_features
 from mux_trainer.report import evaluate_noise_setting
+from mux_trainer.search_params import Rendering, SplitScoring
 from helpers.trainer import TINY_HOG, make_modelset
 
 
@@ -35,7 +36,8 @@ def test_an_unknown_or_learning_extractor_is_refused_up_front(tiny_data):
 
 def test_greedy_with_intensity_stats_keeps_its_classifiers_and_artifact_on_those_features(tiny_data):
     data = dataclasses.replace(tiny_data, features='intensity_stats')
-    model = GreedyPatternSelector(n_patterns=2, n_repeats=8, seed=0).fit(data)
+    model = GreedyPatternSelector(n_patterns=2, seed=0,
+                                  scoring=SplitScoring(n_repeats=8)).fit(data)
     assert all(c.features == 'intensity_stats' for c in model.classifiers_.values())
     assert model.classifiers_[2].coef_.shape[1] == 2 * 4 * 9
     artifact = model.to_artifact()
@@ -124,7 +126,8 @@ def test_a_global_standardisation_would_be_caught(monkeypatch):
 
 
 def test_naive_baseline_takes_the_feature_name(tiny_data):
-    model = NaiveClassifier(n_repeats=4, features='intensity_stats').fit(
+    model = NaiveClassifier(scoring=SplitScoring(n_repeats=4),
+                            rendering=Rendering(features='intensity_stats')).fit(
         dataclasses.replace(tiny_data, features='intensity_stats'))
     assert model.classifiers_[1].features == 'intensity_stats'
     assert model.to_artifact().features == 'intensity_stats'

@@ -94,6 +94,7 @@ def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
     from lightstage_physics.capture_format import load_capture
     from mux_trainer.baselines import NaiveClassifier
     from mux_trainer.greedy import GreedyPatternSelector
+    from mux_trainer.search_params import Execution, Rendering, SplitScoring
 
     modelset = load_capture(capture, downscale_to=120)
     train_idx, test_idx = _split_by_instance(modelset)
@@ -108,8 +109,9 @@ def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
     _say(f'training on {len(train)} models ({n_samples} physical samples, {train.n_classes} classes); '
          f'{len(test_idx)} models of unseen samples held out for the stage')
     summary = {}
-    common = dict(noise=NOISE, n_repeats=args.repeats, seed=args.seed, n_jobs=args.jobs)
-    for name, model in (('greedy', GreedyPatternSelector(progress=True, **common)),
+    common = dict(rendering=Rendering(noise=NOISE), scoring=SplitScoring(n_repeats=args.repeats),
+                  seed=args.seed, execution=Execution(n_jobs=args.jobs, progress=True))
+    for name, model in (('greedy', GreedyPatternSelector(**common)),
                         ('naive', NaiveClassifier(**common))):
         t0 = time.perf_counter()
         model.fit(train)

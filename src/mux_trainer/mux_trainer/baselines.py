@@ -17,19 +17,22 @@ from __future__ import annotations
 
 import numpy as np
 from joblib import Parallel
-from lightstage_physics.rig import DEFAULT_DIMMER
-from mux_classifier.features import DEFAULT_EXTRACTOR
 from sklearn.base import BaseEstimator
 
 from .candidate_patterns import all_leds_on
-from .evaluation import CandidateEvaluator
 from .pattern_model import PatternModelMixin
 from .rendering import SearchData
+from .search_params import Execution, FinalClassifier, Rendering, SplitScoring
 from .snr_optimal import SnrOptimalMultiplexer, s_matrix_for_sites
 
 
 class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
     """Classifiers for the first k columns of a fixed pattern matrix, k = 1..m.
+
+    Parameters: `patterns` (rows, m), `mode`, and as the greedy search's: `scoring`
+    (`search_params.SplitScoring`; its classifier None: the exact linear SVM, as one
+    matrix per image count needs no fast screen), `rendering`, `final_classifier`, `seed`,
+    `execution` (only its n_jobs is used: the classifiers' fits) and `count_rule`.
 
     Fitted attributes: `patterns_`, `accuracy_by_images_` (split accuracy per column count),
     `split_accuracy_by_images_`, `best_n_patterns_` (by `count_rule`, as the greedy search's),
@@ -38,26 +41,16 @@ class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
 
     method_name = 'fixed'
 
-    def __init__(self, patterns=None, mode='per_colour', n_repeats=400, test_fraction=0.25,
-                 inner_classifier='squared_hinge', alpha=0.5, C=1.0, final_classifier='linear_svm',
-                 final_C=1.0, final_alpha=0.1, noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None,
-                 seed=0, n_jobs=1, features=DEFAULT_EXTRACTOR, count_rule='max'):
+    def __init__(self, patterns=None, mode='per_colour', scoring=SplitScoring(),
+                 rendering=Rendering(), final_classifier=FinalClassifier(), seed=0,
+                 execution=Execution(), count_rule='max'):
         self.patterns = patterns
         self.mode = mode
-        self.n_repeats = n_repeats
-        self.test_fraction = test_fraction
-        self.inner_classifier = inner_classifier
-        self.alpha = alpha
-        self.C = C
+        self.scoring = scoring
+        self.rendering = rendering
         self.final_classifier = final_classifier
-        self.final_C = final_C
-        self.final_alpha = final_alpha
-        self.noise = noise
-        self.dimmer = dimmer
-        self.hog_config = hog_config
         self.seed = seed
-        self.n_jobs = n_jobs
-        self.features = features
+        self.execution = execution
         self.count_rule = count_rule
 
     def _patterns_for(self, data: SearchData) -> np.ndarray:
@@ -66,15 +59,13 @@ class FixedPatternClassifier(PatternModelMixin, BaseEstimator):
         return np.asarray(self.patterns, dtype=np.float32)
 
     def fit(self, X, y=None):
+        self._check_groups()
         data = self._data(X)
         P = self._patterns_for(data)
         rows = data.n_sites if self.mode == 'per_colour' else data.n_sites * data.n_channels
         if P.ndim != 2 or P.shape[0] != rows or P.shape[1] < 1:
             raise ValueError(f'{self.mode} patterns must be ({rows}, k >= 1), got shape {P.shape}')
-        ev = CandidateEvaluator(data, mode=self.mode, n_repeats=self.n_repeats,
-                                test_fraction=self.test_fraction,
-                                inner_classifier=self.inner_classifier, alpha=self.alpha,
-                                C=self.C, seed=self.seed, n_jobs=1)
+        ev = self._evaluator(data, n_jobs=1)
         self.evaluator_ = ev
         self.class_names_ = list(data.class_names)
         self.accuracy_by_images_ = {}
@@ -96,16 +87,11 @@ class SnrOptimalClassifier(FixedPatternClassifier):
 
     method_name = 'snr_optimal'
 
-    def __init__(self, n_images=None, n_iter=20000, mode='per_colour', n_repeats=400,
-                 test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5, C=1.0,
-                 final_classifier='linear_svm', final_C=1.0, final_alpha=0.1, noise='sigma3',
-                 dimmer=DEFAULT_DIMMER, hog_config=None, seed=0, n_jobs=1, start='both',
-                 features=DEFAULT_EXTRACTOR, count_rule='max'):
-        super().__init__(patterns=None, mode=mode, n_repeats=n_repeats,
-                         test_fraction=test_fraction, inner_classifier=inner_classifier,
-                         alpha=alpha, C=C, final_classifier=final_classifier, final_C=final_C,
-                         final_alpha=final_alpha, noise=noise, dimmer=dimmer,
-                         hog_config=hog_config, seed=seed, n_jobs=n_jobs, features=features,
+    def __init__(self, n_images=None, n_iter=20000, start='both', mode='per_colour',
+                 scoring=SplitScoring(), rendering=Rendering(), final_classifier=FinalClassifier(),
+                 seed=0, execution=Execution(), count_rule='max'):
+        super().__init__(patterns=None, mode=mode, scoring=scoring, rendering=rendering,
+                         final_classifier=final_classifier, seed=seed, execution=execution,
                          count_rule=count_rule)
         self.n_images = n_images
         self.n_iter = n_iter
@@ -135,15 +121,11 @@ class NaiveClassifier(FixedPatternClassifier):
 
     method_name = 'naive'
 
-    def __init__(self, n_repeats=400, test_fraction=0.25, inner_classifier='squared_hinge', alpha=0.5,
-                 C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
-                 noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None, seed=0, n_jobs=1,
-                 features=DEFAULT_EXTRACTOR, count_rule='max'):
-        super().__init__(patterns=None, mode='joint', n_repeats=n_repeats,
-                         test_fraction=test_fraction, inner_classifier=inner_classifier,
-                         alpha=alpha, C=C, final_classifier=final_classifier, final_C=final_C,
-                         final_alpha=final_alpha, noise=noise, dimmer=dimmer,
-                         hog_config=hog_config, seed=seed, n_jobs=n_jobs, features=features,
+    def __init__(self, scoring=SplitScoring(), rendering=Rendering(),
+                 final_classifier=FinalClassifier(), seed=0, execution=Execution(),
+                 count_rule='max'):
+        super().__init__(patterns=None, mode='joint', scoring=scoring, rendering=rendering,
+                         final_classifier=final_classifier, seed=seed, execution=execution,
                          count_rule=count_rule)
 
     def _patterns_for(self, data: SearchData) -> np.ndarray:

@@ -32,20 +32,20 @@ import time
 
 import numpy as np
 from joblib import Parallel
-from lightstage_physics.rig import DEFAULT_DIMMER, N_LEDS
-from mux_classifier.features import DEFAULT_EXTRACTOR
+from lightstage_physics.rig import N_LEDS
 from sklearn.base import BaseEstimator
 
-from .evaluation import CandidateEvaluator, images_per_column
+from .evaluation import images_per_column
 from .candidate_patterns import site_pattern_candidates
 from .pattern_model import PatternModelMixin
+from .search_params import (REFINE_MAX, REFINE_SLACK, REFINE_TOP, Execution, FinalClassifier,
+                            Refinement, Rendering, SplitScoring, check_group)
 from .split_scoring import SquaredHingeSplitScorer
 
-# refinement defaults (see `could_still_win`; benchmarks/rank_agreement.py measures them)
-REFINE_TOP = 16     # candidates the exact SVM scores first, in the screen's order
-REFINE_BATCH = 8    # then this many more at a time while one of the rest could still win
-REFINE_MAX = 64     # and never more than this many per column
-REFINE_SLACK = 1.0
+__all__ = ['GreedyPatternSelector', 'could_still_win', 'REFINE_TOP', 'REFINE_BATCH',
+           'REFINE_MAX', 'REFINE_SLACK']
+
+REFINE_BATCH = 8    # refinement: candidates the exact SVM scores at a time after the first
 
 
 def could_still_win(screen_refined, svm_refined, screen_next, slack=REFINE_SLACK) -> bool:
@@ -78,27 +78,25 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         the accuracy by more than `tol`), or a fixed number of columns to select.
     max_patterns : upper bound on the columns in early-termination mode.
     tol : minimum improvement of the mean accuracy that counts as an improvement.
-    n_repeats, test_fraction : random pose splits per candidate (the paper: 400, 0.25).
-    inner_classifier : the screening classifier: 'ridge' (fast, shared kernel),
-        'squared_hinge' (the exact linear SVM) or 'linear_svm' (one LinearSVC per split).
-    refine_top, refine_max, refine_slack : with inner_classifier 'ridge', the exact linear SVM
-        re-scores the screen's best `refine_top` candidates per column, then more (in the
-        screen's order, 8 at a time, up to `refine_max`) while `could_still_win` says one of
-        the rest could still beat the SVM's best; the SVM's best is the column (refine_top 0:
-        the screen picks). Ignored for the SVM inner classifiers.
-    alpha : ridge penalty (0.5 = 1 / (2 C): the SVM's first Newton step); C : the linear SVM's
-        C (refinement and the SVM inner classifiers).
-    final_classifier : estimator of the kept classifiers ('linear_svm', the paper's, or 'ridge').
-    final_C, final_alpha : their regularisation.
-    noise, dimmer, hog_config : rendering, used when `fit` is given a ModelSet.
-    features : the feature extractor the search scores candidates with and the kept
-        classifiers use (`mux_classifier.features`; the paper's "hog_grid" by default), used
-        when `fit` is given a ModelSet (a SearchData carries its own).
+    scoring : `search_params.SplitScoring`, how candidates are scored: random pose splits
+        (the paper: 400, 0.25) and the screening classifier (None or 'ridge': the fast
+        screen; the SVMs 'squared_hinge' or 'linear_svm' score every candidate exactly,
+        without refinement); its C also serves the refinement.
+    refinement : `search_params.Refinement`, with the 'ridge' screen: the exact linear SVM
+        re-scores the screen's best `top` candidates per column, then more (in the screen's
+        order, REFINE_BATCH at a time, up to `max`) while `could_still_win` with `slack` says
+        one of the rest could still beat the SVM's best; the SVM's best is the column (top 0:
+        the screen picks).
+    rendering : `search_params.Rendering` (noise, dimmer, hog_config, features), used when
+        `fit` is given a ModelSet (a SearchData carries its own).
+    final_classifier : `search_params.FinalClassifier`, the kept classifiers ('linear_svm',
+        the paper's, or 'ridge', with C / alpha).
     beam_width, max_lit_leds : joint mode only (see module docstring).
     count_rule : how many columns the fitted model keeps (`best_n_patterns_`) from the
         search's split accuracies: 'max' (the highest mean, the paper's) or 'one_se' (the
         fewest columns within one standard error of it; `column_count`).
-    seed, n_jobs, chunk_size, progress : reproducibility and execution.
+    seed : seeds the splits, the noise and the kept classifiers.
+    execution : `search_params.Execution` (n_jobs, chunk_size, progress).
     callback : None, or a callable given one dict per event of the search, for progress
         reports (the trainer node's action feedback): {'event': 'column_start', 'column'
         (1-based), 'of'} before a column is searched and {'event': 'column_done', 'column',
@@ -120,46 +118,30 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     """
 
     def __init__(self, mode='per_colour', n_patterns=None, max_patterns=8, tol=0.0,
-                 n_repeats=400, test_fraction=0.25, inner_classifier='ridge', refine_top=REFINE_TOP,
-                 refine_max=REFINE_MAX, refine_slack=REFINE_SLACK,
-                 alpha=0.5, C=1.0, final_classifier='linear_svm', final_C=1.0, final_alpha=0.1,
-                 noise='sigma3', dimmer=DEFAULT_DIMMER, hog_config=None, beam_width=1,
-                 max_lit_leds=N_LEDS, seed=0, n_jobs=1, chunk_size=32, progress=False,
-                 callback=None, features=DEFAULT_EXTRACTOR, count_rule='max'):
+                 scoring=SplitScoring(), refinement=Refinement(), rendering=Rendering(),
+                 final_classifier=FinalClassifier(), beam_width=1, max_lit_leds=N_LEDS,
+                 count_rule='max', seed=0, execution=Execution(), callback=None):
         self.mode = mode
         self.n_patterns = n_patterns
         self.max_patterns = max_patterns
         self.tol = tol
-        self.n_repeats = n_repeats
-        self.test_fraction = test_fraction
-        self.inner_classifier = inner_classifier
-        self.refine_top = refine_top
-        self.refine_max = refine_max
-        self.refine_slack = refine_slack
-        self.alpha = alpha
-        self.C = C
+        self.scoring = scoring
+        self.refinement = refinement
+        self.rendering = rendering
         self.final_classifier = final_classifier
-        self.final_C = final_C
-        self.final_alpha = final_alpha
-        self.noise = noise
-        self.dimmer = dimmer
-        self.hog_config = hog_config
         self.beam_width = beam_width
         self.max_lit_leds = max_lit_leds
-        self.seed = seed
-        self.n_jobs = n_jobs
-        self.chunk_size = chunk_size
-        self.progress = progress
-        self.callback = callback
-        self.features = features
         self.count_rule = count_rule
+        self.seed = seed
+        self.execution = execution
+        self.callback = callback
 
     # ------------------------------------------------------------------ fit
     def fit(self, X, y=None):
         """Search patterns on a ModelSet (or a prepared SearchData); returns self."""
         images_per_column(self.mode)
-        if int(self.refine_top) < 0:
-            raise ValueError(f'refine_top must be >= 0, got {self.refine_top}')
+        self._check_groups()
+        check_group(self, 'refinement', Refinement)
         target = self.n_patterns if self.n_patterns is not None else self.max_patterns
         if target is None or int(target) < 1:
             raise ValueError(f'need at least one pattern column, got n_patterns={self.n_patterns}, '
@@ -167,11 +149,8 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         data = self._data(X)
         self.data_ = data
         self.class_names_ = list(data.class_names)
-        ev = CandidateEvaluator(data, mode=self.mode, n_repeats=self.n_repeats,
-                                test_fraction=self.test_fraction,
-                                inner_classifier=self.inner_classifier, alpha=self.alpha,
-                                C=self.C, seed=self.seed, n_jobs=self.n_jobs,
-                                chunk_size=self.chunk_size)
+        run = self.execution
+        ev = self._evaluator(data, run.n_jobs, run.chunk_size)
         self.evaluator_ = ev
         rows = data.n_sites if self.mode == 'per_colour' else data.n_sites * data.n_channels
         columns = np.zeros((rows, 0), dtype=np.float32)
@@ -180,8 +159,8 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         self.split_accuracy_by_images_ = {}
         improved = []
         best_so_far = -np.inf
-        bar = _progress(int(target), f'greedy {self.mode}', self.progress)
-        with Parallel(n_jobs=self.n_jobs) as parallel:
+        bar = _progress(int(target), f'greedy {self.mode}', run.progress)
+        with Parallel(n_jobs=run.n_jobs) as parallel:
             for col in range(int(target)):
                 self._notify(event='column_start', column=col + 1, of=int(target))
                 ctx = ev.prepare_column(columns if col else None)
@@ -218,6 +197,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         return self
 
     method_name = 'greedy'
+    default_split_classifier = 'ridge'
 
     def _notify(self, **event) -> None:
         if self.callback is not None:
@@ -235,11 +215,12 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         record = {'candidates': cands, 'scores': scores, 'score_std': acc.std(axis=1),
                   'screen_seconds': screen_seconds, 'refine_seconds': 0.0}
         t0 = time.perf_counter()
-        if self.inner_classifier != 'ridge' or int(self.refine_top) == 0:
+        race = self.refinement
+        if self.split_classifier != 'ridge' or int(race.top) == 0:
             best = int(np.argmax(scores))
             record.update(best=best, accuracy=float(scores[best]), split_accuracy=acc[best].copy())
         else:
-            scorer = SquaredHingeSplitScorer(C=self.C)
+            scorer = SquaredHingeSplitScorer(C=self.scoring.C)
             order = np.argsort(-scores, kind='stable')
             parts = []
 
@@ -247,9 +228,9 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
                 return np.vstack(parts).mean(axis=1)
 
             k = 0
-            while k == 0 or (k < min(int(self.refine_max), order.size) and could_still_win(
-                    scores[order[:k]], svm_mean(), scores[order[k]], self.refine_slack)):
-                step = int(self.refine_top) if k == 0 else REFINE_BATCH
+            while k == 0 or (k < min(int(race.max), order.size) and could_still_win(
+                    scores[order[:k]], svm_mean(), scores[order[k]], race.slack)):
+                step = int(race.top) if k == 0 else REFINE_BATCH
                 parts.append(ev.score(ctx, cands[:, order[k:k + step]], parallel, scorer=scorer,
                                       chunk_size=1))
                 k = min(k + step, order.size)

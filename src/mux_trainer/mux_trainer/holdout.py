@@ -119,12 +119,13 @@ def method_summary(model, test_data: SearchData, n_renders: int = 4, seed: int =
     splits = getattr(model, 'split_accuracy_by_images_', None)
     if splits:
         # what each column-count rule would have kept, from the same search, side by side
-        out['search_se_by_images'] = {str(c): split_standard_error(a, model.test_fraction)
+        out['search_se_by_images'] = {str(c): split_standard_error(a, model.scoring.test_fraction)
                                       for c, a in splits.items()}
         out['count_rule'] = str(getattr(model, 'count_rule', 'max'))
         out['by_count_rule'] = {}
         for rule in COUNT_RULES:
-            kr = choose_column_count(model.accuracy_by_images_, splits, rule, model.test_fraction)
+            kr = choose_column_count(model.accuracy_by_images_, splits, rule,
+                                     model.scoring.test_fraction)
             out['by_count_rule'][rule] = {'n_images': kr,
                                           'accuracy': res['accuracy_by_images'][kr]}
     if hasattr(model, 'improved_'):

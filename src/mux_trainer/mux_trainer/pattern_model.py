@@ -14,39 +14,65 @@ from mux_classifier.estimator import MuxClassifier
 
 from .column_count import choose_column_count
 from .data import noise_dict, search_data
-from .evaluation import images_per_column
+from .evaluation import CandidateEvaluator, images_per_column
 from .rendering import SearchData
+from .search_params import (Execution, FinalClassifier, GroupedParamsMixin, Rendering,
+                            SplitScoring, check_group)
 
 
 def _fit(classifier, X, y):
     return classifier.fit_features(X, y)
 
 
-class PatternModelMixin:
-    """Needs `mode`, `seed`, `noise`, `hog_config`, `dimmer`, `features`, `final_classifier`,
-    `final_C`, `final_alpha`; after fit:
-    `patterns_`, `classifiers_`, `accuracy_by_images_`, `class_names_`, `evaluator_` and
+class PatternModelMixin(GroupedParamsMixin):
+    """Needs `mode`, `seed`, `count_rule` and the setting groups (`search_params`) `scoring`,
+    `rendering`, `final_classifier`, `execution`; after fit: `patterns_`, `classifiers_`,
+    `accuracy_by_images_`, `class_names_`, `evaluator_` and
     `noise_` (the noise setting the fit rendered with, as an artifact stores it)."""
 
     method_name = 'patterns'
+    # the split classifier when `scoring.classifier` is None: one matrix per image count is
+    # scored exactly (the greedy search screens with ridge instead)
+    default_split_classifier = 'squared_hinge'
 
     @property
     def images_per_pattern(self) -> int:
         return images_per_column(self.mode, N_CHANNELS)
 
+    def _check_groups(self) -> None:
+        """TypeError / ValueError for a setting group of the wrong type or out of range."""
+        for name, kind in (('scoring', SplitScoring), ('rendering', Rendering),
+                           ('final_classifier', FinalClassifier), ('execution', Execution)):
+            check_group(self, name, kind)
+
+    @property
+    def split_classifier(self) -> str:
+        """The classifier of the split accuracies: `scoring.classifier`, or the method's."""
+        return self.scoring.classifier or self.default_split_classifier
+
+    def _evaluator(self, data: SearchData, n_jobs: int = 1,
+                   chunk_size: int = 32) -> CandidateEvaluator:
+        """The candidate evaluator scoring as `scoring` says, seeded by `seed`."""
+        s = self.scoring
+        return CandidateEvaluator(data, mode=self.mode, n_repeats=s.n_repeats,
+                                  test_fraction=s.test_fraction,
+                                  inner_classifier=self.split_classifier, alpha=s.alpha, C=s.C,
+                                  seed=self.seed, n_jobs=n_jobs, chunk_size=chunk_size)
+
     def _data(self, X) -> SearchData:
-        """The search's data: X itself, or a ModelSet rendered with the estimator's noise,
-        HOG configuration, dimmer and feature extractor. Records its noise setting as
+        """The search's data: X itself, or a ModelSet rendered as `rendering` says (noise,
+        HOG configuration, dimmer, feature extractor). Records its noise setting as
         `noise_` (a SearchData carries its own)."""
+        r = self.rendering
         data = X if isinstance(X, SearchData) else search_data(
-            X, self.noise, hog_config=self.hog_config, dimmer=self.dimmer,
-            features=self.features)
+            X, r.noise, hog_config=r.hog_config, dimmer=r.dimmer, features=r.features)
         self.noise_ = noise_dict(data.noise_name, data.noise_model)
         return data
 
     def _make_classifier(self, data: SearchData) -> MuxClassifier:
-        return MuxClassifier(estimator=self.final_classifier, C=self.final_C,
-                             alpha=self.final_alpha, hog_config=data.hog_config,
+        final = self.final_classifier
+        return MuxClassifier(estimator=final.estimator, C=final.C,
+                             alpha=final.alpha, hog_config=data.hog_config,
                              random_state=int(self.seed), features=data.features)
 
     def _fit_classifiers(self, ev, columns) -> dict:
@@ -55,7 +81,7 @@ class PatternModelMixin:
         The fits (LinearSVC on up to 8 x 4 x 900 HOG values: seconds each) run through joblib.
         """
         counts = list(range(1, columns.shape[1] + 1))
-        clfs = Parallel(n_jobs=getattr(self, 'n_jobs', 1))(
+        clfs = Parallel(n_jobs=self.execution.n_jobs)(
             delayed(_fit)(self._make_classifier(ev.data),
                           ev.features(columns[:, :k]), ev.data.labels)
             for k in counts)
@@ -65,8 +91,8 @@ class PatternModelMixin:
         """The column count kept by the estimator's `count_rule` (`column_count`)."""
         return choose_column_count(self.accuracy_by_images_,
                                    getattr(self, 'split_accuracy_by_images_', None),
-                                   rule=getattr(self, 'count_rule', 'max'),
-                                   test_fraction=float(self.test_fraction))
+                                   rule=self.count_rule,
+                                   test_fraction=float(self.scoring.test_fraction))
 
     def predict_features(self, X: np.ndarray, n_patterns: int) -> np.ndarray:
         """Class indices from features of the first `n_patterns` columns' images."""
@@ -77,22 +103,23 @@ class PatternModelMixin:
         """The trained artifact (patterns + classifier per image count) for the classify node.
 
         n_patterns: keep the first n columns (default: all). The artifact records the dimmer
-        the training rendered with (the estimator's `dimmer`).
+        the training rendered with (`rendering.dimmer`).
         """
         k = self.patterns_.shape[1] if n_patterns is None else int(n_patterns)
         clfs = [self.classifiers_[i] for i in range(1, k + 1)]
         prov = {'method': self.method_name, 'mode': self.mode, 'seed': int(self.seed),
-                'n_repeats': int(self.n_repeats),
+                'n_repeats': int(self.scoring.n_repeats),
                 'accuracy_by_patterns': {str(i): float(self.accuracy_by_images_[i])
                                          for i in range(1, k + 1)},
                 'best_n_patterns': int(self.best_n_patterns_),
-                'count_rule': str(getattr(self, 'count_rule', 'max'))}
+                'count_rule': str(self.count_rule)}
         prov.update(provenance or {})
         noise = self.noise_
         if self.mode == 'per_colour':
             return TrainedArtifact.from_classifiers(
                 clfs, site_patterns=self.patterns_[:, :k], class_names=self.class_names_,
-                noise=noise, provenance=prov, dimmer=self.dimmer)
+                noise=noise, provenance=prov, dimmer=self.rendering.dimmer)
         return TrainedArtifact.from_classifiers(
             clfs, led_patterns=self.patterns_[:, :k], mode='naive' if self.method_name == 'naive' else 'joint',
-            class_names=self.class_names_, noise=noise, provenance=prov, dimmer=self.dimmer)
+            class_names=self.class_names_, noise=noise, provenance=prov,
+            dimmer=self.rendering.dimmer)

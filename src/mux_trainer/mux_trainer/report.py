@@ -28,6 +28,7 @@ from .baselines import NaiveClassifier, SnrOptimalClassifier
 from .data import search_data
 from .greedy import GreedyPatternSelector
 from .holdout import HOLDOUT_BY, accuracy_by_type, holdout_split, method_summary, test_features
+from .search_params import Execution, SplitScoring
 
 METHODS = ('naive', 'naive_bow', 'snr_optimal', 'greedy', 'greedy_joint')
 DEFAULT_METHODS = ('naive', 'naive_bow', 'snr_optimal', 'greedy')
@@ -85,7 +86,8 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     instance = np.asarray(modelset.instance) if holdout_by == 'instances' else None
     train_idx, test_idx = holdout_split(data, holdout_fraction, seed, instance)
     train, test = data.subset(train_idx), data.subset(test_idx)
-    common = dict(n_repeats=n_repeats, seed=seed, n_jobs=n_jobs, count_rule=count_rule)
+    common = dict(scoring=SplitScoring(n_repeats=n_repeats), seed=seed,
+                  execution=Execution(n_jobs=n_jobs, progress=progress), count_rule=count_rule)
     results: dict = {}
     models: dict = {}
     naive = None
@@ -104,11 +106,10 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
             model = SnrOptimalClassifier(n_images=max_images, **common).fit(train)
         elif name == 'greedy':
             model = GreedyPatternSelector(mode='per_colour', n_patterns=max_images,
-                                          progress=progress, **common).fit(train)
+                                          **common).fit(train)
         else:  # greedy_joint
             model = GreedyPatternSelector(mode='joint', n_patterns=joint_max_images or max_images,
-                                          beam_width=beam_width, progress=progress,
-                                          **common).fit(train)
+                                          beam_width=beam_width, **common).fit(train)
         train_s = time.perf_counter() - t0
         if name == 'naive_bow':
             results[name] = _naive_bow_summary(naive, train, test, n_renders, seed, n_jobs)

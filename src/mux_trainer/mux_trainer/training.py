@@ -125,25 +125,27 @@ def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8
     inner_classifier: the classifier of the split accuracies; None = the method's default
     (greedy: the ridge screen with `refine_top` candidates re-scored by the exact SVM;
     baselines, which score one matrix per image count: the exact SVM). refine_top: greedy
-    only; None = `greedy.REFINE_TOP`. features: the feature extractor the search scores
+    only; None = `search_params.REFINE_TOP`. features: the feature extractor the search scores
     with and the classifier uses (`mux_classifier.features`; "hog_grid" is the paper's).
     """
     from .baselines import NaiveClassifier, SnrOptimalClassifier
-    from .greedy import REFINE_TOP, GreedyPatternSelector
+    from .greedy import GreedyPatternSelector
+    from .search_params import (Execution, FinalClassifier, Refinement, Rendering,
+                                SplitScoring)
 
     check_options(method, mode, noise, max_images, repeats)
     check_jobs(n_jobs)
     check_features(features)
-    common = dict(n_repeats=repeats, seed=seed, n_jobs=n_jobs, noise=noise, hog_config=hog_config,
-                  final_classifier=final_classifier, features=features, count_rule=count_rule)
+    common = dict(scoring=SplitScoring(n_repeats=repeats, classifier=inner_classifier),
+                  rendering=Rendering(noise=noise, hog_config=hog_config, features=features),
+                  final_classifier=FinalClassifier(estimator=final_classifier), seed=seed,
+                  execution=Execution(n_jobs=n_jobs, progress=progress), count_rule=count_rule)
     if method == 'greedy':
         return GreedyPatternSelector(mode=mode, max_patterns=max_images,
                                      n_patterns=max_images if fixed_count else None,
-                                     beam_width=beam_width, progress=progress,
-                                     callback=callback, inner_classifier=inner_classifier or 'ridge',
-                                     refine_top=REFINE_TOP if refine_top is None else refine_top,
-                                     **common)
-    common['inner_classifier'] = inner_classifier or 'squared_hinge'
+                                     beam_width=beam_width, callback=callback,
+                                     refinement=Refinement() if refine_top is None
+                                     else Refinement(top=refine_top), **common)
     if method == 'snr_optimal':
         return SnrOptimalClassifier(n_images=max_images, **common)
     return NaiveClassifier(**common)
@@ -204,7 +206,8 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **o
     artifact = model.to_artifact(provenance=provenance)
     summary = {
         'method': options.get('method', 'greedy'), 'mode': model.mode,
-        'noise': options.get('noise', 'sigma3'), 'features': model.features, 'artifact': str(out),
+        'noise': options.get('noise', 'sigma3'), 'features': model.rendering.features,
+        'artifact': str(out),
         'class_names': list(model.class_names_),
         'patterns': model.patterns_.astype(int).tolist(),
         'images_per_pattern': int(model.images_per_pattern),
