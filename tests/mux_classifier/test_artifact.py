@@ -390,15 +390,23 @@ def test_saved_file_has_the_mode_the_umask_gives(artifact, tmp_path, umask):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz"]
 
 
-@pytest.fixture(scope="module")
-def artifact_bytes(artifact, tmp_path_factory):
+def saved_bytes(artifact, tmp_path_factory) -> bytes:
     path = tmp_path_factory.mktemp("fuzz") / "a.npz"
     artifact.save(path)
     return path.read_bytes()
 
 
-@settings(max_examples=int(os.environ.get("LIGHTSTAGE_FUZZ_EXAMPLES", 150)), deadline=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@pytest.fixture(scope="module")
+def artifact_bytes(artifact, tmp_path_factory):
+    return saved_bytes(artifact, tmp_path_factory)
+
+
+FUZZ_SETTINGS = settings(max_examples=int(os.environ.get("LIGHTSTAGE_FUZZ_EXAMPLES", 150)),
+                         deadline=None,
+                         suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+@FUZZ_SETTINGS
 @given(data=st.data())
 def test_fuzz_malformed_files_raise_only_artifact_error(artifact_bytes, tmp_path_factory, data):
     """Mutated artifact bytes and zip members: the loader answers ArtifactError or loads a

@@ -2,12 +2,11 @@
 (no pickle), one prediction path (the artifact's estimator per image count), bad files
 refused naming the field."""
 import json
-import os
 import re
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from mux_classifier.artifact import FORMAT_VERSION, ArtifactError, TrainedArtifact
@@ -16,8 +15,9 @@ from mux_classifier.estimator import LearnedModelClassifier
 from mux_classifier.learned_model import LearnedModel
 
 from artifact_mutations import mutated_artifacts
-from test_artifact import (SIGMA3, _rewrite, check_header_fields_refused_naming_them,
-                           check_refused_or_classifies)
+from test_artifact import (FUZZ_SETTINGS, SIGMA3, _rewrite,
+                           check_header_fields_refused_naming_them, check_refused_or_classifies,
+                           saved_bytes)
 
 NAMES = ["apple_real", "apple_fake", "lime_real", "lime_fake"]
 
@@ -177,13 +177,10 @@ def test_a_learned_mode_goes_with_a_learned_model_only(toy_stacks):
 
 @pytest.fixture(scope="module")
 def learned_bytes(learned, tmp_path_factory):
-    path = tmp_path_factory.mktemp("fuzz_learned") / "l.npz"
-    learned.save(path)
-    return path.read_bytes()
+    return saved_bytes(learned, tmp_path_factory)
 
 
-@settings(max_examples=int(os.environ.get("LIGHTSTAGE_FUZZ_EXAMPLES", 150)), deadline=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@FUZZ_SETTINGS
 @given(data=st.data())
 def test_fuzz_malformed_learned_files_raise_only_artifact_error(learned_bytes, tmp_path_factory, data):
     """The loader's fuzz test (test_artifact.py) on a learned artifact's file."""
