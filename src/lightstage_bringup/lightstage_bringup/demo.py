@@ -148,9 +148,15 @@ LEARNED_EXPOSURES = 8
 def _train_learned(train, artifact: Path, capture: Path, args) -> dict:
     from mux_trainer.learned_method import build_learned, learned_artifact, pattern_levels
 
+    import warnings
+
     model = build_learned(LEARNED_EXPOSURES, noise=NOISE, seed=args.seed, **LEARNED_SCHEDULE)
     t0 = time.perf_counter()
     model.fit(train)
+    # JAX's threads now exist; the graph's nodes start through subprocess, whose fork is
+    # followed by exec at once (in C, no Python runs between them): JAX's warning about
+    # forking a multithreaded process does not apply to it
+    warnings.filterwarnings('ignore', message=r'os\.fork\(\) was called', category=RuntimeWarning)
     seconds = time.perf_counter() - t0
     learned_artifact(model, provenance={'capture': str(capture.resolve()), 'train_seconds': seconds,
                                         'demo_held_out_instance': 'last per class'}
