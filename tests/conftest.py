@@ -215,3 +215,14 @@ def small_modelset():
     """A small ModelSet (helpers.camera.make_modelset) for the physics and camera tests."""
     from helpers.camera import make_modelset
     return make_modelset()
+
+
+@pytest.fixture(scope='session', params=[False, True], ids=['graded', 'on_off'])
+def stage_learned_artifact_path(request, stage_capture, tmp_path_factory):
+    """A learned artifact (4 exposures, graded or on/off levels, 3 steps: little learned, but
+    a real one) trained on the stage capture the way `lightstage train --method learned` does."""
+    from mux_trainer.training import train_from_capture
+    path = tmp_path_factory.mktemp('learned') / f'learned_{request.param_index}.npz'
+    train_from_capture(stage_capture, path, method='learned', max_images=4, steps=3,
+                       binary=request.param, seed=0)
+    return path

@@ -121,3 +121,23 @@ def test_learning_code_and_physics_import_no_camera():
             '    assert not found, f"importing {name} imported {found}"\n')
     p = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
+
+
+def test_the_classifier_package_never_imports_jax():
+    """Issue 26: learned models classify in numpy (`mux_classifier.learned_model`); JAX is the
+    trainer's. No module of mux_classifier names jax in any import (function-level too), and
+    importing every one of them, the classifier node included, loads no jax."""
+    naming = sorted(m.name for m in (SRC / 'mux_classifier' / 'mux_classifier').glob('*.py')
+                    if any(n.split('.')[0] in ('jax', 'jaxlib')
+                           for n in imported_modules(m, 'mux_classifier')))
+    assert not naming, f'{naming} import jax'
+    modules = sorted(f'mux_classifier.{m.stem}' for m in
+                     (SRC / 'mux_classifier' / 'mux_classifier').glob('*.py') if m.stem != '__init__')
+    assert {'mux_classifier.classifier_node', 'mux_classifier.learned_model',
+            'mux_classifier.artifact'} <= set(modules)
+    code = ('import importlib, sys\n'
+            f'for name in {modules!r}:\n'
+            '    importlib.import_module(name)\n'
+            '    assert "jax" not in sys.modules, f"importing {name} imported jax"\n')
+    p = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]

@@ -1,15 +1,13 @@
 """Trained-classifier artifact: round trip, file safety and clear errors."""
-import math
 import json
 import os
 import re
 import stat
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from lightstage_physics.rig import DEFAULT_DIMMER, site_to_led_patterns
@@ -18,12 +16,12 @@ from mux_classifier.artifact import (FORMAT_VERSION, UNRECORDED_DIMMER, Artifact
                                      noise_to_dict)
 from mux_classifier.estimator import MuxClassifier
 
+from helpers.artifact_checks import (FUZZ_SETTINGS, SIGMA3, check_header_fields_refused_naming_them,
+                                     check_refused_or_classifies, rewrite_artifact, saved_bytes)
 from helpers.artifact_mutations import mutated_artifacts
 
 from helpers.suite import REPO
 
-SIGMA3 = {"name": "sigma3", "sigma_p2": 0.94, "sigma_r2": 117.37, "gain_db": 17.5,
-          "exposure_ms": 22.5}
 
 
 @pytest.fixture(scope="module")
@@ -92,24 +90,14 @@ def test_file_is_plain_npz_with_json_header(artifact, tmp_path):
         assert npz["coef_2"].shape == (4, 1800)
 
 
-def _rewrite(src, dst, change_header=None, drop=()):
-    with np.load(src, allow_pickle=False) as npz:
-        arrays = {k: npz[k] for k in npz.files if k not in drop}
-    if change_header:
-        header = json.loads(arrays["header"].tobytes().decode())
-        change_header(header)
-        arrays["header"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
-    np.savez(dst, **arrays)
-
-
 def test_other_version_is_refused(artifact, tmp_path):
     artifact.save(tmp_path / "a.npz")
-    _rewrite(tmp_path / "a.npz", tmp_path / "b.npz",
+    rewrite_artifact(tmp_path / "a.npz", tmp_path / "b.npz",
              change_header=lambda h: h.update(format_version=FORMAT_VERSION + 1))
     with pytest.raises(ArtifactError, match=rf"version {FORMAT_VERSION + 1}.*reads version {FORMAT_VERSION}.*Retrain"):
         TrainedArtifact.load(tmp_path / "b.npz")
-    _rewrite(tmp_path / "a.npz", tmp_path / "c.npz", change_header=lambda h: h.update(format_version=0))
-    with pytest.raises(ArtifactError, match=r"version 0; .*reads version 3 and the older 1, 2\."):
+    rewrite_artifact(tmp_path / "a.npz", tmp_path / "c.npz", change_header=lambda h: h.update(format_version=0))
+    with pytest.raises(ArtifactError, match=r"version 0; .*reads version 4 and the older 1, 2, 3\."):
         TrainedArtifact.load(tmp_path / "c.npz")
 
 
@@ -123,7 +111,7 @@ def test_the_dimmer_is_recorded(artifact, tmp_path):
     loaded = TrainedArtifact.load(tmp_path / "d.npz")
     assert loaded.dimmer == 0.3 and loaded.dimmer_recorded
     assert loaded.describe().endswith("noise sigma3, dimmer 0.3")
-    _rewrite(tmp_path / "d.npz", tmp_path / "e.npz", change_header=lambda h: h.pop("dimmer"))
+    rewrite_artifact(tmp_path / "d.npz", tmp_path / "e.npz", change_header=lambda h: h.pop("dimmer"))
     with pytest.raises(ArtifactError, match="'dimmer' must be a positive number, got None"):
         TrainedArtifact.load(tmp_path / "e.npz")
     with pytest.raises(ArtifactError, match="dimmer must be a positive number, got nan"):
@@ -145,7 +133,7 @@ def test_a_format_2_file_loads_with_the_hog_grid_it_always_used(artifact, toy_st
     def as_format_2(header):
         header.update(format_version=2)
         header.pop("features")
-    _rewrite(tmp_path / "a.npz", tmp_path / "two.npz", change_header=as_format_2)
+    rewrite_artifact(tmp_path / "a.npz", tmp_path / "two.npz", change_header=as_format_2)
     two = TrainedArtifact.load(tmp_path / "two.npz")
     assert two.features == "hog_grid" and "hog_grid features" in two.describe()
     np.testing.assert_array_equal(two.predict(stacks), artifact.predict(stacks))
@@ -155,7 +143,7 @@ def test_an_unknown_or_learning_feature_extractor_is_refused(artifact, tmp_path)
     artifact.save(tmp_path / "a.npz")
     for name, why in (("sift", "unknown feature extractor 'sift'"),
                       ("bow", "learns from images"), (3, "must be the name of a feature")):
-        _rewrite(tmp_path / "a.npz", tmp_path / "b.npz",
+        rewrite_artifact(tmp_path / "a.npz", tmp_path / "b.npz",
                  change_header=lambda h, name=name: h.update(features=name))
         with pytest.raises(ArtifactError, match=why):
             TrainedArtifact.load(tmp_path / "b.npz")
@@ -165,7 +153,7 @@ def test_a_format_1_file_loads_with_the_dimmer_every_earlier_training_used(artif
                                                                            tmp_path):
     stacks, _ = toy_stacks
     artifact.save(tmp_path / "a.npz")
-    _rewrite(tmp_path / "a.npz", tmp_path / "old.npz", change_header=_as_format_1)
+    rewrite_artifact(tmp_path / "a.npz", tmp_path / "old.npz", change_header=_as_format_1)
     old = TrainedArtifact.load(tmp_path / "old.npz")
     assert UNRECORDED_DIMMER == 0.45
     assert old.dimmer == 0.45 and not old.dimmer_recorded
@@ -225,10 +213,10 @@ def test_non_npz_and_pickles_are_refused(tmp_path):
 
 def test_missing_and_inconsistent_arrays_are_refused(artifact, tmp_path):
     artifact.save(tmp_path / "a.npz")
-    _rewrite(tmp_path / "a.npz", tmp_path / "b.npz", drop=("coef_2",))
+    rewrite_artifact(tmp_path / "a.npz", tmp_path / "b.npz", drop=("coef_2",))
     with pytest.raises(ArtifactError, match="coef_2"):
         TrainedArtifact.load(tmp_path / "b.npz")
-    _rewrite(tmp_path / "a.npz", tmp_path / "c.npz",
+    rewrite_artifact(tmp_path / "a.npz", tmp_path / "c.npz",
              change_header=lambda h: h.update(class_names=["a", "b", "c"]))
     with pytest.raises(ArtifactError, match=r"expected \(3, 900\)"):
         TrainedArtifact.load(tmp_path / "c.npz")
@@ -362,7 +350,7 @@ def test_header_array_of_another_type_is_refused(tmp_path):
 ])
 def test_malformed_header_fields_are_named(artifact, tmp_path, field, value, message):
     artifact.save(tmp_path / "a.npz")
-    _rewrite(tmp_path / "a.npz", tmp_path / "b.npz", change_header=lambda h: h.update({field: value}))
+    rewrite_artifact(tmp_path / "a.npz", tmp_path / "b.npz", change_header=lambda h: h.update({field: value}))
     with pytest.raises(ArtifactError, match=re.escape(message)):
         TrainedArtifact.load(tmp_path / "b.npz")
 
@@ -392,69 +380,23 @@ def test_saved_file_has_the_mode_the_umask_gives(artifact, tmp_path, umask):
 
 @pytest.fixture(scope="module")
 def artifact_bytes(artifact, tmp_path_factory):
-    path = tmp_path_factory.mktemp("fuzz") / "a.npz"
-    artifact.save(path)
-    return path.read_bytes()
+    return saved_bytes(artifact, tmp_path_factory)
 
 
-@settings(max_examples=int(os.environ.get("LIGHTSTAGE_FUZZ_EXAMPLES", 150)), deadline=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@FUZZ_SETTINGS
 @given(data=st.data())
 def test_fuzz_malformed_files_raise_only_artifact_error(artifact_bytes, tmp_path_factory, data):
     """Mutated artifact bytes and zip members: the loader answers ArtifactError or loads a
     classifier that classifies; nothing else."""
     path = tmp_path_factory.getbasetemp() / "fuzzed.npz"
     path.write_bytes(data.draw(mutated_artifacts(artifact_bytes)))
-    try:
-        loaded = TrainedArtifact.load(path)
-    except ArtifactError as exc:
-        assert str(exc)
-        return
-    size = loaded.hog_config.image_size
-    prediction = loaded.predict_stack(np.zeros((loaded.n_images[-1], size, size), np.float32))
-    assert prediction.label in loaded.class_names
-
-
-BAD_HEADER_VALUES = [math.nan, math.inf, -math.inf, -1, -1e6, 0, 1e6, 1e300, 10**12, -(10**12),
-                     "text", "", True, False, None, [], [1, 2, 3], [math.nan], {"x": 1}]
-
-
-def _header_fields(header: dict) -> list[tuple[str, ...]]:
-    """Every field of the header: top level, and each key of the noise setting and HOG
-    configuration."""
-    fields = []
-    for key, value in header.items():
-        fields.append((key,))
-        if isinstance(value, dict) and key != "provenance":
-            fields += [(key, sub) for sub in value]
-    return fields
+    check_refused_or_classifies(path)
 
 
 def test_fuzz_every_header_field_out_of_range_is_refused_naming_it(artifact, tmp_path):
     """Issue 23: every header field, set to NaN, inf, negative, huge, another type or a list
     of another length: the file loads (the value is one the format allows) and classifies,
     or is refused with an ArtifactError naming the field."""
-    artifact.save(tmp_path / "a.npz")
-    with np.load(tmp_path / "a.npz") as npz:
-        header = json.loads(npz["header"].tobytes().decode())
-    checked, unnamed = 0, []
-    for path in _header_fields(header):
-        for value in BAD_HEADER_VALUES:
-            def change(h, path=path, value=value):
-                target = h
-                for key in path[:-1]:
-                    target = target[key]
-                target[path[-1]] = value
-            _rewrite(tmp_path / "a.npz", tmp_path / "b.npz", change_header=change)
-            try:
-                loaded = TrainedArtifact.load(tmp_path / "b.npz")
-            except ArtifactError as exc:
-                if path[-1] not in str(exc):
-                    unnamed.append((path, value, str(exc).split(" file: ", 1)[-1]))
-                checked += 1
-                continue
-            size = loaded.hog_config.image_size
-            images = np.zeros((loaded.n_images[-1], size, size), np.float32)
-            assert loaded.predict_stack(images).label in loaded.class_names, (path, value)
-    assert not unnamed, "\n".join(map(str, unnamed))
-    assert checked > len(_header_fields(header)) * len(BAD_HEADER_VALUES) // 2
+    check_header_fields_refused_naming_them(artifact, tmp_path)
+
+

@@ -2,13 +2,15 @@
 
 1. Synthesise a capture folder (relightable models of 5 fruit types x real/fake).
 2. Train on the models of some physical samples per class: the greedy illumination
-   search (the paper's method) and the naive all-LEDs-on baseline, at noise setting Sigma3.
+   search (the paper's method), learned illumination (graded LED levels and a classifier
+   trained end to end, a short schedule; docs/LEARNED.md) and the naive all-LEDs-on
+   baseline, at noise setting Sigma3.
 3. Bring up the graph (driver on the simulated firmware, simulated camera, classifier) as
    separate processes, with the recorder writing everything the graph says to the bag
    `OUT/stage_session` (replacing the previous demo's), put each held-out sample -- a physical
    sample never seen in training, the paper's captured-imagery experiment -- on the stage,
-   and classify it through `/lightstage/classify`, with the greedy patterns and then the
-   naive one.
+   and classify it through `/lightstage/classify`, with the greedy patterns, the naive one
+   and the learned ones (the simulated firmware has graded levels, pwm_bits 8).
 4. Print accuracy, images used and timings per method; write them to `OUT/demo_results.json`;
    print the commands that replay the bag into a classifier that only observes
    (`classify_observed`), which gives the greedy calls' labels again.
@@ -99,7 +101,8 @@ def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
     modelset = load_capture(capture, downscale_to=120)
     train_idx, test_idx = _split_by_instance(modelset)
     held_out = [modelset.sample_names[i] for i in test_idx]
-    artifacts = {'greedy': out / f'greedy_{NOISE}.npz', 'naive': out / f'naive_{NOISE}.npz'}
+    artifacts = {'greedy': out / f'greedy_{NOISE}.npz', 'naive': out / f'naive_{NOISE}.npz',
+                 'learned': out / f'learned_{NOISE}.npz'}
     summary_path = out / 'training.json'
     if all(p.is_file() for p in artifacts.values()) and summary_path.is_file() and not args.fresh:
         _say(f'training: reusing {", ".join(str(p) for p in artifacts.values())}')
@@ -132,8 +135,41 @@ def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
             for j in range(model.patterns_.shape[1]):
                 lit = [s for s in range(model.patterns_.shape[0]) if model.patterns_[s, j] > 0.5]
                 _say(f'  pattern {j + 1}: sites {lit} lit, each colour in turn (4 images)')
+    summary['learned'] = _train_learned(train, artifacts['learned'], capture, args)
     summary_path.write_text(json.dumps(summary, indent=2))
     return summary, held_out
+
+
+# The demo's learned schedule: 8 exposures (half of greedy's 16), 20 Fisher steps from the
+# best start, starts and snapshots scored on 100 inner pose splits (`lightstage train
+# --method learned`: 60 steps, 400 splits)
+LEARNED_SCHEDULE = dict(steps=20, n_repeats=100)
+LEARNED_EXPOSURES = 8
+
+
+def _train_learned(train, artifact: Path, capture: Path, args) -> dict:
+    from mux_trainer.learned_method import build_learned, learned_artifact, pattern_levels
+
+    import warnings
+
+    model = build_learned(LEARNED_EXPOSURES, noise=NOISE, seed=args.seed, **LEARNED_SCHEDULE)
+    t0 = time.perf_counter()
+    model.fit(train)
+    # JAX's threads now exist; the graph's nodes start through subprocess, whose fork is
+    # followed by exec at once (in C, no Python runs between them): JAX's warning about
+    # forking a multithreaded process does not apply to it
+    warnings.filterwarnings('ignore', message=r'os\.fork\(\) was called', category=RuntimeWarning)
+    seconds = time.perf_counter() - t0
+    learned_artifact(model, provenance={'capture': str(capture.resolve()), 'train_seconds': seconds,
+                                        'demo_held_out_instance': 'last per class'}
+                     ).save(artifact)
+    k = int(model.best_n_patterns_)
+    accuracy = float(model.accuracy_by_images_[k])
+    _say(f'training: learned: {seconds:.0f} s, {k} graded patterns (from the '
+         f'{model.chosen_} start; inner split accuracy {100 * accuracy:.1f} %)')
+    return {'artifact': str(artifact), 'train_seconds': seconds, 'best_n_images': k,
+            'patterns': pattern_levels(model.patterns_),
+            'inner_split_accuracy_by_images': {str(k): accuracy}, 'chosen': model.chosen_}
 
 
 def _choose_on_stage(held_out: list[str], per_class: int) -> list[str]:
@@ -176,7 +212,8 @@ def _params_file(path: Path, sections: dict) -> Path:
 def _write_params(out: Path, capture: Path, artifact: str, first_sample: str,
                   recorder: dict, seed: int) -> Path:
     return _params_file(out / 'demo_params.yaml', {
-        'driver': {'port': 'sim'},
+        # graded levels (pwm_bits 8) for the learned patterns; on/off ones light the same
+        'driver': {'port': 'sim://?pwm_bits=8'},
         # a seeded camera: the same demo gives the same frames, so the same figures
         'camera': {'backend': 'sim', 'capture_dir': str(capture.resolve()),
                    'sample': first_sample, 'noise': 'auto', 'seed': seed},
@@ -230,7 +267,7 @@ def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domai
              f'simulated firmware, simulated camera, classifier, recorder; node logs in {log_dir}')
         with GraphClient(domain_id, 'lightstage_demo') as graph:
             graph.wait_for_subscriptions(RECORDER, RECORDED, 30.0)
-            for method in ('greedy', 'naive'):
+            for method in summary:
                 _set_parameter(graph, CLASSIFIER_NODE, 'artifact_path', summary[method]['artifact'])
                 n_images = summary[method]['best_n_images']
                 rows = []

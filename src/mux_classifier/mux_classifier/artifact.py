@@ -20,16 +20,21 @@ from lightstage_physics.rig import DEFAULT_DIMMER, N_LEDS, site_to_led_patterns
 from lightstage_graph.limits import DIMMER_MAX, DIMMER_MIN, LimitError, check_range
 from sklearn.utils.validation import check_is_fitted
 
-from .artifact_format import (FORMAT_NAME, FORMAT_VERSION, MODES, READABLE_VERSIONS,
-                              UNRECORDED_DIMMER, ArtifactError, read_artifact, write_artifact)
-from .estimator import MuxClassifier
+from .artifact_format import (FORMAT_NAME, FORMAT_VERSION, LEARNED_MODE, MAX_IMAGES,
+                              MAX_LEARNED_WIDTH, MODES, READABLE_VERSIONS, UNRECORDED_DIMMER,
+                              ArtifactError, read_artifact, write_artifact)
+from .estimator import LearnedModelClassifier, MuxClassifier
 from .features import DEFAULT_EXTRACTOR, check_stacks, searchable_extractor
 from .hog import HogConfig
+from .learned_model import LearnedModel
+
+# the features a learned model classifies with (`learned_model`: intensity statistics)
+LEARNED_FEATURES = "intensity_stats"
 
 __all__ = [
     "LinearStage", "Prediction", "TrainedArtifact", "ArtifactError", "DimmerMismatch",
     "FORMAT_NAME", "FORMAT_VERSION", "READABLE_VERSIONS", "UNRECORDED_DIMMER", "noise_to_dict",
-    "check_dimmer",
+    "check_dimmer", "LEARNED_FEATURES",
 ]
 
 class DimmerMismatch(ArtifactError):
@@ -114,7 +119,11 @@ class TrainedArtifact:
     `check_dimmer`); ``dimmer_recorded`` is False for a format-1 file, which did not record
     it (its trainings all used `UNRECORDED_DIMMER`). ``led_patterns`` may be None when
     ``site_patterns`` are given: they are derived from them (`rig.site_to_led_patterns`).
-    Prediction is the estimator's: `classifier` (a fitted `MuxClassifier` per image count).
+    ``learned``: a learned-illumination model (`LearnedModel`, or its `to_arrays()` dict),
+    with ``mode == "learned"``, no linear ``stages``, its patterns as ``led_patterns`` (None:
+    taken from it) and its own classifier for its k images.
+    Prediction is the estimator's: `classifier` (a fitted `MuxClassifier` per image count, or
+    the learned model's `LearnedModelClassifier`).
     """
 
     led_patterns: np.ndarray
@@ -128,8 +137,11 @@ class TrainedArtifact:
     dimmer: float = DEFAULT_DIMMER
     dimmer_recorded: bool = True
     features: str = DEFAULT_EXTRACTOR
+    learned: LearnedModel | None = None
 
     def __post_init__(self):
+        if self.learned is not None and not isinstance(self.learned, LearnedModel):
+            self.learned = _learned_model(self.learned)
         # the LED patterns the site patterns give (the one expansion of a construction)
         from_sites = None
         if self.site_patterns is not None:
@@ -137,6 +149,8 @@ class TrainedArtifact:
                 self.site_patterns = np.asarray(self.site_patterns, dtype=np.float32)
             if self.site_patterns.ndim == 2:
                 from_sites = site_to_led_patterns(self.site_patterns)
+        if self.led_patterns is None and self.learned is not None:
+            self.led_patterns = self.learned.patterns
         if self.led_patterns is None:
             if from_sites is None:
                 raise ArtifactError("give led_patterns (32, N) or site_patterns (8, m)")
@@ -185,6 +199,17 @@ class TrainedArtifact:
                    site_patterns=site_patterns, provenance=dict(provenance or {}),
                    dimmer=dimmer, features=first.features)
 
+    @classmethod
+    def from_learned(cls, model: LearnedModel, *, noise=None, hog_config=None,
+                     provenance=None, dimmer=DEFAULT_DIMMER, class_names=None):
+        """Build from a fitted learned-illumination model (`LearnedModel`): its patterns,
+        its classifier for its k images; ``class_names`` default to the model's."""
+        names = list(model.class_names) if class_names is None else list(class_names)
+        return cls(led_patterns=None, class_names=names, stages=[], noise=noise,
+                   hog_config=hog_config or HogConfig(), mode=LEARNED_MODE,
+                   provenance=dict(provenance or {}), dimmer=dimmer,
+                   features=LEARNED_FEATURES, learned=model)
+
     def _validate(self, from_sites):
         """Refuse inconsistent fields; then build the estimators that predict.
         ``from_sites``: the LED patterns the site patterns give (None if they give none)."""
@@ -202,6 +227,13 @@ class TrainedArtifact:
         n_classes = len(self.class_names)
         if n_classes < 2 or len(set(self.class_names)) != n_classes:
             raise ArtifactError(f"need at least 2 distinct class names, got {self.class_names}")
+        if (self.learned is not None) != (self.mode == LEARNED_MODE):
+            raise ArtifactError(f"mode {self.mode!r} with{'' if self.learned is not None else 'out'}"
+                                f" a learned model: mode {LEARNED_MODE!r} goes with one, and only "
+                                "with one")
+        if self.learned is not None:
+            self._validate_learned()
+            return
         if not self.stages:
             raise ArtifactError("the artifact holds no classifier")
         if not isinstance(self.features, str):
@@ -233,6 +265,41 @@ class TrainedArtifact:
                                                   features=self.features)
             for s in self.stages}
 
+    def _validate_learned(self):
+        """A learned model's arrays are finite and sized as the artifact says; it is the
+        artifact's one classifier."""
+        m = self.learned
+        arrays = {"patterns": m.patterns, "feature_mean": m.feature_mean,
+                  "feature_scale": m.feature_scale}
+        for i, (W, b) in enumerate(m.layers):
+            arrays[f"layer{i}_W"], arrays[f"layer{i}_b"] = W, b
+        for name, a in arrays.items():
+            if not np.isfinite(a).all():
+                raise ArtifactError(f"learned model array {name!r} holds non-finite values")
+        if m.patterns.shape[0] != N_LEDS or not 1 <= m.n_images <= MAX_IMAGES:
+            raise ArtifactError(f"learned model array 'patterns' must be ({N_LEDS}, k) with k "
+                                f"in 1 .. {MAX_IMAGES}, got shape {m.patterns.shape}")
+        if not np.array_equal(m.patterns, self.led_patterns):
+            raise ArtifactError("led_patterns differ from the learned model's patterns")
+        for i, (W, _) in enumerate(m.layers[:-1]):
+            if W.shape[1] > MAX_LEARNED_WIDTH:
+                raise ArtifactError(f"learned model layer {i} has {W.shape[1]} outputs, more "
+                                    f"than {MAX_LEARNED_WIDTH}")
+        if m.n_classes != len(self.class_names):
+            raise ArtifactError(f"the learned model scores {m.n_classes} classes but "
+                                f"class_names lists {len(self.class_names)}")
+        if m.class_names and list(m.class_names) != self.class_names:
+            raise ArtifactError(f"the learned model's class names {reprlib.repr(m.class_names)} "
+                                f"differ from class_names {reprlib.repr(self.class_names)}")
+        if self.stages:
+            raise ArtifactError("a learned artifact classifies with its learned model: give no "
+                                "linear stages")
+        if self.features != LEARNED_FEATURES:
+            raise ArtifactError(f"a learned model classifies with {LEARNED_FEATURES!r} "
+                                f"features, not {reprlib.repr(self.features)}")
+        self._classifiers = {m.n_images: LearnedModelClassifier.from_model(
+            m, np.asarray(self.class_names), hog_config=self.hog_config)}
+
     # --- use
     def describe(self) -> str:
         """One line of what the artifact holds, for logs and listings."""
@@ -240,13 +307,19 @@ class TrainedArtifact:
         if not self.dimmer_recorded:
             dimmer += (f" (not recorded: a format-1 file; every training before format 2 "
                        f"used {UNRECORDED_DIMMER:g})")
-        return (f"{len(self.class_names)} classes, {self.mode} patterns, {self.features} "
+        mode = f"{self.mode} patterns"
+        if self.learned is not None:
+            levels = "on/off" if np.isin(self.led_patterns, (0, 1)).all() else "graded"
+            mode = f"learned {levels} patterns ({len(self.learned.layers)}-layer head)"
+        return (f"{len(self.class_names)} classes, {mode}, {self.features} "
                 f"features, classifiers for {self.n_images} images, noise "
                 f"{self.noise.get('name')}, {dimmer}")
 
     @property
     def n_images(self) -> list[int]:
         """Image counts that have a classifier, increasing."""
+        if self.learned is not None:
+            return [self.learned.n_images]
         return [s.n_images for s in self.stages]
 
     def stage(self, n_images: int | None = None) -> LinearStage:
@@ -256,14 +329,21 @@ class TrainedArtifact:
         for s in self.stages:
             if s.n_images == n_images:
                 return s
-        raise ArtifactError(
+        raise self._no_classifier(n_images)
+
+    def _no_classifier(self, n_images) -> ArtifactError:
+        return ArtifactError(
             f"this artifact has classifiers for {self.n_images} images, not {n_images}; "
             f"capture the first k images of its patterns (in order) for one of those k")
 
-    def classifier(self, n_images: int | None = None) -> MuxClassifier:
-        """The fitted MuxClassifier for ``n_images`` (labels are class names); every
-        prediction of the artifact is its."""
-        return self._classifiers[self.stage(n_images).n_images]
+    def classifier(self, n_images: int | None = None):
+        """The fitted estimator for ``n_images`` (labels are class names): a MuxClassifier,
+        or a learned artifact's LearnedModelClassifier; every prediction of the artifact is
+        its."""
+        k = self.n_images[-1] if n_images is None else n_images
+        if k not in self._classifiers:
+            raise self._no_classifier(n_images)
+        return self._classifiers[k]
 
     def _check(self, stacks, n_images):
         try:
@@ -275,7 +355,7 @@ class TrainedArtifact:
             n_images = k
         elif k != n_images:
             raise ArtifactError(f"expected {n_images} images per stack, got {k}")
-        self.stage(n_images)
+        self.classifier(n_images)
         return arr
 
     def decision_function(self, stacks, n_images: int | None = None) -> np.ndarray:
@@ -314,6 +394,17 @@ class TrainedArtifact:
         saying what is wrong: a caller catches that one type.
         """
         return read_artifact(path, cls)
+
+
+def _learned_model(arrays) -> LearnedModel:
+    """A LearnedModel from its named arrays (`LearnedModel.to_arrays`); ArtifactError naming
+    what is wrong."""
+    try:
+        return LearnedModel.from_arrays(dict(arrays))
+    except KeyError as exc:
+        raise ArtifactError(f"learned model arrays lack {exc}; retrain to get a new file") from None
+    except (TypeError, ValueError) as exc:
+        raise ArtifactError(f"learned model arrays: {exc}") from None
 
 
 def _positive_dimmer(value, what: str) -> float:

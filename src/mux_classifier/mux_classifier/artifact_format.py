@@ -26,18 +26,25 @@ from .features import DEFAULT_EXTRACTOR, searchable_extractor
 from .hog import HogConfig
 
 __all__ = ["ArtifactError", "FORMAT_NAME", "FORMAT_VERSION", "READABLE_VERSIONS",
-           "UNRECORDED_DIMMER", "MODES", "MAX_IMAGES", "read_artifact", "write_artifact"]
+           "UNRECORDED_DIMMER", "MODES", "MAX_IMAGES", "LEARNED_MODE", "LEARNED_PREFIX",
+           "read_artifact", "write_artifact"]
 
 FORMAT_NAME = "lightstage.mux_classifier"
+# 4: mode "learned": a learned-illumination model, every array of its `to_arrays()` stored
+# as "learned_<name>" (new arrays of the model need no format change), no coef_/intercept_.
 # 3: the header names the feature extractor ("features"); before, it was always the HOG grid.
 # 2: the header records the dimmer the training rendered with. 1: it did not; every
 # training that wrote version 1 rendered at the authors' dimmer, `UNRECORDED_DIMMER` (should
 # DEFAULT_DIMMER ever change, this must keep its old value).
-FORMAT_VERSION = 3
-READABLE_VERSIONS = (1, 2, 3)
+FORMAT_VERSION = 4
+READABLE_VERSIONS = (1, 2, 3, 4)
 UNRECORDED_DIMMER = DEFAULT_DIMMER
-MODES = ("per_colour", "joint", "naive")
+LEARNED_MODE = "learned"
+MODES = ("per_colour", "joint", "naive", LEARNED_MODE)
+LEARNED_SINCE = 4  # the first format version with learned models
+LEARNED_PREFIX = "learned_"
 MAX_IMAGES = 4096  # images of one classification: far beyond any search (16 in the paper)
+MAX_LEARNED_WIDTH = 4096  # hidden units of a learned model's layer (the trainer's: 0 .. 64)
 DIMMER_RANGE = (DIMMER_MIN, DIMMER_MAX)
 
 
@@ -75,6 +82,9 @@ def write_artifact(path, artifact) -> None:
     for s in artifact.stages:
         arrays[f"coef_{s.n_images}"] = s.coef
         arrays[f"intercept_{s.n_images}"] = s.intercept
+    if artifact.learned is not None:
+        for name, a in artifact.learned.to_arrays().items():
+            arrays[LEARNED_PREFIX + name] = np.asarray(a)
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
     # a new file of its own ("x": never another's), created with the umask's mode as any
@@ -97,7 +107,7 @@ def read_artifact(path, build):
 
     ``fields`` are TrainedArtifact's: led_patterns, class_names, stages (tuples n_images,
     coef, intercept), noise, hog_config, mode, site_patterns, provenance, dimmer,
-    dimmer_recorded, features. Whatever else ``path`` holds (nothing, a directory, another
+    dimmer_recorded, features, learned (None, or a learned model's named arrays). Whatever else ``path`` holds (nothing, a directory, another
     kind of file, an archive whose members are not .npy arrays, a malformed header or
     arrays), and any ArtifactError of ``build``, raises ArtifactError saying what is wrong.
     """
@@ -155,20 +165,55 @@ def _fields(header: dict, arrays: dict) -> dict:
         dimmer, recorded = field_of("dimmer", (int, float), "a positive number"), True
     features = (field_of("features", str, "the name of a feature extractor")
                 if header["format_version"] >= 3 else DEFAULT_EXTRACTOR)
+    mode = field_of("mode", str, f"one of {MODES}")
+    learned = None
+    if mode == LEARNED_MODE:
+        learned = _learned_arrays(arrays)
+        k = learned["patterns"].shape[1] if learned["patterns"].ndim == 2 else None
+        if n_images != [k]:
+            raise ArtifactError(f"header field 'n_images' must be [{k}], the learned model's "
+                                f"image count, got {reprlib.repr(n_images)}")
     return dict(
         led_patterns=array("led_patterns"),
         class_names=class_names,
-        stages=[(k, array(f"coef_{k}"), array(f"intercept_{k}")) for k in n_images],
+        stages=([] if learned is not None else
+                [(k, array(f"coef_{k}"), array(f"intercept_{k}")) for k in n_images]),
         noise=field_of("noise", dict, "an object (the noise setting)"),
         hog_config=HogConfig.from_dict(field_of("hog_config", dict, "an object")),
-        mode=field_of("mode", str, f"one of {MODES}"),
+        mode=mode,
         site_patterns=(_site_patterns(arrays, array)
                        if field_of("has_site_patterns", bool, "true or false") else None),
         provenance=dict(field_of("provenance", (dict, type(None)), "an object") or {}),
         dimmer=dimmer,
         dimmer_recorded=recorded,
         features=features,
+        learned=learned,
     )
+
+
+def _learned_arrays(arrays: dict) -> dict:
+    """The learned model's arrays ("learned_<name>" -> name), each of real numbers (its
+    class names: text) and finite; ArtifactError naming the first that is not."""
+    found = {name[len(LEARNED_PREFIX):]: a for name, a in arrays.items()
+             if name.startswith(LEARNED_PREFIX)}
+    if "patterns" not in found:
+        raise ArtifactError(f"header field 'mode' is {LEARNED_MODE!r} but it has no array "
+                            f"'{LEARNED_PREFIX}patterns'; retrain to get a new file")
+    for name, a in found.items():
+        member = LEARNED_PREFIX + name
+        if name == "class_names":
+            if a.dtype.kind != "U" or a.ndim != 1:
+                raise ArtifactError(f"array {member!r} must be a 1-D array of text, got "
+                                    f"{a.dtype} of shape {a.shape}")
+            continue
+        if a.dtype.kind not in "biuf":
+            raise ArtifactError(f"array {member!r} holds {a.dtype} values, not real numbers")
+        with np.errstate(over="ignore"):
+            finite = np.isfinite(a.astype(np.float32)).all()
+        if not finite:
+            raise ArtifactError(f"array {member!r} holds values that are not finite float32 "
+                                "numbers; retrain to get a new file")
+    return found
 
 
 def _site_patterns(arrays: dict, array) -> np.ndarray:
@@ -302,6 +347,11 @@ def _check_header_ranges(header: dict) -> None:
     mode = header.get("mode")
     if isinstance(mode, str) and mode not in MODES:
         raise ArtifactError(f"header field 'mode' must be one of {MODES}, got {reprlib.repr(mode)}")
+    version = header.get("format_version")
+    if mode == LEARNED_MODE and isinstance(version, int) and version < LEARNED_SINCE:
+        raise ArtifactError(f"header field 'mode' is {LEARNED_MODE!r}, which format version "
+                            f"{version} does not have (learned models since version "
+                            f"{LEARNED_SINCE})")
 
 
 def _json_number(text: str) -> float:

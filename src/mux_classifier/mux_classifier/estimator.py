@@ -16,7 +16,7 @@ from sklearn.utils.validation import check_is_fitted
 from .features import DEFAULT_EXTRACTOR, check_stacks, column_scaling, searchable_extractor
 from .hog import HogConfig
 
-__all__ = ["ESTIMATORS", "MuxClassifier", "column_scaling"]
+__all__ = ["ESTIMATORS", "LearnedModelClassifier", "MuxClassifier", "column_scaling"]
 
 ESTIMATORS = ("linear_svm", "ridge")
 
@@ -175,3 +175,42 @@ class MuxClassifier(ClassifierMixin, BaseEstimator):
         clf.n_images_ = coef.shape[1] // n_per_image
         clf.n_features_in_ = coef.shape[1]
         return clf
+
+
+class LearnedModelClassifier(ClassifierMixin, BaseEstimator):
+    """A learned-illumination model (`learned_model.LearnedModel`: its own patterns, object
+    statistics, z-scoring and dense head) as a fitted estimator with MuxClassifier's
+    prediction interface on stacks, so that an artifact predicts through one path whatever
+    its method. Scores are the head's logits. Fitting is the trainer's
+    (`mux_trainer.learned`, JAX); this side is numpy only.
+
+    Fitted attributes (`from_model`): ``model_``, ``classes_``, ``n_images_``.
+    """
+
+    def __init__(self, hog_config=None):
+        self.hog_config = hog_config
+
+    @classmethod
+    def from_model(cls, model, classes, hog_config=None) -> "LearnedModelClassifier":
+        clf = cls(hog_config=hog_config)
+        clf.model_ = model
+        clf.classes_ = np.asarray(classes)
+        clf.n_images_ = int(model.n_images)
+        if clf.classes_.size != model.n_classes:
+            raise ValueError(f"the learned model scores {model.n_classes} classes, "
+                             f"got {clf.classes_.size} class names")
+        return clf
+
+    def fit(self, stacks, y):
+        raise NotImplementedError("a learned model is trained with its patterns "
+                                  "(mux_trainer.learned.LearnedIlluminationClassifier)")
+
+    def decision_function(self, stacks) -> np.ndarray:
+        """Per-class scores (n, n_classes), the logits, for stacks (n, k, H, W)."""
+        check_is_fitted(self, "model_")
+        config = HogConfig() if self.hog_config is None else self.hog_config
+        arr = check_stacks(stacks, config, n_images=self.n_images_)
+        return self.model_.logits_from_features(self.model_.features(arr)).astype(np.float64)
+
+    def predict(self, stacks) -> np.ndarray:
+        return self.classes_[np.argmax(self.decision_function(stacks), axis=1)]

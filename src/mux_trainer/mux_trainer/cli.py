@@ -126,6 +126,59 @@ def _load(capture_dir: str, hog_config):
         raise SystemExit(f'lightstage: cannot load capture {capture_dir}: {exc}{hint}') from None
 
 
+def _learned_arguments(p: argparse.ArgumentParser) -> None:
+    from .learned_method import DEFAULT_STEPS
+    g = p.add_argument_group('learned illumination (--method learned)')
+    g.add_argument('--binary', action='store_true',
+                   help='on/off LED levels (boards with pwm_bits 0) instead of graded ones '
+                        '(pwm_bits 8)')
+    g.add_argument('--steps', type=int, default=None,
+                   help=f'gradient steps on the LED levels from the best start (default: '
+                        f'{DEFAULT_STEPS}; snapshots scored by the inner pose splits, the best kept)')
+
+
+def _learned_options(prog: str, args) -> dict:
+    """--binary / --steps for the learned method (refused with another one)."""
+    from .learned_method import check_steps
+    if args.method != 'learned':
+        if args.binary or args.steps is not None:
+            raise SystemExit(f'{prog}: --binary and --steps apply to --method learned only')
+        return {}
+    if args.steps is not None:
+        try:
+            check_steps(args.steps)
+        except ValueError as exc:
+            raise SystemExit(f'{prog}: --steps: {exc}') from None
+    return {'binary': args.binary, 'steps': args.steps}
+
+
+def _learned_eval_arguments(p: argparse.ArgumentParser) -> None:
+    from .learned_method import DEFAULT_STEPS, EVAL_EXPOSURES
+    g = p.add_argument_group('learned illumination (method learned, not in the default list)')
+    g.add_argument('--learned-exposures', default=','.join(map(str, EVAL_EXPOSURES)),
+                   metavar='K[,K]', help='exposure counts to train a learned model for, one '
+                   'model each (default: %(default)s)')
+    g.add_argument('--learned-steps', type=int, default=DEFAULT_STEPS,
+                   help='most training steps of each learned model (default: %(default)s)')
+    g.add_argument('--learned-binary', action='store_true',
+                   help='on/off LED levels instead of graded ones')
+
+
+def _learned_eval_options(args, methods) -> dict | None:
+    from .learned_method import check_steps
+    if 'learned' not in methods:
+        return None
+    try:
+        exposures = sorted({int(k) for k in args.learned_exposures.split(',') if k.strip()})
+        check_steps(args.learned_steps)
+    except ValueError as exc:
+        raise SystemExit(f'lightstage eval: --learned-exposures / --learned-steps: {exc}') from None
+    if not exposures or exposures[0] < 1:
+        raise SystemExit(f'lightstage eval: --learned-exposures must list counts >= 1, got '
+                         f'{args.learned_exposures!r}')
+    return {'exposures': exposures, 'steps': args.learned_steps, 'binary': args.learned_binary}
+
+
 def train_main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog='lightstage train',
@@ -137,7 +190,12 @@ def train_main(argv: list[str] | None = None) -> int:
                         'other existing file only with --force')
     p.add_argument('--force', action='store_true',
                    help='replace --out even if it is an existing file that is not an artifact')
-    p.add_argument('--method', choices=('greedy', 'snr_optimal', 'naive'), default='greedy')
+    p.add_argument('--method', choices=('greedy', 'snr_optimal', 'naive', 'learned'),
+                   default='greedy',
+                   help='greedy (the paper\'s search, default), snr_optimal, naive, or learned '
+                        '(LED levels and a classifier trained end to end; --max-images is its '
+                        'number of exposures, one image per learned pattern; docs/LEARNED.md)')
+    _learned_arguments(p)
     p.add_argument('--mode', choices=('per_colour', 'joint'), default='per_colour',
                    help='greedy only: 8-site patterns per colour (paper) or 32-LED patterns')
     p.add_argument('--noise', default='sigma3', help=f'{NOISE_HELP} (default: sigma3)')
@@ -158,6 +216,7 @@ def train_main(argv: list[str] | None = None) -> int:
     p.add_argument('--beam-width', type=int, default=1, help='joint mode: beam width')
     args = p.parse_args(argv)
     _positive(args, 'repeats', 'max_images', 'beam_width')
+    learned = _learned_options('lightstage train', args)
     if args.refine_top < 0:
         raise SystemExit(f'lightstage: --refine-top must be >= 0, got {args.refine_top}')
     hog_config = _hog_config(args)
@@ -177,7 +236,8 @@ def train_main(argv: list[str] | None = None) -> int:
                 n_jobs=args.jobs, hog_config=hog_config, fixed_count=args.fixed_count,
                 inner_classifier=args.inner_classifier, final_classifier=args.classifier,
                 beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet,
-                features=features, count_rule=args.count_rule, force=args.force)
+                features=features, count_rule=args.count_rule, force=args.force,
+                **learned)
         except ValueError as exc:
             raise SystemExit(f'lightstage train: {exc}') from None
         except ArtifactNotWritten as exc:  # the result is printed all the same
@@ -224,6 +284,7 @@ def eval_main(argv: list[str] | None = None) -> int:
                    help='greedy_joint: most 32-LED pattern columns, one exposure each (default: '
                         '--max-images; 4 x --max-images matches the per-colour search\'s '
                         'exposures)')
+    _learned_eval_arguments(p)
     p.add_argument('--out', metavar='DIR', help='write results.json, CSVs and PNG plots here')
     p.add_argument('--no-plots', action='store_true', help='with --out: skip the PNG plots')
     p.add_argument('--from-results', metavar='FILE',
@@ -248,6 +309,7 @@ def eval_main(argv: list[str] | None = None) -> int:
     bad = [m for m in methods if m not in METHODS]
     if not methods or bad:
         raise SystemExit(f'lightstage eval: unknown method(s) {bad}; use {", ".join(METHODS)}')
+    learned_options = _learned_eval_options(args, methods)
     if not 0 < args.holdout < 1:
         raise SystemExit(f'lightstage eval: --holdout must be in (0, 1), got {args.holdout}')
     hog_config = _hog_config(args)
@@ -268,7 +330,8 @@ def eval_main(argv: list[str] | None = None) -> int:
                                      hog_config=hog_config, beam_width=args.beam_width,
                                      joint_max_images=args.joint_max_images, quiet=args.quiet,
                                      progress=not args.quiet, holdout_by=args.holdout_by,
-                                     count_rule=args.count_rule)
+                                     count_rule=args.count_rule,
+                                     learned_options=learned_options)
         except ValueError as exc:
             raise SystemExit(f'lightstage eval: {exc}') from None
     results['capture'] = str(Path(args.capture_dir).resolve())

@@ -9,7 +9,8 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-STYLE = {'greedy': ('-', 'o'), 'snr_optimal': ('--', 's'), 'greedy_joint': (':', '^')}
+STYLE = {'greedy': ('-', 'o'), 'snr_optimal': ('--', 's'), 'greedy_joint': (':', '^'),
+         'learned': ('-.', 'D')}
 
 
 def plot_accuracy_vs_images(doc: dict, path, by: str = 'columns') -> Path:

@@ -30,7 +30,7 @@ from .greedy import GreedyPatternSelector
 from .holdout import HOLDOUT_BY, accuracy_by_type, holdout_split, method_summary, test_features
 from .search_params import Execution, SplitScoring
 
-METHODS = ('naive', 'naive_bow', 'snr_optimal', 'greedy', 'greedy_joint')
+METHODS = ('naive', 'naive_bow', 'snr_optimal', 'greedy', 'greedy_joint', 'learned')
 DEFAULT_METHODS = ('naive', 'naive_bow', 'snr_optimal', 'greedy')
 
 
@@ -59,11 +59,30 @@ def _naive_bow_summary(naive, train_data, test_data, n_renders, seed, n_jobs):
     }
 
 
+def _learned_result(train, test, noise, *, n_renders, seed, hog_config, quiet, progress,
+                    exposures=None, steps=None, binary=False) -> dict:
+    """Learned illumination: one model per exposure count (`learned_method`), trained on
+    `train` (chosen by greedy's inner pose splits within it), tested like every method."""
+    import contextlib
+
+    from .learned_method import DEFAULT_STEPS, EVAL_EXPOSURES, build_learned, learned_summary
+    models = {}
+    t0 = time.perf_counter()
+    for k in exposures or EVAL_EXPOSURES:
+        _log(f'[{noise}] learned: training {k} exposures on {train.n_samples} samples', quiet)
+        model = build_learned(k, binary=binary, steps=steps or DEFAULT_STEPS, noise=noise,
+                              hog_config=hog_config, seed=seed, progress=progress)
+        with contextlib.redirect_stdout(sys.stderr):  # stdout: only the results (--json)
+            models[int(k)] = model.fit(train)
+    return learned_summary(models, test, n_renders, seed, train_seconds=time.perf_counter() - t0)
+
+
 def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_repeats=400,
                            max_images=8, holdout_fraction=0.25, n_renders=4, seed=0,
                            n_jobs=1, hog_config=None, beam_width=1, joint_max_images=None,
                            quiet=False, progress=False, features='hog_grid',
-                           naive_bow=None, holdout_by='poses', count_rule='max') -> dict:
+                           naive_bow=None, holdout_by='poses', count_rule='max',
+                           learned=None, learned_options=None) -> dict:
     """All requested methods at one noise setting; returns {'methods': {...}, ...}.
 
     joint_max_images: pattern columns of 'greedy_joint' (one exposure each; default
@@ -75,6 +94,8 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     other poses) or 'instances' (physical samples held out with all their poses).
     count_rule: how each method's column count is chosen from its split accuracies
     (`column_count`); every method's result also reports what each rule would keep.
+    learned: an earlier run's 'learned' result for this noise, reused (it classifies with
+    its own statistics, whatever `features`); learned_options: `_learned_result`'s.
     """
     unknown = set(methods) - set(METHODS)
     if unknown:
@@ -95,6 +116,13 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
         t0 = time.perf_counter()
         if name == 'naive_bow' and naive_bow is not None:
             results[name] = naive_bow
+            continue
+        if name == 'learned':
+            results[name] = learned or _learned_result(
+                train, test, noise, n_renders=n_renders, seed=seed, hog_config=hog_config,
+                quiet=quiet, progress=progress, **(learned_options or {}))
+            _log(f'[{noise}] learned: held-out accuracy {results[name]["accuracy"]:.4f} at '
+                 f'{results[name]["n_images"]} image(s)', quiet)
             continue
         _log(f'[{noise}, {features}] {name}: training on {train.n_samples} samples '
              f'({len(np.unique(train.pose_index))} poses per class)', quiet)
@@ -141,8 +169,9 @@ def run_evaluation(modelset, noises=('sigma3',), methods=DEFAULT_METHODS,
         for noise in noises:
             earlier = by_features[features[0]]['by_noise'][noise] if by_features else None
             bow = earlier['methods'].get('naive_bow') if earlier else None
+            learned = earlier['methods'].get('learned') if earlier else None
             by_noise[noise] = evaluate_noise_setting(modelset, noise, methods, features=feature,
-                                                     naive_bow=bow, **kwargs)
+                                                     naive_bow=bow, learned=learned, **kwargs)
         by_features[feature] = {'methods': by_noise[noises[0]]['methods'], 'by_noise': by_noise}
     first = by_features[features[0]]
     return {'noise': noises[0], 'features': features[0], 'methods': first['methods'],

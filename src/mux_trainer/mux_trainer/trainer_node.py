@@ -16,7 +16,7 @@ import time
 from lightstage_physics.workers import usable_cores
 from lightstage_graph.leds import n_site_subsets
 from lightstage_graph.names import TRAINER_NODE, TRAIN_ACTION
-from lightstage_graph.params import declare_parameters, floating, integer, string
+from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
 from mux_classifier.features import DEFAULT_EXTRACTOR, EXTRACTORS
 from lightstage_graph.spin import init_node, spin_until_stopped
 from lightstage_interfaces.action import Train
@@ -27,7 +27,8 @@ from rclpy.node import Node
 
 from .cluster import DEFAULT_TIMEOUT_S
 from .greedy import REFINE_TOP
-from .training import train_from_capture
+from .learned_method import DEFAULT_STEPS, MAX_STEPS
+from .training import METHODS, train_from_capture
 
 SITE_CANDIDATES = n_site_subsets()  # per-colour mode: patterns with 1..7 of 8 sites lit
 MAX_JOBS = 256
@@ -47,6 +48,15 @@ PARAMETERS = {
         'hog_grid (the paper\'s), intensity_stats (objects placed any way), pooled_hog, '
         'pooled_hog_stats or pose_hog (docs/SEARCH.md); a bad name aborts the goal',
         constraints=', '.join(n for n, c in EXTRACTORS.items() if c.searchable))),
+    'method': ('greedy', string(
+        'method of a goal whose method field is empty: greedy (the paper\'s search), '
+        'snr_optimal, naive or learned (LED levels and a classifier trained end to end, '
+        'max_images exposures; docs/LEARNED.md); a bad name aborts the goal',
+        constraints=', '.join(METHODS))),
+    'learned_steps': (DEFAULT_STEPS, integer(
+        'learned: gradient steps on the LED levels from the best start', 1, MAX_STEPS)),
+    'learned_binary': (False, boolean(
+        'learned: on/off LED levels (boards with pwm_bits 0) instead of graded ones')),
     'dask_scheduler': ('', string(
         'address of an existing Dask scheduler to evaluate the candidates on, e.g. '
         'tcp://HOST:8786 (empty = locally, with n_jobs processes); same results')),
@@ -90,6 +100,14 @@ class TrainerNode(Node):
     def _on_cancel(self, _goal_handle) -> CancelResponse:
         return CancelResponse.ACCEPT
 
+    def _method_options(self, goal) -> dict:
+        """The `method` parameter for a goal that names none; the learned method's options."""
+        method = goal.method or str(self.p('method'))
+        if method != 'learned':
+            return {'method': method}
+        return {'method': method, 'steps': int(self.p('learned_steps')),
+                'binary': bool(self.p('learned_binary'))}
+
     def _execute(self, goal_handle):
         goal = goal_handle.request
         result = Train.Result()
@@ -97,6 +115,7 @@ class TrainerNode(Node):
         with self._busy:
             options = goal_options(goal, int(self.p('n_jobs')), int(self.p('refine_top')),
                                    str(self.p('features')))
+            options.update(self._method_options(goal))
             cluster = dict(dask_scheduler=str(self.p('dask_scheduler')).strip(),
                            dask_timeout_s=float(self.p('dask_timeout_s')))
             total = SITE_CANDIDATES if options['mode'] == 'per_colour' else 0

@@ -14,7 +14,7 @@ from lightstage_physics.workers import check_jobs
 from .cluster import DEFAULT_TIMEOUT_S, dask_cluster
 from .data import resolve_noise
 
-METHODS = ('greedy', 'snr_optimal', 'naive')
+METHODS = ('greedy', 'snr_optimal', 'naive', 'learned')
 MODES = ('per_colour', 'joint')
 
 
@@ -196,6 +196,8 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **o
     an existing file that is not an artifact.
     """
     out = check_artifact_path(out_path, force)
+    if options.get('method') == 'learned':
+        return _train_learned(modelset, out, capture, **options)
     model = build_model(**options)
     t0 = time.perf_counter()
     model.fit(modelset)
@@ -217,5 +219,43 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **o
     }
     if hasattr(model, 'improved_'):
         summary['improved'] = [bool(v) for v in model.improved_]
+    _save_artifact(artifact, out, summary)
+    return summary
+
+
+def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8, seed=0,
+                   hog_config=None, progress=False, binary=False, steps=None,
+                   **_search_options) -> dict:
+    """`train_modelset` for method 'learned' (`learned_method`): ``max_images`` exposures,
+    one learned pattern each, graded or on/off (``binary``), at most ``steps`` steps. The
+    search's options (repeats, mode, features, n_jobs, ...) do not apply: a learned model
+    classifies with its own statistics (intensity_stats). Its progress goes to stderr."""
+    import contextlib
+    import sys
+
+    from .learned_method import DEFAULT_STEPS, build_learned, learned_artifact, pattern_levels
+    model = build_learned(max_images, binary=binary,
+                          steps=DEFAULT_STEPS if steps is None else steps, noise=noise,
+                          hog_config=hog_config, seed=seed, progress=progress)
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(sys.stderr):  # stdout: only the result (--json)
+        model.fit(modelset)
+    seconds = time.perf_counter() - t0
+    provenance = {'train_seconds': seconds}
+    if capture is not None:
+        provenance['capture'] = str(Path(capture).resolve())
+    artifact = learned_artifact(model, provenance)
+    summary = {
+        'method': 'learned', 'mode': artifact.mode, 'binary': bool(binary),
+        'noise': noise if isinstance(noise, str) else artifact.noise['name'],
+        'features': artifact.features, 'artifact': str(out),
+        'class_names': list(artifact.class_names),
+        'patterns': pattern_levels(model.patterns_),
+        'images_per_pattern': 1,
+        'accuracy_by_images': {str(k): float(v) for k, v in model.accuracy_by_images_.items()},
+        'best_n_images': int(model.best_n_patterns_),
+        'best_step': int(model.best_step_),
+        'train_seconds': seconds,
+    }
     _save_artifact(artifact, out, summary)
     return summary

@@ -1,0 +1,62 @@
+#!/usr/bin/env python3
+"""Classify compute per sample for trained artifacts: what the classifier node times as
+``compute_ms`` (`inference.classify_frames`: mono16 -> gray levels, the area downscale,
+the artifact's estimator for its k images), on the same frames for every artifact.
+
+Each artifact classifies ``--samples`` stacks of its own image count (mono16 frames of a
+bright textured object on a dark noisy floor, ``--frame-px`` square), one sample per call
+as the node does, the artifacts alternating so that load from other processes hits them
+alike. Prints the median and the 90th percentile ms per sample.
+
+    .venv/bin/python benchmarks/bench_learned_classify.py out/demo/learned_sigma3.npz \\
+        out/demo/greedy_sigma3.npz [--samples 200] [--frame-px 120]
+(with src/mux_classifier on PYTHONPATH if the package is not installed)
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "src", "mux_classifier"))
+
+from mux_classifier.artifact import TrainedArtifact  # noqa: E402
+from mux_classifier.inference import classify_frames  # noqa: E402
+
+
+def frames(k: int, size: int, rng) -> list[np.ndarray]:
+    """k mono16 frames (10 significant bits, shifted left by 6 as the camera sends them)."""
+    images = rng.normal(40, 4, (k, size, size))
+    h = size // 3
+    images[:, h:2 * h, h:2 * h] += 300 + rng.normal(0, 30, (k, h, h))
+    return list((np.clip(images, 0, 1023).astype(np.uint16) << 6))
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("artifacts", nargs="+")
+    p.add_argument("--samples", type=int, default=200)
+    p.add_argument("--frame-px", type=int, default=120)
+    args = p.parse_args(argv)
+    rng = np.random.default_rng(0)
+    arts = [TrainedArtifact.load(path) for path in args.artifacts]
+    times = [[] for _ in arts]
+    for _ in range(args.samples):
+        for art, spent in zip(arts, times):
+            stack = frames(art.n_images[-1], args.frame_px, rng)
+            t0 = time.perf_counter()
+            classify_frames(art, stack)
+            spent.append((time.perf_counter() - t0) * 1e3)
+    print(f"load average {os.getloadavg()[0]:.1f}; {args.samples} samples, one per call, "
+          f"frames {args.frame_px} px")
+    for path, art, spent in zip(args.artifacts, arts, times):
+        print(f"  {os.path.basename(path):<24} {art.mode:<10} {art.n_images[-1]:>3} images  "
+              f"median {np.median(spent):6.2f} ms  p90 {np.percentile(spent, 90):6.2f} ms")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,103 @@
+"""Learned illumination as a method beside the others: built from the same options,
+written to the same artifact, evaluated into the same Table 1 row.
+
+`build_learned` makes the `learned.LearnedIlluminationClassifier` of `lightstage train
+--method learned` (and the trainer node's `method: learned`), `learned_artifact` its
+trained artifact (format 4: the numpy `LearnedModel`'s arrays, `artifact.TrainedArtifact.
+from_learned`), `learned_summary` its held-out result for `lightstage eval`, one model per
+exposure count. JAX is imported only when a model is built (`learned`), so importing this
+module costs nothing.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from lightstage_physics.rig import DEFAULT_DIMMER
+
+from .data import noise_dict, resolve_noise
+
+# gradient steps of the Fisher fine-tuning from the best start (`learned`'s default; every
+# `eval_every` steps a snapshot is scored by the inner pose splits, the best kept)
+DEFAULT_STEPS = 60
+MAX_STEPS = 100_000
+# exposure counts `lightstage eval` trains a learned model for (one model each: a learned
+# k-image model's patterns are not the first k of a larger one's)
+EVAL_EXPOSURES = (4, 8)
+
+
+def check_steps(steps: int) -> None:
+    if not 1 <= int(steps) <= MAX_STEPS:
+        raise ValueError(f'steps (training steps of the learned patterns) must be 1 .. '
+                         f'{MAX_STEPS}, got {steps}')
+
+
+def build_learned(n_images=8, *, binary=False, steps=DEFAULT_STEPS, noise='sigma3',
+                  hog_config=None, seed=0, progress=False, **params):
+    """The unfitted learned-illumination estimator: ``n_images`` exposures (one image per
+    learned pattern), graded or on/off (``binary``) LED levels, at most ``steps`` steps;
+    ``params``: more of its constructor's (batch_size, n_repeats, start_patterns, ...)."""
+    from .learned import LearnedIlluminationClassifier
+    check_steps(steps)
+    if int(n_images) < 1:
+        raise ValueError(f'n_images (exposures of the learned patterns) must be >= 1, got {n_images}')
+    return LearnedIlluminationClassifier(n_images=int(n_images), binary=bool(binary),
+                                         max_steps=int(steps), noise=noise,
+                                         hog_config=hog_config, seed=int(seed),
+                                         progress=progress, **params)
+
+
+def pattern_levels(patterns) -> list:
+    """LED levels as JSON (rounded to 1/1000: a graded board has 1/255 steps)."""
+    return np.round(np.asarray(patterns, dtype=np.float64), 3).tolist()
+
+
+def learned_artifact(model, provenance: dict | None = None):
+    """The trained artifact of a fitted learned model (the classifier node's file)."""
+    from mux_classifier.artifact import TrainedArtifact
+    from mux_classifier.hog import HogConfig
+    name, noise_model = resolve_noise(model.noise)
+    prov = {'method': 'learned', 'binary': bool(model.binary), 'seed': int(model.seed),
+            'max_steps': int(model.max_steps), 'best_step': int(model.best_step_),
+            'accuracy_by_patterns': {str(k): float(v)
+                                     for k, v in model.accuracy_by_images_.items()},
+            'best_n_patterns': int(model.best_n_patterns_)}
+    prov.update(provenance or {})
+    return TrainedArtifact.from_learned(
+        model.model_, noise=noise_dict(name, noise_model),
+        hog_config=model.hog_config or HogConfig(), provenance=prov,
+        dimmer=DEFAULT_DIMMER if model.dimmer is None else model.dimmer)
+
+
+def learned_summary(models: dict, test_data, n_renders: int = 4, seed: int = 0,
+                    train_seconds: float | None = None) -> dict:
+    """The Table 1 result of learned models {exposures: fitted model}: held-out accuracy
+    of each (`learned.evaluate_learned_heldout`: the test-noise stream of every method),
+    the row at the count whose inner split accuracy (training poses only) is best,
+    fewer images on a tie -- the other methods choose theirs on training data too."""
+    from .holdout import accuracy_by_type, test_images
+    from .learned import evaluate_learned_heldout
+    results = {k: evaluate_learned_heldout(model, test_data, n_renders, seed)
+               for k, model in sorted(models.items())}
+    search = {k: float(m.accuracy_by_images_[k]) for k, m in models.items()}
+    best = max(sorted(models), key=lambda k: search[k])
+    chosen = models[best]
+    # features + head per sample (as the other methods report it: not the rendering)
+    images = test_images(test_data, 'joint', chosen.patterns_, 0, seed)
+    t0 = time.perf_counter()
+    chosen.predict_images(images)
+    infer_ms = (time.perf_counter() - t0) * 1e3 / test_data.n_samples
+    out = {
+        'accuracy': results[best]['accuracy'], 'n_images': int(best),
+        'images_per_pattern': 1, 'n_exposures': int(best),
+        'accuracy_by_type': accuracy_by_type(test_data, results[best]['correct']),
+        'accuracy_by_images': {str(k): r['accuracy'] for k, r in results.items()},
+        'search_accuracy_by_images': {str(k): a for k, a in sorted(search.items())},
+        'mode': 'learned', 'binary': bool(chosen.binary),
+        'patterns': pattern_levels(chosen.patterns_),
+        'infer_ms_per_sample': float(infer_ms),
+        'best_step_by_images': {str(k): int(m.best_step_) for k, m in sorted(models.items())},
+    }
+    if train_seconds is not None:
+        out['train_seconds'] = float(train_seconds)
+    return out
