@@ -165,8 +165,8 @@ def _train_learned(train, artifact: Path, capture: Path, args) -> dict:
                      ).save(artifact)
     k = int(model.best_n_patterns_)
     accuracy = float(model.accuracy_by_images_[k])
-    _say(f'training: learned: {seconds:.0f} s, {k} graded patterns (from the '
-         f'{model.chosen_} start; inner split accuracy {100 * accuracy:.1f} %)')
+    _say(f'training: learned: {seconds:.0f} s, {k} graded patterns (kept: {model.chosen_}, '
+         f'start + gradient steps; inner split accuracy {100 * accuracy:.1f} %)')
     return {'artifact': str(artifact), 'train_seconds': seconds, 'best_n_images': k,
             'patterns': pattern_levels(model.patterns_),
             'inner_split_accuracy_by_images': {str(k): accuracy}, 'chosen': model.chosen_}
