@@ -59,6 +59,7 @@ def learned_artifact(model, provenance: dict | None = None):
     name, noise_model = resolve_noise(model.noise)
     prov = {'method': 'learned', 'binary': bool(model.binary), 'seed': int(model.seed),
             'max_steps': int(model.max_steps), 'best_step': int(model.best_step_),
+            'chosen': str(model.chosen_),
             'accuracy_by_patterns': {str(k): float(v)
                                      for k, v in model.accuracy_by_images_.items()},
             'best_n_patterns': int(model.best_n_patterns_)}
