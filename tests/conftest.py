@@ -61,7 +61,7 @@ SLOW_MODULES = {
     'lightstage_physics/test_lowres.py', 'lightstage_physics/test_render_jax.py',
     'lightstage_camera/acquisition/test_calibration_coverage.py', 'lightstage_physics/test_plots_synth.py',
     'lightstage_camera/backends/test_aravis.py', 'lightstage_driver/test_fuzz.py',
-    'mux_classifier/test_bow.py', 'mux_trainer/test_snr_optimal.py',
+    'mux_classifier/test_bow.py', 'mux_trainer/test_snr_optimal.py', 'mux_trainer/test_learned_cli.py',
 }
 SLOW_TESTS = {
     'lightstage_camera/acquisition/test_calibration_core.py::test_calibration_outputs_are_written_and_not_replaced_unless_asked',
