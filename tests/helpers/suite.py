@@ -94,3 +94,30 @@ def start_nodes(supervisor: Supervisor, client: GraphClient, names, domain_id: i
         client.executor.spin_once(timeout_sec=0.05)
     for c in clients.values():
         client.node.destroy_client(c)
+
+
+def classify_on_the_stage_graph(params: Path, domain_id: int, *classify_args: str,
+                                n_illumination: int = 0) -> tuple[dict, list]:
+    """Driver, camera and classifier started as processes with `params`; one `lightstage
+    classify --json` call (with `classify_args`), which must succeed; returns its answer
+    and the /illumination states seen (waiting for at least `n_illumination` of them)."""
+    import json
+    import subprocess
+
+    from lightstage_interfaces.msg import IlluminationState
+    client = GraphClient(domain_id)
+    seen = []
+    client.node.create_subscription(IlluminationState, '/illumination', seen.append, 100)
+    try:
+        with Supervisor(sigint_timeout_s=5.0) as supervisor:
+            start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
+            p = subprocess.run([sys.executable, '-m', 'lightstage_bringup.classify_cli', '--domain-id',
+                                str(domain_id), '--json', *classify_args],
+                               capture_output=True, text=True, timeout=90)
+            assert p.returncode == 0, p.stderr
+            answer = json.loads(p.stdout)
+            client.spin_until(lambda: len(seen) >= n_illumination, 10.0,
+                              "the classify call's /illumination")
+    finally:
+        client.close()
+    return answer, seen

@@ -8,10 +8,7 @@
 2. A trained artifact whose patterns are graded runs through `lightstage classify`: driver
    (graded simulator), camera and classifier as processes.
 """
-import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -162,32 +159,19 @@ def graded_artifact_path(stage_artifact_path, tmp_path_factory):
 
 def test_a_graded_artifact_runs_through_lightstage_classify(stage_capture, graded_artifact_path,
                                                             tmp_path):
-    from lightstage_bringup.supervisor import Supervisor
-    from lightstage_interfaces.msg import IlluminationState
     from mux_classifier.artifact import TrainedArtifact
 
-    from helpers.suite import GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
+    from helpers.suite import (classify_on_the_stage_graph, fresh_domain_id, stage_graph_params,
+                               write_params)
     artifact = TrainedArtifact.load(graded_artifact_path)
     domain_id = fresh_domain_id()
     params = write_params(tmp_path / 'params.yaml', stage_graph_params(
         stage_capture, 'banana-real/s1/p00', 3, graded_artifact_path,
         driver={'port': 'sim://?pwm_bits=8'}))
-    client = GraphClient(domain_id)
-    seen = []
-    client.node.create_subscription(IlluminationState, '/illumination', seen.append, 100)
-    try:
-        with Supervisor(sigint_timeout_s=5.0) as supervisor:
-            start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
-            p = subprocess.run([sys.executable, '-m', 'lightstage_bringup.classify_cli', '--domain-id',
-                                str(domain_id), '--json', '--max-images', '4'],
-                               capture_output=True, text=True, timeout=90)
-            assert p.returncode == 0, p.stderr
-            answer = json.loads(p.stdout)
-            assert answer['success'] and answer['images_used'] == 4, answer
-            assert answer['label'] in answer['class_names']
-            client.spin_until(lambda: len(seen) >= 4, 10.0, 'the classify call\'s /illumination')
-    finally:
-        client.close()
+    answer, seen = classify_on_the_stage_graph(params, domain_id, '--max-images', '4',
+                                               n_illumination=4)
+    assert answer['success'] and answer['images_used'] == 4, answer
+    assert answer['label'] in answer['class_names']
     # the stage lit the artifact's graded patterns: level 153 = 0.6 exactly, in image order
     assert len(seen) >= 4
     lit = np.array([np.asarray(m.intensities) for m in seen[:4]])

@@ -2,10 +2,6 @@
 driver (simulated firmware), camera and classifier, each its own process. A graded model
 runs on a graded board (pwm_bits 8), an on/off one on an on/off board (pwm_bits 0, the
 authors' rig); the stage lights the learned levels in image order."""
-import json
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -15,36 +11,20 @@ rclpy = pytest.importorskip('rclpy')
 
 def test_a_learned_artifact_classifies_on_the_stage(stage_capture, stage_learned_artifact_path,
                                                     tmp_path):
-    from lightstage_bringup.supervisor import Supervisor
-    from lightstage_interfaces.msg import IlluminationState
     from mux_classifier.artifact import TrainedArtifact
 
-    from helpers.suite import GraphClient, fresh_domain_id, start_nodes, write_params
+    from helpers.suite import (classify_on_the_stage_graph, fresh_domain_id, stage_graph_params,
+                               write_params)
     artifact = TrainedArtifact.load(stage_learned_artifact_path)
     on_off = bool(np.isin(artifact.led_patterns, (0, 1)).all())
     assert artifact.mode == 'learned' and artifact.n_images == [4]
     domain_id = fresh_domain_id()
-    params = write_params(tmp_path / 'params.yaml', {
-        'driver': {'port': 'sim' if on_off else 'sim://?pwm_bits=8'},
-        'camera': {'capture_dir': str(stage_capture), 'sample': 'orange-real/s1/p00', 'seed': 3},
-        'classifier': {'artifact_path': str(stage_learned_artifact_path), 'timeout_s': 10.0},
-    })
-    client = GraphClient(domain_id)
-    seen = []
-    client.node.create_subscription(IlluminationState, '/illumination', seen.append, 100)
-    try:
-        with Supervisor(sigint_timeout_s=5.0) as supervisor:
-            start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
-            p = subprocess.run([sys.executable, '-m', 'lightstage_bringup.classify_cli', '--domain-id',
-                                str(domain_id), '--json'],
-                               capture_output=True, text=True, timeout=90)
-            assert p.returncode == 0, p.stderr
-            answer = json.loads(p.stdout)
-            assert answer['success'] and answer['images_used'] == 4, answer
-            assert answer['label'] in answer['class_names'] == artifact.class_names
-            client.spin_until(lambda: len(seen) >= 4, 10.0, 'the classify call\'s /illumination')
-    finally:
-        client.close()
+    params = write_params(tmp_path / 'params.yaml', stage_graph_params(
+        stage_capture, 'orange-real/s1/p00', 3, stage_learned_artifact_path,
+        driver={'port': 'sim' if on_off else 'sim://?pwm_bits=8'}))
+    answer, seen = classify_on_the_stage_graph(params, domain_id, n_illumination=4)
+    assert answer['success'] and answer['images_used'] == 4, answer
+    assert answer['label'] in answer['class_names'] == artifact.class_names
     # the stage lit the learned levels, in image order: exactly (on/off), or rounded to the
     # graded board's 8-bit steps (half a step at most)
     lit = np.array([np.asarray(m.intensities) for m in seen[:4]])
