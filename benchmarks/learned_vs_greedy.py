@@ -34,8 +34,8 @@ from mux_trainer.baselines import SnrOptimalClassifier
 from mux_trainer.data import search_data
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import holdout_split, method_summary, test_images
-from mux_trainer.learned import (LearnedIlluminationClassifier, evaluate_learned_heldout,
-                                 expand_site_patterns)
+from lightstage_physics.rig import site_to_led_patterns
+from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
 from mux_trainer.search_params import SplitScoring
 
 
@@ -89,7 +89,7 @@ def run_capture(path, args) -> dict:
             if 'greedy' in args.learned_starts:
                 if greedy_columns is None:
                     raise SystemExit('--learned-starts greedy needs greedy in --methods')
-                starts['greedy'] = expand_site_patterns(greedy_columns[:, :k // 4],
+                starts['greedy'] = site_to_led_patterns(greedy_columns[:, :k // 4],
                                                         train.n_channels)
             model = LearnedIlluminationClassifier(
                 n_images=k, binary=binary, max_steps=args.steps, seed=args.seed,

@@ -9,9 +9,9 @@ from mux_classifier.learned_model import LearnedModel
 from helpers.trainer import TINY_HOG
 
 from mux_trainer.holdout import holdout_split
+from lightstage_physics.rig import site_to_led_patterns
 from mux_trainer.learned import (LearnedIlluminationClassifier, evaluate_learned_heldout,
-                                 expand_site_patterns, fisher_loss, forward_features,
-                                 image_stats, stack_stats)
+                                 fisher_loss, forward_features, image_stats, stack_stats)
 from mux_trainer.rendering import SearchData, clean_led_images, clean_site_images
 
 
@@ -109,7 +109,7 @@ def test_without_fine_tuning_a_start_is_kept(tiny_data):
 
 def test_site_patterns_expand_to_the_same_images(tiny_data):
     W = np.random.default_rng(0).uniform(0, 1, (8, 2)).astype(np.float32)
-    P = expand_site_patterns(W, tiny_data.n_channels)
+    P = site_to_led_patterns(W, tiny_data.n_channels)
     assert P.shape == (32, 8)
     np.testing.assert_allclose(clean_led_images(tiny_data, P), clean_site_images(tiny_data, W),
                                rtol=1e-5, atol=1e-3)

@@ -24,6 +24,7 @@ import json
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from lightstage_bringup.launcher import DEFAULT_NODES, RECORDER
@@ -149,8 +150,6 @@ LEARNED_EXPOSURES = 8
 
 def _train_learned(train, artifact: Path, capture: Path, args) -> dict:
     from mux_trainer.learned_method import build_learned, learned_artifact, pattern_levels
-
-    import warnings
 
     model = build_learned(LEARNED_EXPOSURES, noise=NOISE, seed=args.seed, **LEARNED_SCHEDULE)
     t0 = time.perf_counter()

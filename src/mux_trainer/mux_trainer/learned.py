@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 from joblib import Parallel
 from lightstage_physics.render_jax import render_noisy
+from lightstage_physics.rig import site_to_led_patterns
 from mux_classifier.estimator import MuxClassifier
 from mux_classifier.intensity_stats import GRADIENT_QUANTILES, LEVEL_QUANTILES, N_STATS
 from mux_classifier.learned_model import LearnedModel
@@ -198,18 +199,6 @@ def per_colour_start(n_sites: int, n_channels: int, k: int, rng) -> np.ndarray:
     return on.reshape(n_sites * n_channels, k)
 
 
-def expand_site_patterns(W: np.ndarray, n_channels: int = 4) -> np.ndarray:
-    """Per-colour site patterns (sites, m) -> the LED matrix (sites * channels, m * channels)
-    that takes the same images in the same order (`rendering.clean_site_images`: pattern j's
-    R, G, B, NIR; image j * channels + c lights colour c at pattern j's site levels)."""
-    W = np.asarray(W, np.float32)
-    S, m = W.shape
-    P = np.zeros((S, n_channels, m, n_channels), np.float32)
-    for c in range(n_channels):
-        P[:, c, :, c] = W
-    return P.reshape(S * n_channels, m * n_channels)
-
-
 def fisher_loss(F: jnp.ndarray, onehot: jnp.ndarray, shrinkage: float) -> jnp.ndarray:
     """Minus the shrunk Fisher discriminant criterion tr((S_w + shrinkage I)^-1 S_b) of the
     features F (n, d) z-scored over the batch (differentiably, so scaling the light up does
@@ -241,7 +230,7 @@ class LearnedIlluminationClassifier:
     - n_images: k exposures = k images; binary: on/off levels (straight-through).
     - starts: built-in start patterns, among 'per_colour' (`per_colour_start`) and
       'snr_optimal' (the SNR-optimal baseline's first k / 4 site columns, expanded to LEDs
-      by `expand_site_patterns`; skipped unless 4 divides k); start_patterns: more starts,
+      by `rig.site_to_led_patterns`; skipped unless 4 divides k); start_patterns: more starts,
       {name: (32, k) LED levels} (e.g. greedy's columns expanded).
     - fine_tune: 'best' (fine-tune the start the inner splits score best), 'all', 'none'.
     - objective: 'fisher' (`fisher_loss`, no head during training) or 'cross_entropy'
@@ -326,7 +315,7 @@ class LearnedIlluminationClassifier:
             out['per_colour'] = per_colour_start(data.n_sites, data.n_channels, k, rng)
         if 'snr_optimal' in self.starts and k % data.n_channels == 0:
             snr = SnrOptimalClassifier(n_images=k // data.n_channels, seed=int(self.seed))
-            out['snr_optimal'] = expand_site_patterns(snr._patterns_for(data), data.n_channels)
+            out['snr_optimal'] = site_to_led_patterns(snr._patterns_for(data), data.n_channels)
         for name, P in dict(self.start_patterns or {}).items():
             P = np.asarray(P, np.float32)
             if P.shape != (L, k) or P.min() < 0 or P.max() > 1:
