@@ -52,15 +52,18 @@ def main(argv=None):
     strengths = [float(s) for s in args.strengths.split(',')]
     seeds = [int(s) for s in args.seeds.split(',')]
     results = {}
+    old = json.load(open(args.reuse))['results'] if args.reuse else {}
     for S in strengths:
         path = os.path.join(args.out, f'weak{S:g}')
         make_capture(path, S, args)
         for seed in seeds:
             args.seed = seed
+            args.reused = old.get(f'{S:g}/{seed}', {})
             results[f'{S:g}/{seed}'] = run_capture(path, args)
             if args.json:  # after every run: a long sweep keeps what it measured
                 with open(args.json, 'w') as f:
-                    json.dump({'args': vars(args), 'results': results}, f, indent=1)
+                    json.dump({'args': {k: v for k, v in vars(args).items() if k != 'reused'},
+                               'results': results}, f, indent=1)
     methods = [m for m in args.methods if m in METHODS or m.startswith('learned')]
     mean = {(S, m, e): float(np.mean([results[f'{S:g}/{s}'][m][e] for s in seeds]))
             for S in strengths for m in methods for e in ('4', '8')}

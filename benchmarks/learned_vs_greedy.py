@@ -35,7 +35,9 @@ from mux_trainer.data import search_data
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import holdout_split, method_summary, test_images
 from lightstage_physics.rig import site_to_led_patterns
-from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
+from mux_trainer.learned_method import DEFAULT_STEPS
+from mux_trainer.learned import (OBJECTIVES, LearnedIlluminationClassifier,
+                                 evaluate_learned_heldout)
 from mux_trainer.search_params import SplitScoring
 
 
@@ -66,6 +68,12 @@ def run_capture(path, args) -> dict:
                                                                  **common)),
                        ('snr_optimal', lambda: SnrOptimalClassifier(n_images=2, **common))):
         if name not in args.methods:
+            continue
+        reused = getattr(args, 'reused', {}).get(name)
+        if reused is not None and 'greedy' not in args.learned_starts:
+            out[name] = dict(reused, reused=True)
+            print(f'  {name}: 4 exp {reused["4"]:.3f}, 8 exp {reused["8"]:.3f} (from --reuse)',
+                  flush=True)
             continue
         t0 = time.perf_counter()
         model = make().fit(train)
@@ -120,14 +128,18 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     p.add_argument('--holdout-by', default='poses', choices=('poses', 'instances'))
     p.add_argument('--n-repeats', type=int, default=400, help="greedy's / SNR's inner splits")
     p.add_argument('--n-renders', type=int, default=4)
-    p.add_argument('--steps', type=int, default=60, help='learned: gradient steps')
-    p.add_argument('--lr-patterns', type=float, default=0.05,
+    p.add_argument('--steps', type=int, default=DEFAULT_STEPS, help='learned: gradient steps')
+    p.add_argument('--lr-patterns', type=float, default=0.2,
                    help='learned: Adam step on the LED logits')
-    p.add_argument('--objective', default='fisher', choices=('fisher', 'cross_entropy'))
-    p.add_argument('--fine-tune', default='best', choices=('best', 'all', 'none'))
-    p.add_argument('--learned-starts', default='per_colour,snr_optimal,greedy',
+    p.add_argument('--objective', default='cv_ridge', choices=OBJECTIVES)
+    p.add_argument('--fine-tune', default='random',
+                   help="learned: 'best', 'all', 'none' or the start the steps run from")
+    p.add_argument('--learned-starts', default='random,per_colour,snr_optimal',
                    help="learned: start patterns; 'greedy': this run's greedy columns")
     p.add_argument('--progress', action='store_true')
+    p.add_argument('--reuse', help="a JSON this script wrote: its greedy and SNR-optimal figures "
+                   "for the same capture and seed are taken, not recomputed (the searches are "
+                   "deterministic; the options must be the same)")
     p.add_argument('--methods', default=default_methods,
                    help='among greedy, snr_optimal, learned, learned_binary, learned_starts '
                         '(learned without fine-tuning: the best start by the inner splits)')
@@ -143,7 +155,11 @@ def main(argv=None):
     args.methods = args.methods.split(',')
     args.learned_starts = args.learned_starts.split(',')
     results = {}
+    old = json.load(open(args.reuse)) if args.reuse else {'args': {}, 'results': {}}
+    if old['args'].get('seed', args.seed) != args.seed:
+        raise SystemExit(f'--reuse: that run used split seed {old["args"]["seed"]}, not {args.seed}')
     for path in args.captures:
+        args.reused = old['results'].get(path, {})
         results[path] = run_capture(path, args)
     print('\nheld-out accuracy (4 / 8 exposures), training seconds')
     for path, res in results.items():
@@ -153,7 +169,8 @@ def main(argv=None):
                   + (f'  classify {r["classify_ms_8"]:.1f} ms' if 'classify_ms_8' in r else ''))
     if args.json:
         with open(args.json, 'w') as f:
-            json.dump({'args': vars(args), 'results': results}, f, indent=1)
+            json.dump({'args': {k: v for k, v in vars(args).items() if k != 'reused'},
+                       'results': results}, f, indent=1)
 
 
 if __name__ == '__main__':

@@ -10,8 +10,9 @@ from helpers.trainer import TINY_HOG
 
 from mux_trainer.holdout import holdout_split
 from lightstage_physics.rig import site_to_led_patterns
-from mux_trainer.learned import (LearnedIlluminationClassifier, evaluate_learned_heldout,
-                                 fisher_loss, forward_features, image_stats, stack_stats)
+from mux_trainer.learned import (LearnedIlluminationClassifier, cv_ridge_loss,
+                                 evaluate_learned_heldout, fisher_loss, forward_features,
+                                 image_stats, pose_folds, stack_stats)
 from mux_trainer.rendering import SearchData, clean_led_images, clean_site_images
 
 
@@ -70,16 +71,17 @@ def fitted():
     data = disk_data()
     train_idx, test_idx = holdout_split(data, 0.25, seed=0)
     train, test = data.subset(train_idx), data.subset(test_idx)
-    model = LearnedIlluminationClassifier(n_images=2, max_steps=40, batch_size=16,
-                                          lr_patterns=0.25, n_repeats=40, seed=0).fit(train)
+    model = LearnedIlluminationClassifier(n_images=2, max_steps=40, eval_every=10,
+                                          n_repeats=40, seed=0).fit(train)
     return model, test
 
 
 def test_learns_the_classes_above_chance(fitted):
     model, test = fitted
     acc = evaluate_learned_heldout(model, test, n_renders=2, seed=0)['accuracy']
-    # 3 classes (chance 33 %; the start, lighting no NIR, scores at chance on the inner
-    # splits); the cue is strong where the light finds it
+    # 3 classes (chance 33 %; the per-colour start, lighting no NIR, and the random start,
+    # lighting every LED, score near chance on the inner splits); the cue is strong where
+    # the light finds it
     assert acc >= 0.55, acc
     assert model.patterns_.shape == (32, 2)
     assert model.patterns_.min() >= 0 and model.patterns_.max() <= 1
@@ -103,8 +105,8 @@ def test_the_kept_patterns_score_best_on_the_inner_splits(fitted):
 def test_without_fine_tuning_a_start_is_kept(tiny_data):
     model = LearnedIlluminationClassifier(n_images=4, fine_tune='none', n_repeats=20,
                                           seed=0).fit(tiny_data)
-    assert model.chosen_ in ('per_colour', 'snr_optimal') and model.best_step_ == 0
-    assert set(model.candidate_scores_) == {'per_colour', 'snr_optimal'}
+    assert model.chosen_ in ('random', 'per_colour', 'snr_optimal') and model.best_step_ == 0
+    assert set(model.candidate_scores_) == {'random', 'per_colour', 'snr_optimal'}
 
 
 def test_site_patterns_expand_to_the_same_images(tiny_data):
@@ -126,6 +128,40 @@ def test_fisher_criterion_rewards_separated_classes_at_any_scale():
     # z-scored inside: brighter light that scales every feature does not pay
     np.testing.assert_allclose(float(fisher_loss(jnp.asarray(10 * far), onehot, 1.0)),
                                float(fisher_loss(jnp.asarray(far), onehot, 1.0)), rtol=1e-3)
+
+
+def test_pose_folds_hold_every_pose_out_once():
+    poses = np.repeat(np.arange(7), 3)
+    folds = pose_folds(poses, 3)
+    assert folds.shape == (3, 21)
+    assert (folds.sum(axis=0) == 1).all()  # each sample held out by exactly one fold
+    for f in folds:  # a pose is held out whole
+        assert set(poses[f]).isdisjoint(poses[~f])
+    assert pose_folds(poses, 50).shape[0] == 7 and pose_folds(poses, 1).shape[0] == 2
+
+
+def test_cv_ridge_loss_pays_for_separation_that_holds_on_other_poses():
+    rng = np.random.default_rng(0)
+    n_poses, per = 8, 10
+    y = np.tile(np.repeat(np.arange(2), per), n_poses)
+    pose = np.repeat(np.arange(n_poses), 2 * per)
+    onehot = jnp.asarray(np.eye(2, dtype=np.float32)[y])
+    held_out = jnp.asarray(pose_folds(pose, 4))
+    noise = rng.normal(0, 1, (y.size, 3)).astype(np.float32)
+    sign = 2.0 * y[:, None] - 1.0
+    # the same class offset in every pose, against one whose direction each pose draws anew
+    # (it separates the classes within the poses a head is fitted on, and not on others)
+    steady = noise + 1.5 * sign * np.array([1, 0, 0], np.float32)
+    per_pose = noise + 1.5 * sign * rng.normal(0, 1, (n_poses, 3)).astype(np.float32)[pose]
+    loss = {name: float(cv_ridge_loss(jnp.asarray(F), onehot, held_out, 0.01))
+            for name, F in (('steady', steady), ('per_pose', per_pose), ('none', noise))}
+    assert loss['steady'] < 0.6 * loss['none'], loss
+    assert loss['per_pose'] > 0.8 * loss['none'], loss
+    # z-scored per fold: light that scales every feature does not pay
+    np.testing.assert_allclose(float(cv_ridge_loss(jnp.asarray(10 * steady), onehot, held_out, 0.01)),
+                               loss['steady'], rtol=1e-3)
+    g = jax.grad(lambda F: cv_ridge_loss(F, onehot, held_out, 0.01))(jnp.asarray(steady))
+    assert np.isfinite(np.asarray(g)).all()
 
 
 def test_numpy_forward_equals_jax_forward(fitted):
@@ -162,6 +198,12 @@ def test_bad_settings_and_inputs_are_refused(tiny_data, fitted):
         LearnedIlluminationClassifier(n_images=0).fit(tiny_data)
     with pytest.raises(ValueError, match='objective'):
         LearnedIlluminationClassifier(objective='mse').fit(tiny_data)
+    with pytest.raises(ValueError, match='fine_tune'):
+        LearnedIlluminationClassifier(fine_tune='greedy').fit(tiny_data)
+    with pytest.raises(ValueError, match='ridge'):
+        LearnedIlluminationClassifier(ridge=0).fit(tiny_data)
+    with pytest.raises(ValueError, match='n_folds'):
+        LearnedIlluminationClassifier(n_folds=0).fit(tiny_data)
     with pytest.raises(ValueError, match='start pattern'):
         LearnedIlluminationClassifier(n_images=2, start_patterns={'x': np.ones((8, 2))},
                                       n_repeats=5).fit(tiny_data)

@@ -141,9 +141,9 @@ def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
     return summary, held_out
 
 
-# The demo's learned schedule: 8 exposures (half of greedy's 16), 20 Fisher steps from the
-# best start, starts and snapshots scored on 100 inner pose splits (`lightstage train
-# --method learned`: 60 steps, 400 splits)
+# The demo's learned schedule: 8 exposures (half of greedy's 16), 20 gradient steps from the
+# random start, starts and snapshots scored on 100 inner pose splits (`lightstage train
+# --method learned`: 100 steps, 400 splits)
 LEARNED_SCHEDULE = dict(steps=20, n_repeats=100)
 LEARNED_EXPOSURES = 8
 

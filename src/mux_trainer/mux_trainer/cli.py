@@ -133,7 +133,7 @@ def _learned_arguments(p: argparse.ArgumentParser) -> None:
                    help='on/off LED levels (boards with pwm_bits 0) instead of graded ones '
                         '(pwm_bits 8)')
     g.add_argument('--steps', type=int, default=None,
-                   help=f'gradient steps on the LED levels from the best start (default: '
+                   help=f'gradient steps on the LED levels from the random start (default: '
                         f'{DEFAULT_STEPS}; snapshots scored by the inner pose splits, the best kept)')
 
 

@@ -18,17 +18,18 @@ with on free placement (`--features intensity_stats`), so a comparison isolates 
 learning the light adds, and they are cheap (two sorts per image) and exact to reproduce
 in numpy for the node (`mux_classifier.learned_model`).
 
-Training (why: docs/LEARNED.md). Start patterns (the per-colour start, the SNR-optimal
-baseline's site columns expanded to LED levels, and any the caller gives, e.g. greedy's)
-are scored with the greedy search's own inner pose splits (`evaluation.CandidateEvaluator`
-in the joint mode); the best is fine-tuned by gradient steps on every training sample
-(Adam on the LED logits, fresh noise and batch each step) against a shrunk Fisher
-discriminant criterion of the batch's z-scored statistics (`fisher_loss`; or
-cross-entropy through a head trained alongside). Snapshots of the levels every few steps are
-scored by the same inner splits, and the best of starts and snapshots is kept (a start wins
-ties): no training poses are spent on early stopping, and the learned light is at least as
-good as its start by the measure greedy uses. The final classifier is greedy's: a linear
-SVM on the chosen patterns' rendered training statistics, stored as one linear layer.
+Training (why: docs/LEARNED.md, round 3). Gradient steps run from a random graded start
+(every LED partly on) on the training samples (a fresh noise draw each step, Adam on the LED
+logits) against the pose-held-out loss of a closed-form ridge classifier (`cv_ridge_loss`:
+per fold of training poses, the head solved on the other poses, its squared hinge on the
+fold's), so the light is asked for what greedy's inner splits measure: separation that holds
+on poses it was not fitted on. Snapshots of the levels every few steps and the fixed starts
+(the per-colour start, the SNR-optimal baseline's site columns expanded to LED levels, any
+the caller gives, e.g. greedy's) are scored with the greedy search's own inner pose splits
+(`evaluation.CandidateEvaluator` in the joint mode), the best is kept (a start wins ties).
+The final classifier is greedy's: a linear SVM on the chosen patterns' rendered training
+statistics, stored as one linear layer. Round 2's shrunk Fisher criterion and round 1's
+cross-entropy through a head trained alongside remain as `objective` options.
 """
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from joblib import Parallel
-from lightstage_physics.render_jax import render_noisy
+from lightstage_physics.render_jax import add_noise, relight
 from lightstage_physics.rig import site_to_led_patterns
 from mux_classifier.estimator import MuxClassifier
 from mux_classifier.intensity_stats import GRADIENT_QUANTILES, LEVEL_QUANTILES, N_STATS
@@ -50,8 +51,14 @@ from .baselines import SnrOptimalClassifier
 from .data import search_data
 from .evaluation import CandidateEvaluator
 from .holdout import test_images
-from .rendering import SearchData
+from .learned_method import DEFAULT_STEPS
+from .rendering import SearchData, clean_led_images
 
+# criteria for the light's gradient steps (docs/LEARNED.md, round 3): the pose-held-out
+# ridge classifier's squared hinge (default), the shrunk Fisher criterion (round 2),
+# cross-entropy through a head trained alongside (round 1)
+OBJECTIVES = ('cv_ridge', 'fisher', 'cross_entropy')
+BUILTIN_STARTS = ('random', 'per_colour', 'snr_optimal')
 _LEVEL_F = np.array(LEVEL_QUANTILES, np.float32) / 100
 _GRAD_F = np.array(GRADIENT_QUANTILES, np.float32) / 100
 
@@ -216,6 +223,63 @@ def fisher_loss(F: jnp.ndarray, onehot: jnp.ndarray, shrinkage: float) -> jnp.nd
     return -jnp.trace(jnp.linalg.solve(Sw + shrinkage * jnp.eye(d, dtype=Z.dtype), Sb))
 
 
+def pose_folds(pose_index: np.ndarray, n_folds: int) -> np.ndarray:
+    """Boolean (folds, n) masks of the samples each fold holds out: the pose indices dealt
+    round-robin into at most `n_folds` groups (every pose of a fold is held out together, so
+    the criterion asks for light that generalises to poses it was not fitted on)."""
+    poses = np.unique(pose_index)
+    n_folds = max(2, min(int(n_folds), poses.size))
+    group = {int(p): i % n_folds for i, p in enumerate(poses)}
+    fold_of = np.array([group[int(p)] for p in pose_index])
+    return np.stack([fold_of == f for f in range(n_folds)])
+
+
+def cv_ridge_loss(F: jnp.ndarray, onehot: jnp.ndarray, held_out: jnp.ndarray,
+                  ridge: float) -> jnp.ndarray:
+    """The pose-held-out loss of the classifier greedy's inner splits imitate, in closed
+    form: for each fold (`held_out` (folds, n) masks from `pose_folds`) the features F
+    (n, d) are z-scored over the fold's training samples, a ridge least-squares classifier
+    on +-1 targets is solved on them (`ridge` times the sample count on the diagonal), and
+    the squared hinge of its scores is averaged over the held-out samples; the mean over
+    folds. Differentiable through the solve, so the light's gradient is that of held-out
+    error under the head that is optimal for the light at this step (no head is learned
+    alongside), and light that only fits the training poses does not pay."""
+    Y = 2.0 * onehot - 1.0
+    d = F.shape[1]
+    eye = jnp.eye(d, dtype=F.dtype)
+
+    def fold(test):
+        w = (1.0 - test.astype(F.dtype))[:, None]
+        n_train = jnp.maximum(w.sum(), 1.0)
+        mu = (F * w).sum(axis=0) / n_train
+        # off zero inside the root: a feature constant over a fold keeps a finite gradient
+        sd = jnp.sqrt((((F - mu) ** 2) * w).sum(axis=0) / n_train + 1e-6)
+        Z = (F - mu) / sd
+        Zc = Z - (Z * w).sum(axis=0) / n_train  # centred over the fold's training samples
+        Yc = Y - (Y * w).sum(axis=0) / n_train
+        W = jnp.linalg.solve((Zc * w).T @ Zc + ridge * n_train * eye, (Zc * w).T @ Yc)
+        b = (Y * w).sum(axis=0) / n_train - ((Z * w).sum(axis=0) / n_train) @ W
+        hinge = jnp.maximum(0.0, 1.0 - Y * (Z @ W + b)) ** 2
+        t = test.astype(F.dtype)[:, None]
+        return (hinge * t).sum() / jnp.maximum(t.sum(), 1.0)
+
+    return jnp.mean(jax.vmap(fold)(held_out))
+
+
+def random_start(data: SearchData, k: int, rng, headroom: float = 0.5) -> np.ndarray:
+    """Levels sigmoid(N(0, 1)) per LED and image: every LED partly on, no two images alike
+    (a start whose images are equal would keep them equal: the gradient is symmetric). Each
+    image's levels are scaled down where its brightest pixels (the 99.9th percentile over
+    the samples) would pass `headroom` of the saturation level: no gradient passes a
+    saturated pixel, so a start that saturates the object could not learn."""
+    L = data.n_sites * data.n_channels
+    P = 1.0 / (1.0 + np.exp(-rng.normal(0.0, 1.0, (L, k))))
+    rows = rng.choice(data.n_samples, min(64, data.n_samples), replace=False)
+    bright = np.percentile(clean_led_images(data.subset(np.sort(rows)), P), 99.9, axis=(1, 2))
+    scale = np.minimum(1.0, headroom * data.max_level / np.maximum(bright, 1e-6))
+    return (P * scale).astype(np.float32)
+
+
 def _logits_of(P: np.ndarray, margin: float = 0.05) -> np.ndarray:
     """Logits whose sigmoid is P with levels kept `margin` from 0 and 1 (the sigmoid's
     gradient vanishes at the ends)."""
@@ -228,15 +292,20 @@ class LearnedIlluminationClassifier:
 
     Parameters
     - n_images: k exposures = k images; binary: on/off levels (straight-through).
-    - starts: built-in start patterns, among 'per_colour' (`per_colour_start`) and
-      'snr_optimal' (the SNR-optimal baseline's first k / 4 site columns, expanded to LEDs
-      by `rig.site_to_led_patterns`; skipped unless 4 divides k); start_patterns: more starts,
-      {name: (32, k) LED levels} (e.g. greedy's columns expanded).
-    - fine_tune: 'best' (fine-tune the start the inner splits score best), 'all', 'none'.
-    - objective: 'fisher' (`fisher_loss`, no head during training) or 'cross_entropy'
+    - starts: built-in start patterns, among 'random' (`random_start`), 'per_colour'
+      (`per_colour_start`) and 'snr_optimal' (the SNR-optimal baseline's first k / 4 site
+      columns, expanded to LEDs by `rig.site_to_led_patterns`; skipped unless 4 divides k);
+      start_patterns: more starts, {name: (32, k) LED levels} (e.g. greedy's columns
+      expanded). Every start is scored by the inner splits and may be kept as it is.
+    - fine_tune: the start the gradient steps run from: a start's name (default 'random':
+      the other starts are 0/1 columns of the small on/off family the light should leave),
+      'best' (the start the inner splits score best), 'all', 'none'.
+    - objective: 'cv_ridge' (`cv_ridge_loss` over `pose_folds(n_folds)`, ridge; no head
+      during training), 'fisher' (`fisher_loss`, fisher_shrinkage) or 'cross_entropy'
       (a head of n_hidden units, lr_head, weight_decay, trained together with the light).
-    - max_steps, eval_every (a snapshot of the levels every so many steps), batch_size,
-      lr_patterns (Adam on the logits), fisher_shrinkage.
+    - max_steps, eval_every (a snapshot of the levels every so many steps), batch_size
+      (samples per step; all of them when it is at least their number), lr_patterns (Adam
+      on the logits).
     - n_repeats, test_fraction: the inner pose splits that score every start and snapshot
       (`evaluation.CandidateEvaluator` in the joint mode: greedy's split scoring, its noise
       streams and its squared-hinge scorer), final_C: the linear SVM head's C.
@@ -253,12 +322,13 @@ class LearnedIlluminationClassifier:
     mode = 'joint'
     images_per_pattern = 1
 
-    def __init__(self, n_images=4, binary=False, starts=('per_colour', 'snr_optimal'),
-                 start_patterns=None, fine_tune='best', objective='fisher', max_steps=60,
-                 eval_every=20, batch_size=32, lr_patterns=0.05, fisher_shrinkage=1.0,
-                 n_hidden=0, lr_head=0.01, weight_decay=1e-3, n_repeats=400,
-                 test_fraction=0.25, final_C=1.0, noise='sigma3', dimmer=None,
-                 hog_config=None, seed=0, progress=False):
+    def __init__(self, n_images=4, binary=False,
+                 starts=('random', 'per_colour', 'snr_optimal'), start_patterns=None,
+                 fine_tune='random', objective='cv_ridge', max_steps=DEFAULT_STEPS,
+                 eval_every=25, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.1,
+                 fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
+                 n_repeats=400, test_fraction=0.25, final_C=1.0, noise='sigma3',
+                 dimmer=None, hog_config=None, seed=0, progress=False):
         self.n_images = n_images
         self.binary = binary
         self.starts = starts
@@ -269,6 +339,8 @@ class LearnedIlluminationClassifier:
         self.eval_every = eval_every
         self.batch_size = batch_size
         self.lr_patterns = lr_patterns
+        self.n_folds = n_folds
+        self.ridge = ridge
         self.fisher_shrinkage = fisher_shrinkage
         self.n_hidden = n_hidden
         self.lr_head = lr_head
@@ -285,18 +357,22 @@ class LearnedIlluminationClassifier:
     def _check(self):
         if int(self.n_images) < 1:
             raise ValueError(f'n_images must be >= 1, got {self.n_images}')
-        for name in ('batch_size', 'eval_every', 'n_repeats'):
+        for name in ('batch_size', 'eval_every', 'n_repeats', 'n_folds'):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f'{name} must be >= 1, got {getattr(self, name)}')
         if int(self.max_steps) < 0:
             raise ValueError(f'max_steps must be >= 0, got {self.max_steps}')
-        if self.fine_tune not in ('best', 'all', 'none'):
-            raise ValueError(f"fine_tune must be 'best', 'all' or 'none', got {self.fine_tune!r}")
-        if self.objective not in ('fisher', 'cross_entropy'):
-            raise ValueError(f"objective must be 'fisher' or 'cross_entropy', got {self.objective!r}")
-        unknown = set(self.starts) - {'per_colour', 'snr_optimal'}
+        names = set(self.starts) | set(self.start_patterns or {})
+        if self.fine_tune not in ('best', 'all', 'none') and self.fine_tune not in names:
+            raise ValueError(f"fine_tune must be 'best', 'all', 'none' or the name of a start "
+                             f"({', '.join(sorted(names)) or 'none given'}), got {self.fine_tune!r}")
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
+        unknown = set(self.starts) - set(BUILTIN_STARTS)
         if unknown:
-            raise ValueError(f'unknown starts {sorted(unknown)}; use per_colour, snr_optimal')
+            raise ValueError(f"unknown starts {sorted(unknown)}; use {', '.join(BUILTIN_STARTS)}")
+        if not (np.isfinite(float(self.ridge)) and float(self.ridge) > 0):
+            raise ValueError(f'ridge must be a positive number, got {self.ridge}')
 
     def _data(self, X) -> SearchData:
         if isinstance(X, SearchData):
@@ -311,6 +387,8 @@ class LearnedIlluminationClassifier:
     def _start_candidates(self, data: SearchData, k: int, rng) -> dict:
         L = data.n_sites * data.n_channels
         out = {}
+        if 'random' in self.starts:
+            out['random'] = random_start(data, k, rng)
         if 'per_colour' in self.starts:
             out['per_colour'] = per_colour_start(data.n_sites, data.n_channels, k, rng)
         if 'snr_optimal' in self.starts and k % data.n_channels == 0:
@@ -354,7 +432,8 @@ class LearnedIlluminationClassifier:
             self._say(k, 'starts', scores)
             if self.fine_tune != 'none' and int(self.max_steps) > 0:
                 tuned = (list(candidates) if self.fine_tune == 'all'
-                         else [max(scores, key=scores.get)])
+                         else [max(scores, key=scores.get)] if self.fine_tune == 'best'
+                         else [self.fine_tune] if self.fine_tune in candidates else [])
                 for name in tuned:
                     for step, P, loss in self._descend(data, candidates[name], rng):
                         tag = f'{name}+{step}'
@@ -395,13 +474,16 @@ class LearnedIlluminationClassifier:
         onehot = jax.nn.one_hot(labels, len(data.class_names), dtype=jnp.float32)
         shape, a, b, top = data.image_shape, data.noise_a, data.noise_b, data.max_level
         wd, shrink = float(self.weight_decay), float(self.fisher_shrinkage)
-        fisher = self.objective == 'fisher'
+        objective, ridge = self.objective, float(self.ridge)
+        folds = pose_folds(data.pose_index, int(self.n_folds))
 
-        def loss_fn(params, idx, key):
-            images = render_noisy(jnp.take(basis, idx, axis=1), levels(params['theta'], binary),
-                                  key, a, b, top)
+        def loss_fn(params, idx, eps):
+            mean = relight(jnp.take(basis, idx, axis=1), levels(params['theta'], binary))
+            images = add_noise(mean, eps, a, b, top)
             F = stack_stats(images, shape)
-            if fisher:
+            if objective == 'cv_ridge':
+                return cv_ridge_loss(F, onehot[idx], jnp.take(held_out, idx, axis=1), ridge)
+            if objective == 'fisher':
                 return fisher_loss(F, onehot[idx], shrink)
             # z-scored by the batch's own statistics, not differentiated (no collapse of scale)
             mean = jax.lax.stop_gradient(F.mean(axis=0))
@@ -410,24 +492,27 @@ class LearnedIlluminationClassifier:
             return _cross_entropy(forward_features(params['head'], mean, scale, F),
                                   labels[idx]) + wd * l2
 
+        held_out = jnp.asarray(folds)
         params = {'theta': jnp.asarray(_logits_of(P0)), 'head': []}
-        if not fisher:
+        if objective == 'cross_entropy':
             params['head'] = _init_head(rng, k * N_STATS, int(self.n_hidden), len(data.class_names))
         lr = {'theta': jnp.float32(self.lr_patterns),
               'head': jax.tree_util.tree_map(lambda _: jnp.float32(self.lr_head), params['head'])}
 
         @jax.jit
-        def step(params, opt, idx, key):
-            loss, grads = jax.value_and_grad(loss_fn)(params, idx, key)
+        def step(params, opt, idx, eps):
+            loss, grads = jax.value_and_grad(loss_fn)(params, idx, eps)
             params, opt = _adam_update(params, grads, opt, lr)
             return params, opt, loss
 
         opt = _adam_init(params)
-        key = jax.random.PRNGKey(int(self.seed))
         B = min(int(self.batch_size), data.n_samples)
         for it in range(1, int(self.max_steps) + 1):
-            key, sub = jax.random.split(key)
-            params, opt, loss = step(params, opt, jnp.asarray(rng.choice(data.n_samples, B, replace=False)), sub)
+            # every sample when the batch holds them all (sorted: the same order each step)
+            idx = np.sort(rng.choice(data.n_samples, B, replace=False))
+            # the normals from numpy: JAX's threefry on the CPU took a third of a step
+            eps = rng.standard_normal((k, B, basis.shape[2]), dtype=np.float32)
+            params, opt, loss = step(params, opt, jnp.asarray(idx), jnp.asarray(eps))
             if it % int(self.eval_every) == 0 or it == int(self.max_steps):
                 yield it, np.asarray(levels(params['theta'], binary), np.float32), float(loss)
 

@@ -17,9 +17,10 @@ from lightstage_physics.rig import DEFAULT_DIMMER
 
 from .data import noise_dict, resolve_noise
 
-# gradient steps of the Fisher fine-tuning from the best start (`learned`'s default; every
-# `eval_every` steps a snapshot is scored by the inner pose splits, the best kept)
-DEFAULT_STEPS = 60
+# gradient steps on the light from the random start (`learned`'s default; every
+# `eval_every` steps a snapshot is scored by the inner pose splits, the best kept). On the
+# weak-cue captures the pose-held-out loss levels off after 50-100 steps (docs/LEARNED.md).
+DEFAULT_STEPS = 100
 MAX_STEPS = 100_000
 # exposure counts `lightstage eval` trains a learned model for (one model each: a learned
 # k-image model's patterns are not the first k of a larger one's)
