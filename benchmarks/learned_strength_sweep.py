@@ -45,6 +45,8 @@ def main(argv=None):
     p.add_argument('--poses', type=int, default=6)
     p.add_argument('--json')
     p.add_argument('--png')
+    p.add_argument('--merge', help='comma-separated JSONs this script wrote (e.g. one per split '
+                   'seed, run side by side): print their table and plot, run nothing')
     add_method_arguments(p, default_methods=','.join(METHODS))
     args = p.parse_args(argv)
     args.methods = args.methods.split(',')
@@ -53,7 +55,12 @@ def main(argv=None):
     seeds = [int(s) for s in args.seeds.split(',')]
     results = {}
     old = json.load(open(args.reuse))['results'] if args.reuse else {}
-    for S in strengths:
+    if args.merge:
+        for path in args.merge.split(','):
+            results.update(json.load(open(path))['results'])
+        strengths = sorted({float(key.split('/')[0]) for key in results})
+        seeds = sorted({int(key.split('/')[1]) for key in results})
+    for S in ([] if args.merge else strengths):
         path = os.path.join(args.out, f'weak{S:g}')
         make_capture(path, S, args)
         for seed in seeds:
@@ -72,6 +79,20 @@ def main(argv=None):
     for S in strengths:
         print(f'{S:8g}  ' + '  '.join(f'{mean[S, m, "4"]:6.3f} / {mean[S, m, "8"]:5.3f}'
                                       for m in methods))
+    print('\nper split: ' + ', '.join(methods) + ' (4 / 8 exposures)')
+    ahead = {e: [0, 0] for e in ('4', '8')}  # learned ahead of every other method, splits counted
+    for key in sorted(results, key=lambda k: (float(k.split('/')[0]), int(k.split('/')[1]))):
+        r = results[key]
+        print(f'{key:>8s}  ' + '  '.join(f'{r[m]["4"]:.3f} / {r[m]["8"]:.3f}' for m in methods))
+        if 'learned' in r:
+            for e in ahead:
+                others = [r[m][e] for m in methods if m != 'learned' and not m.startswith('learned')]
+                if min(others + [r['learned'][e]]) < 0.95:
+                    ahead[e][1] += 1
+                    ahead[e][0] += r['learned'][e] > max(others)
+    for e, (won, n) in ahead.items():
+        print(f'{e} exposures: learned ahead of every other method in {won} of the {n} splits '
+              'where some method is below 95 %')
     if args.png:
         import matplotlib
         matplotlib.use('Agg')

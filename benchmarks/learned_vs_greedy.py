@@ -35,7 +35,7 @@ from mux_trainer.data import search_data
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import holdout_split, method_summary, test_images
 from lightstage_physics.rig import site_to_led_patterns
-from mux_trainer.learned_method import DEFAULT_STEPS
+from mux_trainer.learned_schedule import DEFAULT_STEPS
 from mux_trainer.learned import (OBJECTIVES, LearnedIlluminationClassifier,
                                  evaluate_learned_heldout)
 from mux_trainer.search_params import SplitScoring

@@ -127,7 +127,7 @@ def _load(capture_dir: str, hog_config):
 
 
 def _learned_arguments(p: argparse.ArgumentParser) -> None:
-    from .learned_method import DEFAULT_STEPS
+    from .learned_schedule import DEFAULT_STEPS
     g = p.add_argument_group('learned illumination (--method learned)')
     g.add_argument('--binary', action='store_true',
                    help='on/off LED levels (boards with pwm_bits 0) instead of graded ones '
@@ -139,7 +139,7 @@ def _learned_arguments(p: argparse.ArgumentParser) -> None:
 
 def _learned_options(prog: str, args) -> dict:
     """--binary / --steps for the learned method (refused with another one)."""
-    from .learned_method import check_steps
+    from .learned_schedule import check_steps
     if args.method != 'learned':
         if args.binary or args.steps is not None:
             raise SystemExit(f'{prog}: --binary and --steps apply to --method learned only')
@@ -153,7 +153,7 @@ def _learned_options(prog: str, args) -> dict:
 
 
 def _learned_eval_arguments(p: argparse.ArgumentParser) -> None:
-    from .learned_method import DEFAULT_STEPS, EVAL_EXPOSURES
+    from .learned_schedule import DEFAULT_STEPS, EVAL_EXPOSURES
     g = p.add_argument_group('learned illumination (method learned, not in the default list)')
     g.add_argument('--learned-exposures', default=','.join(map(str, EVAL_EXPOSURES)),
                    metavar='K[,K]', help='exposure counts to train a learned model for, one '
@@ -165,7 +165,7 @@ def _learned_eval_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _learned_eval_options(args, methods) -> dict | None:
-    from .learned_method import check_steps
+    from .learned_schedule import check_steps
     if 'learned' not in methods:
         return None
     try:

@@ -51,7 +51,7 @@ from .baselines import SnrOptimalClassifier
 from .data import search_data
 from .evaluation import CandidateEvaluator
 from .holdout import test_images
-from .learned_method import DEFAULT_STEPS
+from .learned_schedule import DEFAULT_STEPS
 from .rendering import SearchData, clean_led_images
 
 # criteria for the light's gradient steps (docs/LEARNED.md, round 3): the pose-held-out

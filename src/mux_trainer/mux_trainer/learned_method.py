@@ -16,22 +16,7 @@ import numpy as np
 from lightstage_physics.rig import DEFAULT_DIMMER
 
 from .data import noise_dict, resolve_noise
-
-# gradient steps on the light from the random start (`learned`'s default; every
-# `eval_every` steps a snapshot is scored by the inner pose splits, the best kept). On the
-# weak-cue captures the pose-held-out loss levels off after 50-100 steps (docs/LEARNED.md).
-DEFAULT_STEPS = 100
-MAX_STEPS = 100_000
-# exposure counts `lightstage eval` trains a learned model for (one model each: a learned
-# k-image model's patterns are not the first k of a larger one's)
-EVAL_EXPOSURES = (4, 8)
-
-
-def check_steps(steps: int) -> None:
-    if not 1 <= int(steps) <= MAX_STEPS:
-        raise ValueError(f'steps (training steps of the learned patterns) must be 1 .. '
-                         f'{MAX_STEPS}, got {steps}')
-
+from .learned_schedule import DEFAULT_STEPS, check_steps
 
 def build_learned(n_images=8, *, binary=False, steps=DEFAULT_STEPS, noise='sigma3',
                   hog_config=None, seed=0, progress=False, **params):

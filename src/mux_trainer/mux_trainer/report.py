@@ -65,7 +65,8 @@ def _learned_result(train, test, noise, *, n_renders, seed, hog_config, quiet, p
     `train` (chosen by greedy's inner pose splits within it), tested like every method."""
     import contextlib
 
-    from .learned_method import DEFAULT_STEPS, EVAL_EXPOSURES, build_learned, learned_summary
+    from .learned_method import build_learned, learned_summary
+    from .learned_schedule import DEFAULT_STEPS, EVAL_EXPOSURES
     models = {}
     t0 = time.perf_counter()
     for k in exposures or EVAL_EXPOSURES:

@@ -27,7 +27,7 @@ from rclpy.node import Node
 
 from .cluster import DEFAULT_TIMEOUT_S
 from .greedy import REFINE_TOP
-from .learned_method import DEFAULT_STEPS, MAX_STEPS
+from .learned_schedule import DEFAULT_STEPS, MAX_STEPS
 from .training import METHODS, train_from_capture
 
 SITE_CANDIDATES = n_site_subsets()  # per-colour mode: patterns with 1..7 of 8 sites lit

@@ -233,7 +233,8 @@ def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8
     import contextlib
     import sys
 
-    from .learned_method import DEFAULT_STEPS, build_learned, learned_artifact, pattern_levels
+    from .learned_method import build_learned, learned_artifact, pattern_levels
+    from .learned_schedule import DEFAULT_STEPS
     model = build_learned(max_images, binary=binary,
                           steps=DEFAULT_STEPS if steps is None else steps, noise=noise,
                           hog_config=hog_config, seed=seed, progress=progress)

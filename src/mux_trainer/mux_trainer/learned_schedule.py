@@ -1,0 +1,19 @@
+"""How long learned illumination trains: the step counts the CLI, the trainer node, the
+estimator and `lightstage eval` share (no JAX here, so the node and the CLI read them for
+free)."""
+from __future__ import annotations
+
+# gradient steps on the light from the random start (`learned`'s default; every
+# `eval_every` steps a snapshot is scored by the inner pose splits, the best kept). On the
+# weak-cue captures the pose-held-out loss levels off after 50-100 steps (docs/LEARNED.md).
+DEFAULT_STEPS = 100
+MAX_STEPS = 100_000
+# exposure counts `lightstage eval` trains a learned model for (one model each: a learned
+# k-image model's patterns are not the first k of a larger one's)
+EVAL_EXPOSURES = (4, 8)
+
+
+def check_steps(steps: int) -> None:
+    if not 1 <= int(steps) <= MAX_STEPS:
+        raise ValueError(f'steps (training steps of the learned patterns) must be 1 .. '
+                         f'{MAX_STEPS}, got {steps}')
