@@ -72,7 +72,7 @@ def main(argv=None):
                     json.dump({'args': {k: v for k, v in vars(args).items() if k != 'reused'},
                                'results': results}, f, indent=1)
     methods = [m for m in args.methods if m in METHODS or m.startswith('learned')]
-    mean = {(S, m, e): float(np.mean([results[f'{S:g}/{s}'][m][e] for s in seeds]))
+    mean = {(S, m, e): float(np.mean([results[f'{S:g}/{s}'][m].get(e, np.nan) for s in seeds]))
             for S in strengths for m in methods for e in ('4', '8')}
     print('\nheld-out accuracy, mean over seeds ' + ','.join(map(str, seeds)) + ' (4 / 8 exposures)')
     print('strength  ' + '  '.join(f'{m:>15s}' for m in methods))
@@ -83,9 +83,10 @@ def main(argv=None):
     ahead = {e: [0, 0] for e in ('4', '8')}  # learned ahead of every other method, splits counted
     for key in sorted(results, key=lambda k: (float(k.split('/')[0]), int(k.split('/')[1]))):
         r = results[key]
-        print(f'{key:>8s}  ' + '  '.join(f'{r[m]["4"]:.3f} / {r[m]["8"]:.3f}' for m in methods))
+        print(f'{key:>8s}  ' + '  '.join(f'{r[m].get("4", np.nan):.3f} / {r[m].get("8", np.nan):.3f}'
+                                         for m in methods))
         if 'learned' in r:
-            for e in ahead:
+            for e in (e for e in ahead if e in r['learned']):
                 others = [r[m][e] for m in methods if m != 'learned' and not m.startswith('learned')]
                 if min(others + [r['learned'][e]]) < 0.95:
                     ahead[e][1] += 1

@@ -92,7 +92,7 @@ def run_capture(path, args) -> dict:
         if name not in args.methods:
             continue
         out[name] = {'train_seconds': 0.0}
-        for k in (4, 8):
+        for k in args.exposures:
             starts = {}
             if 'greedy' in args.learned_starts:
                 if greedy_columns is None:
@@ -116,9 +116,10 @@ def run_capture(path, args) -> dict:
                   f'{model.chosen_}; inner ' + ', '.join(
                       f'{c} {v:.3f}' for c, v in model.candidate_scores_.items()) + ')',
                   flush=True)
-        out[name]['classify_ms_8'] = classify_ms(model, test, args.seed)
-        print(f'  {name}: classify {out[name]["classify_ms_8"]:.1f} ms per sample '
-              '(numpy model, 8 images at 120 px, one sample at a time)', flush=True)
+        if k == 8:
+            out[name]['classify_ms_8'] = classify_ms(model, test, args.seed)
+            print(f'  {name}: classify {out[name]["classify_ms_8"]:.1f} ms per sample '
+                  '(numpy model, 8 images at 120 px, one sample at a time)', flush=True)
     return out
 
 
@@ -136,6 +137,8 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
                    help="learned: 'best', 'all', 'none' or the start the steps run from")
     p.add_argument('--learned-starts', default='random,per_colour,snr_optimal',
                    help="learned: start patterns; 'greedy': this run's greedy columns")
+    p.add_argument('--exposures', default='4,8', type=lambda v: [int(x) for x in v.split(',')],
+                   help='learned: the exposure counts to train a model for (one model each)')
     p.add_argument('--progress', action='store_true')
     p.add_argument('--reuse', help="a JSON this script wrote: its greedy and SNR-optimal figures "
                    "for the same capture and seed are taken, not recomputed (the searches are "
@@ -165,7 +168,7 @@ def main(argv=None):
     for path, res in results.items():
         for name, r in res.items():
             secs = r['train_seconds'] or sum(v for k, v in r.items() if k.startswith('train_seconds_'))
-            print(f'{path:30s} {name:15s} {r["4"]:.3f} / {r["8"]:.3f}  {secs:.0f} s'
+            print(f'{path:30s} {name:15s} {r.get("4", np.nan):.3f} / {r.get("8", np.nan):.3f}  {secs:.0f} s'
                   + (f'  classify {r["classify_ms_8"]:.1f} ms' if 'classify_ms_8' in r else ''))
     if args.json:
         with open(args.json, 'w') as f:

@@ -325,7 +325,7 @@ class LearnedIlluminationClassifier:
     def __init__(self, n_images=4, binary=False,
                  starts=('random', 'per_colour', 'snr_optimal'), start_patterns=None,
                  fine_tune='random', objective='cv_ridge', max_steps=DEFAULT_STEPS,
-                 eval_every=25, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.1,
+                 eval_every=50, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.01,
                  fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
                  n_repeats=400, test_fraction=0.25, final_C=1.0, noise='sigma3',
                  dimmer=None, hog_config=None, seed=0, progress=False):

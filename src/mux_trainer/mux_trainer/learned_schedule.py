@@ -5,8 +5,8 @@ from __future__ import annotations
 
 # gradient steps on the light from the random start (`learned`'s default; every
 # `eval_every` steps a snapshot is scored by the inner pose splits, the best kept). On the
-# weak-cue captures the pose-held-out loss levels off after 50-100 steps (docs/LEARNED.md).
-DEFAULT_STEPS = 100
+# strength-0.2 capture the inner score still rose at 200 steps (docs/LEARNED.md, round 3).
+DEFAULT_STEPS = 200
 MAX_STEPS = 100_000
 # exposure counts `lightstage eval` trains a learned model for (one model each: a learned
 # k-image model's patterns are not the first k of a larger one's)
