@@ -143,7 +143,7 @@ def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
 
 # The demo's learned schedule: 8 exposures (half of greedy's 16), 20 gradient steps from the
 # random start, starts and snapshots scored on 100 inner pose splits (`lightstage train
-# --method learned`: 100 steps, 400 splits)
+# --method learned`: 200 steps, 400 splits)
 LEARNED_SCHEDULE = dict(steps=20, n_repeats=100)
 LEARNED_EXPOSURES = 8
 
