@@ -105,3 +105,9 @@ def test_trainer_node_parameters_choose_the_method(capture):
     options = TrainerNode._method_options(node, SimpleNamespace(method=''))
     assert options == {'method': 'learned', 'steps': 7, 'binary': True}
     assert TrainerNode._method_options(node, SimpleNamespace(method='naive')) == {'method': 'naive'}
+
+
+def test_the_kept_candidate_is_described_as_what_it_is():
+    from mux_trainer.learned_method import describe_choice
+    assert describe_choice('random+200') == 'random+200: 200 gradient steps from the random start'
+    assert describe_choice('per_colour').startswith('per_colour: a start kept as it is')

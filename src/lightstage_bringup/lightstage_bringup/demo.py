@@ -141,15 +141,16 @@ def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
     return summary, held_out
 
 
-# The demo's learned schedule: 8 exposures (half of greedy's 16), 20 gradient steps from the
-# random start, starts and snapshots scored on 100 inner pose splits (`lightstage train
-# --method learned`: 200 steps, 400 splits)
-LEARNED_SCHEDULE = dict(steps=20, n_repeats=100)
+# The demo's learned schedule: 8 exposures (half of greedy's 16), 20 gradient steps of 64
+# samples from the random start, starts and snapshots scored on 100 inner pose splits
+# (`lightstage train --method learned`: 200 steps of 256 samples, 400 splits)
+LEARNED_SCHEDULE = dict(steps=20, n_repeats=100, batch_size=64)
 LEARNED_EXPOSURES = 8
 
 
 def _train_learned(train, artifact: Path, capture: Path, args) -> dict:
-    from mux_trainer.learned_method import build_learned, learned_artifact, pattern_levels
+    from mux_trainer.learned_method import (build_learned, describe_choice, learned_artifact,
+                                            pattern_levels)
 
     model = build_learned(LEARNED_EXPOSURES, noise=NOISE, seed=args.seed, **LEARNED_SCHEDULE)
     t0 = time.perf_counter()
@@ -164,8 +165,8 @@ def _train_learned(train, artifact: Path, capture: Path, args) -> dict:
                      ).save(artifact)
     k = int(model.best_n_patterns_)
     accuracy = float(model.accuracy_by_images_[k])
-    _say(f'training: learned: {seconds:.0f} s, {k} graded patterns (kept: {model.chosen_}, '
-         f'start + gradient steps; inner split accuracy {100 * accuracy:.1f} %)')
+    _say(f'training: learned: {seconds:.0f} s, {k} graded patterns (kept {describe_choice(model.chosen_)}; '
+         f'inner split accuracy {100 * accuracy:.1f} %)')
     return {'artifact': str(artifact), 'train_seconds': seconds, 'best_n_images': k,
             'patterns': pattern_levels(model.patterns_),
             'inner_split_accuracy_by_images': {str(k): accuracy}, 'chosen': model.chosen_}

@@ -33,6 +33,16 @@ def build_learned(n_images=8, *, binary=False, steps=DEFAULT_STEPS, noise='sigma
                                          progress=progress, **params)
 
 
+def describe_choice(chosen: str) -> str:
+    """What a fitted model's `chosen_` candidate is, in words: 'random+200' is 200 gradient
+    steps from the random start, 'per_colour' a start kept as it is (no snapshot of the
+    gradient steps scored better on the inner splits)."""
+    start, _, steps = str(chosen).partition('+')
+    if steps:
+        return f'{chosen}: {steps} gradient steps from the {start} start'
+    return f'{chosen}: a start kept as it is, no snapshot of the gradient steps scored better'
+
+
 def pattern_levels(patterns) -> list:
     """LED levels as JSON (rounded to 1/1000: a graded board has 1/255 steps)."""
     return np.round(np.asarray(patterns, dtype=np.float64), 3).tolist()
