@@ -44,6 +44,16 @@ def pure_modules() -> list[str]:
     return names
 
 
+def assert_imports_load_no(modules: list[str], forbidden: str) -> None:
+    """Importing each of `modules`, in order, in a fresh interpreter never loads `forbidden`."""
+    code = ('import importlib, sys\n'
+            f'for name in {modules!r}:\n'
+            '    importlib.import_module(name)\n'
+            f'    assert {forbidden!r} not in sys.modules, f"importing {{name}} imported {forbidden}"\n')
+    p = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+
+
 def test_every_core_module_imports_without_rclpy():
     modules = pure_modules()
     assert {'lightstage_camera.acquisition', 'lightstage_camera.calibration',
@@ -53,12 +63,7 @@ def test_every_core_module_imports_without_rclpy():
             'lightstage_graph.frames', 'lightstage_graph.params', 'lightstage_graph.names',
             'lightstage_graph.stamps', 'lightstage_graph.diagnostics', 'lightstage_graph.ros_env',
             'lightstage_graph.graph_client'} <= set(modules)
-    code = ('import importlib, sys\n'
-            f'for name in {modules!r}:\n'
-            '    importlib.import_module(name)\n'
-            '    assert "rclpy" not in sys.modules, f"importing {name} imported rclpy"\n')
-    p = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=300)
-    assert p.returncode == 0, p.stderr[-3000:]
+    assert_imports_load_no(modules, 'rclpy')
 
 
 def imported_modules(module: Path, package: str) -> set[str]:
@@ -135,9 +140,4 @@ def test_the_classifier_package_never_imports_jax():
                      (SRC / 'mux_classifier' / 'mux_classifier').glob('*.py') if m.stem != '__init__')
     assert {'mux_classifier.classifier_node', 'mux_classifier.learned_model',
             'mux_classifier.artifact'} <= set(modules)
-    code = ('import importlib, sys\n'
-            f'for name in {modules!r}:\n'
-            '    importlib.import_module(name)\n'
-            '    assert "jax" not in sys.modules, f"importing {name} imported jax"\n')
-    p = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=300)
-    assert p.returncode == 0, p.stderr[-3000:]
+    assert_imports_load_no(modules, 'jax')
