@@ -102,6 +102,7 @@ def run_capture(path, args) -> dict:
             model = LearnedIlluminationClassifier(
                 n_images=k, binary=binary, max_steps=args.steps, seed=args.seed,
                 lr_patterns=args.lr_patterns, objective=args.objective, fine_tune=fine_tune,
+                ridge=args.ridge,
                 starts=[s for s in args.learned_starts if s != 'greedy'],
                 start_patterns=starts, n_repeats=args.n_repeats,
                 progress=args.progress).fit(train)
@@ -133,6 +134,8 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     p.add_argument('--lr-patterns', type=float, default=0.2,
                    help='learned: Adam step on the LED logits')
     p.add_argument('--objective', default='cv_ridge', choices=OBJECTIVES)
+    p.add_argument('--ridge', type=float, default=LearnedIlluminationClassifier().ridge,
+                   help="learned, objective cv_ridge: the fold classifiers' ridge")
     p.add_argument('--fine-tune', default='random',
                    help="learned: 'best', 'all', 'none' or the start the steps run from")
     p.add_argument('--learned-starts', default='random,per_colour,snr_optimal',
