@@ -91,7 +91,10 @@ def test_classify_in_the_page_shows_the_service_answer(stage):
     answers = stage['answers']
 
     async def steps(page):
-        await page.wait_for('state.connected.classify', 30, 'the classify service on the page')
+        # the classify service, and the driver's and camera's topics matched (a trigger sent
+        # before the page's reader of /illumination is matched never reaches the page)
+        await page.wait_for('state.connected.classify && state.connected.driver && '
+                            'state.connected.camera', 30, 'the classify service and the topics')
         await page.evaluate("document.getElementById('classify').click()")
         label = await page.wait_for(
             "document.getElementById('label').dataset.pending === undefined && "

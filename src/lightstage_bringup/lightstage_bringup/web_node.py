@@ -63,9 +63,11 @@ class WebBridge(Node):
         super().__init__(node_name, **kwargs)
         self.state = state
         self.loop: asyncio.AbstractEventLoop | None = None
-        self.create_subscription(IlluminationState, ILLUMINATION_TOPIC, self._on_illumination,
-                                 ILLUMINATION_QOS)
-        self.create_subscription(Image, IMAGE_TOPIC, self._on_image, IMAGE_QOS)
+        # the two inputs a classification's pictures need, shown as links once matched
+        self.inputs = {
+            'driver': self.create_subscription(IlluminationState, ILLUMINATION_TOPIC,
+                                               self._on_illumination, ILLUMINATION_QOS),
+            'camera': self.create_subscription(Image, IMAGE_TOPIC, self._on_image, IMAGE_QOS)}
         self.create_subscription(FrameLost, FRAME_LOST_TOPIC, self._on_frame_lost, IMAGE_QOS)
         self.create_subscription(ClassificationResult, RESULT_TOPIC, self._on_result, 10)
         self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, 10)
@@ -74,7 +76,7 @@ class WebBridge(Node):
                         (('capture', CaptureModel, CAPTURE_ACTION),
                          ('calibrate', CalibrateNoise, CALIBRATE_ACTION))}
         self._goal_handle = None
-        self.create_timer(1.0, self._check_servers)
+        self.create_timer(1.0, self._check_links)
 
     # ------------------------------------------------------------------ graph -> page
     def _on_illumination(self, msg: IlluminationState) -> None:
@@ -110,10 +112,13 @@ class WebBridge(Node):
              'hardware_id': s.hardware_id, 'values': {kv.key: kv.value for kv in s.values}}
             for s in msg.status])
 
-    def _check_servers(self) -> None:
+    def _check_links(self) -> None:
         self.state.set_connected('classify', self.classify_client.service_is_ready())
         for kind, (client, _, _) in self.actions.items():
             self.state.set_connected(kind, client.server_is_ready())
+        # a publisher matched, not only seen in the graph: what it sends from now on arrives
+        for kind, subscription in self.inputs.items():
+            self.state.set_connected(kind, subscription.get_publisher_count() > 0)
 
     # ------------------------------------------------------------------ page -> graph
     def _awaitable(self, future) -> asyncio.Future:
