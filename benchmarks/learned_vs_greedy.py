@@ -9,9 +9,10 @@ split of `holdout.holdout_split` (25 % of the pose indices, or of the physical s
   given, default the method's 400), evaluated by `holdout.method_summary`;
 - SNR-optimal, its first 2 columns, likewise;
 - learned (graded; on/off as learned_binary), trained separately for 4 and for 8 images
-  (one exposure each), from the per-colour start, SNR-optimal's and this run's greedy
-  columns (expanded to LED levels; the greedy search's seconds are then part of its cost),
-  and learned_starts: the same without fine-tuning (the best start by the inner splits),
+  (one exposure each), with the estimator's starts and descents unless --learned-starts /
+  --fine-tune say otherwise; its greedy start is this run's greedy columns when greedy ran
+  (the same search the estimator would run: its seconds are then not in learned's), and
+  learned_starts: the same without fine-tuning (the best start by the inner splits),
   the control for what the gradient steps add; evaluated by
   `learned.evaluate_learned_heldout`: the same test-noise stream (`holdout.test_images`)
   and the same n_renders.
@@ -70,7 +71,7 @@ def run_capture(path, args) -> dict:
         if name not in args.methods:
             continue
         reused = getattr(args, 'reused', {}).get(name)
-        if reused is not None and 'greedy' not in args.learned_starts:
+        if reused is not None and 'greedy' not in args.learned_starts:  # greedy's columns needed
             out[name] = dict(reused, reused=True)
             print(f'  {name}: 4 exp {reused["4"]:.3f}, 8 exp {reused["8"]:.3f} (from --reuse)',
                   flush=True)
@@ -93,18 +94,16 @@ def run_capture(path, args) -> dict:
             continue
         out[name] = {'train_seconds': 0.0}
         for k in args.exposures:
-            starts = {}
-            if 'greedy' in args.learned_starts:
-                if greedy_columns is None:
-                    raise SystemExit('--learned-starts greedy needs greedy in --methods')
+            starts, builtin = {}, list(args.learned_starts)
+            if 'greedy' in builtin and greedy_columns is not None and k % 4 == 0:
+                builtin.remove('greedy')   # the same columns, not searched twice
                 starts['greedy'] = site_to_led_patterns(greedy_columns[:, :k // 4],
                                                         train.n_channels)
             model = LearnedIlluminationClassifier(
                 n_images=k, binary=binary, max_steps=args.steps, seed=args.seed,
                 lr_patterns=args.lr_patterns, objective=args.objective, fine_tune=fine_tune,
                 ridge=args.ridge,
-                starts=[s for s in args.learned_starts if s != 'greedy'],
-                start_patterns=starts, n_repeats=args.n_repeats,
+                starts=builtin, start_patterns=starts, n_repeats=args.n_repeats,
                 progress=args.progress).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
             out[name][str(k)] = acc
@@ -134,12 +133,13 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     p.add_argument('--lr-patterns', type=float, default=0.2,
                    help='learned: Adam step on the LED logits')
     p.add_argument('--objective', default='cv_ridge', choices=OBJECTIVES)
-    p.add_argument('--ridge', type=float, default=LearnedIlluminationClassifier().ridge,
+    defaults = LearnedIlluminationClassifier()
+    p.add_argument('--ridge', type=float, default=defaults.ridge,
                    help="learned, objective cv_ridge: the fold classifiers' ridge")
-    p.add_argument('--fine-tune', default='random',
-                   help="learned: 'best', 'all', 'none' or the start the steps run from")
-    p.add_argument('--learned-starts', default='random,per_colour,snr_optimal',
-                   help="learned: start patterns; 'greedy': this run's greedy columns")
+    p.add_argument('--fine-tune', default=','.join(defaults.fine_tune), type=lambda v: v.split(','),
+                   help="learned: 'best', 'all', 'none' or the starts the steps run from")
+    p.add_argument('--learned-starts', default=','.join(defaults.starts),
+                   help="learned: start patterns ('greedy': this run's greedy columns if it ran)")
     p.add_argument('--exposures', default='4,8', type=lambda v: [int(x) for x in v.split(',')],
                    help='learned: the exposure counts to train a model for (one model each)')
     p.add_argument('--progress', action='store_true')

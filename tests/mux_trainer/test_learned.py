@@ -1,4 +1,6 @@
 """Learned illumination: the differentiable statistics, the training and the numpy model."""
+from dataclasses import replace
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,7 +15,9 @@ from lightstage_physics.rig import site_to_led_patterns
 from mux_trainer.learned import (LearnedIlluminationClassifier, cv_ridge_loss,
                                  evaluate_learned_heldout, fisher_loss, forward_features,
                                  image_stats, pose_folds, stack_stats)
+from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.rendering import SearchData, clean_led_images, clean_site_images
+from mux_trainer.search_params import SplitScoring
 
 
 def disk_data(n_classes=3, n_poses=8, size=24, seed=0):
@@ -106,8 +110,48 @@ def test_the_kept_patterns_score_best_on_the_inner_splits(fitted):
 def test_without_fine_tuning_a_start_is_kept(tiny_data):
     model = LearnedIlluminationClassifier(n_images=4, fine_tune='none', n_repeats=20,
                                           seed=0).fit(tiny_data)
-    assert model.chosen_ in ('random', 'per_colour', 'snr_optimal') and model.best_step_ == 0
-    assert set(model.candidate_scores_) == {'random', 'per_colour', 'snr_optimal'}
+    starts = {'random', 'per_colour', 'snr_optimal', 'greedy'}
+    assert model.chosen_ in starts and model.best_step_ == 0
+    assert set(model.candidate_scores_) == starts
+    # the greedy start is the greedy search's column on the same data, features and inner
+    # splits (the statistics the learned model classifies with)
+    greedy = GreedyPatternSelector(mode='per_colour', n_patterns=1, seed=0,
+                                   scoring=SplitScoring(n_repeats=20)).fit(
+                                       replace(tiny_data, features='intensity_stats'))
+    kept = LearnedIlluminationClassifier(n_images=4, starts=('greedy',), fine_tune='none',
+                                         n_repeats=20, seed=0).fit(tiny_data)
+    np.testing.assert_array_equal(kept.patterns_, site_to_led_patterns(greedy.patterns_, 4))
+    assert kept.candidate_scores_['greedy'] == model.candidate_scores_['greedy']
+
+
+def test_each_descent_draws_its_own_stream(tiny_data):
+    """Descending from greedy's columns beside the random start changes neither descent:
+    the two together score exactly what each scores alone."""
+    def fit(tune):
+        return LearnedIlluminationClassifier(
+            n_images=4, starts=('random', 'greedy'), fine_tune=tune, max_steps=4, eval_every=2,
+            batch_size=8, n_repeats=10, seed=0).fit(tiny_data).candidate_scores_
+
+    both, random_only, greedy_only = fit(('random', 'greedy')), fit('random'), fit('greedy')
+    assert [n for n in both if '+' in n] == ['random+2', 'random+4', 'greedy+2', 'greedy+4']
+    assert both == {**random_only, **greedy_only}
+
+
+def test_a_perfect_inner_score_ends_the_fit(tiny_data, monkeypatch):
+    """Nothing after a perfect score could be kept (a tie keeps the earlier candidate), so
+    neither greedy's search nor a descent runs after one."""
+    import mux_trainer.learned as learned
+    monkeypatch.setattr(learned.CandidateEvaluator, 'score',
+                        lambda self, ctx, cols, parallel: np.ones(4))
+
+    def no_search(*args, **kwargs):
+        raise AssertionError('greedy searched after a perfect score')
+
+    monkeypatch.setattr(learned.GreedyPatternSelector, 'fit', no_search)
+    model = LearnedIlluminationClassifier(n_images=4, max_steps=4, eval_every=2,
+                                          n_repeats=5).fit(tiny_data)
+    assert model.candidate_scores_ == {'random': 1.0} and model.history_ == []
+    assert model.chosen_ == 'random' and model.best_step_ == 0
 
 
 def test_site_patterns_expand_to_the_same_images(tiny_data):
@@ -185,8 +229,13 @@ def test_numpy_forward_equals_jax_forward(fitted):
 
 
 def test_binary_patterns_are_on_off(tiny_data):
+    # from the per-colour start (the random start binarised at one image is dark here, so
+    # no start: the straight-through descent must run)
     model = LearnedIlluminationClassifier(n_images=1, binary=True, max_steps=10, batch_size=8,
-                                          eval_every=5, n_repeats=20, seed=1).fit(tiny_data)
+                                          eval_every=5, n_repeats=20, seed=1,
+                                          starts=('per_colour',), fine_tune='per_colour'
+                                          ).fit(tiny_data)
+    assert [h['step'] for h in model.history_] == [5, 10]
     assert set(np.unique(model.patterns_)) <= {0.0, 1.0}
     assert model.patterns_.any()
 
@@ -200,7 +249,9 @@ def test_bad_settings_and_inputs_are_refused(tiny_data, fitted):
     with pytest.raises(ValueError, match='objective'):
         LearnedIlluminationClassifier(objective='mse').fit(tiny_data)
     with pytest.raises(ValueError, match='fine_tune'):
-        LearnedIlluminationClassifier(fine_tune='greedy').fit(tiny_data)
+        LearnedIlluminationClassifier(fine_tune='mine').fit(tiny_data)
+    with pytest.raises(ValueError, match='fine_tune'):
+        LearnedIlluminationClassifier(fine_tune=()).fit(tiny_data)
     with pytest.raises(ValueError, match='ridge'):
         LearnedIlluminationClassifier(ridge=0).fit(tiny_data)
     with pytest.raises(ValueError, match='n_folds'):

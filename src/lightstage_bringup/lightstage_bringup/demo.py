@@ -141,9 +141,9 @@ def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
     return summary, held_out
 
 
-# The demo's learned schedule: 8 exposures (half of greedy's 16), 20 gradient steps of 64
-# samples from the random start, starts and snapshots scored on 100 inner pose splits
-# (`lightstage train --method learned`: 200 steps of 256 samples, 400 splits)
+# The demo's learned schedule: 8 exposures (half of greedy's 16), a tenth of the default's
+# gradient steps, a quarter of its samples per step and of its inner pose splits
+# (`learned_schedule`, `LearnedIlluminationClassifier`'s defaults)
 LEARNED_SCHEDULE = dict(steps=20, n_repeats=100, batch_size=64)
 LEARNED_EXPOSURES = 8
 

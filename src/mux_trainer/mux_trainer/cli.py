@@ -133,8 +133,9 @@ def _learned_arguments(p: argparse.ArgumentParser) -> None:
                    help='on/off LED levels (boards with pwm_bits 0) instead of graded ones '
                         '(pwm_bits 8)')
     g.add_argument('--steps', type=int, default=None,
-                   help=f'gradient steps on the LED levels from the random start (default: '
-                        f'{DEFAULT_STEPS}; snapshots scored by the inner pose splits, the best kept)')
+                   help=f'gradient steps on the LED levels from each start descended (the random one '
+                        f'and greedy\'s columns; default: {DEFAULT_STEPS}; snapshots scored by the inner '
+                        f'pose splits, the best kept)')
 
 
 def _learned_options(prog: str, args) -> dict:

@@ -34,6 +34,7 @@ cross-entropy through a head trained alongside remain as `objective` options.
 from __future__ import annotations
 
 import time
+import zlib
 from dataclasses import replace
 
 import jax
@@ -50,15 +51,17 @@ from mux_classifier.object_mask import image_masks
 from .baselines import SnrOptimalClassifier
 from .data import search_data
 from .evaluation import CandidateEvaluator
+from .greedy import GreedyPatternSelector
 from .holdout import test_images
 from .learned_schedule import DEFAULT_STEPS
 from .rendering import SearchData, clean_led_images
+from .search_params import SplitScoring
 
 # criteria for the light's gradient steps (docs/LEARNED.md, round 3): the pose-held-out
 # ridge classifier's squared hinge (default), the shrunk Fisher criterion (round 2),
 # cross-entropy through a head trained alongside (round 1)
 OBJECTIVES = ('cv_ridge', 'fisher', 'cross_entropy')
-BUILTIN_STARTS = ('random', 'per_colour', 'snr_optimal')
+BUILTIN_STARTS = ('random', 'per_colour', 'snr_optimal', 'greedy')
 _LEVEL_F = np.array(LEVEL_QUANTILES, np.float32) / 100
 _GRAD_F = np.array(GRADIENT_QUANTILES, np.float32) / 100
 
@@ -293,13 +296,18 @@ class LearnedIlluminationClassifier:
     Parameters
     - n_images: k exposures = k images; binary: on/off levels (straight-through).
     - starts: built-in start patterns, among 'random' (`random_start`), 'per_colour'
-      (`per_colour_start`) and 'snr_optimal' (the SNR-optimal baseline's first k / 4 site
-      columns, expanded to LEDs by `rig.site_to_led_patterns`; skipped unless 4 divides k);
-      start_patterns: more starts, {name: (32, k) LED levels} (e.g. greedy's columns
-      expanded). Every start is scored by the inner splits and may be kept as it is.
-    - fine_tune: the start the gradient steps run from: a start's name (default 'random':
-      the other starts are 0/1 columns of the small on/off family the light should leave),
-      'best' (the start the inner splits score best), 'all', 'none'.
+      (`per_colour_start`), 'snr_optimal' (the SNR-optimal baseline's first k / 4 site
+      columns) and 'greedy' (the greedy search's k / 4 per-colour columns on the same
+      training data and inner splits), both expanded to LEDs by `rig.site_to_led_patterns`
+      and skipped unless 4 divides k; start_patterns: more starts, {name: (32, k) LED
+      levels}. Every start is scored by the inner splits and may be kept as it is.
+    - fine_tune: the starts the gradient steps run from, each for max_steps: names of starts
+      (default ('random', 'greedy'): from the random start, which needs many steps to find
+      the cue where no on/off column shows it, and from greedy's columns, whose choice of
+      sites a descent refines where many classes need them, docs/LEARNED.md round 4), or
+      'best' (the start the inner splits score best), 'all', 'none'. Each descent draws
+      from a stream of its own, so one never changes another's. A perfect inner score
+      ends the fit early (nothing after it could be kept: a tie keeps the earlier).
     - objective: 'cv_ridge' (`cv_ridge_loss` over `pose_folds(n_folds)`, ridge; no head
       during training), 'fisher' (`fisher_loss`, fisher_shrinkage) or 'cross_entropy'
       (a head of n_hidden units, lr_head, weight_decay, trained together with the light).
@@ -323,8 +331,8 @@ class LearnedIlluminationClassifier:
     images_per_pattern = 1
 
     def __init__(self, n_images=4, binary=False,
-                 starts=('random', 'per_colour', 'snr_optimal'), start_patterns=None,
-                 fine_tune='random', objective='cv_ridge', max_steps=DEFAULT_STEPS,
+                 starts=('random', 'per_colour', 'snr_optimal', 'greedy'), start_patterns=None,
+                 fine_tune=('random', 'greedy'), objective='cv_ridge', max_steps=DEFAULT_STEPS,
                  eval_every=50, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.01,
                  fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
                  n_repeats=400, test_fraction=0.25, final_C=1.0, noise='sigma3',
@@ -363,8 +371,10 @@ class LearnedIlluminationClassifier:
         if int(self.max_steps) < 0:
             raise ValueError(f'max_steps must be >= 0, got {self.max_steps}')
         names = set(self.starts) | set(self.start_patterns or {})
-        if self.fine_tune not in ('best', 'all', 'none') and self.fine_tune not in names:
-            raise ValueError(f"fine_tune must be 'best', 'all', 'none' or the name of a start "
+        unknown = [n for n in self._tuned_names() if n not in ('best', 'all', 'none')
+                   and n not in names]
+        if unknown or not self._tuned_names():
+            raise ValueError(f"fine_tune must be 'best', 'all', 'none' or names of starts "
                              f"({', '.join(sorted(names)) or 'none given'}), got {self.fine_tune!r}")
         if self.objective not in OBJECTIVES:
             raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
@@ -373,6 +383,11 @@ class LearnedIlluminationClassifier:
             raise ValueError(f"unknown starts {sorted(unknown)}; use {', '.join(BUILTIN_STARTS)}")
         if not (np.isfinite(float(self.ridge)) and float(self.ridge) > 0):
             raise ValueError(f'ridge must be a positive number, got {self.ridge}')
+
+    def _tuned_names(self) -> tuple:
+        """fine_tune as a tuple of names (one name may be given as a string)."""
+        tune = self.fine_tune
+        return (tune,) if isinstance(tune, str) else tuple(str(n) for n in tune)
 
     def _data(self, X) -> SearchData:
         if isinstance(X, SearchData):
@@ -384,28 +399,39 @@ class LearnedIlluminationClassifier:
         # the inner splits and the head score what the model classifies with
         return data if data.features == 'intensity_stats' else replace(data, features='intensity_stats')
 
-    def _start_candidates(self, data: SearchData, k: int, rng) -> dict:
+    def _start_makers(self, data: SearchData, k: int, rng) -> list:
+        """[(name, () -> (32, k) levels or None)]: each start made only when it is scored
+        (greedy's search is the costly one; none is made after a perfect score)."""
         L = data.n_sites * data.n_channels
-        out = {}
+        per_colour = k % data.n_channels == 0
+        makers = []
+        # the two drawn starts are drawn now, in this order (the stream's draws of round 3)
         if 'random' in self.starts:
-            out['random'] = random_start(data, k, rng)
+            P_random = random_start(data, k, rng)
+            makers.append(('random', lambda: P_random))
         if 'per_colour' in self.starts:
-            out['per_colour'] = per_colour_start(data.n_sites, data.n_channels, k, rng)
-        if 'snr_optimal' in self.starts and k % data.n_channels == 0:
+            P_colour = per_colour_start(data.n_sites, data.n_channels, k, rng)
+            makers.append(('per_colour', lambda: P_colour))
+        if 'snr_optimal' in self.starts and per_colour:
             snr = SnrOptimalClassifier(n_images=k // data.n_channels, seed=int(self.seed))
-            out['snr_optimal'] = site_to_led_patterns(snr._patterns_for(data), data.n_channels)
+            makers.append(('snr_optimal', lambda: site_to_led_patterns(
+                snr._patterns_for(data), data.n_channels)))
+        if 'greedy' in self.starts and per_colour:
+            greedy = GreedyPatternSelector(
+                mode='per_colour', n_patterns=k // data.n_channels, seed=int(self.seed),
+                scoring=SplitScoring(n_repeats=int(self.n_repeats),
+                                     test_fraction=float(self.test_fraction)))
+            makers.append(('greedy', lambda: site_to_led_patterns(
+                greedy.fit(data).patterns_, data.n_channels)))
         for name, P in dict(self.start_patterns or {}).items():
             P = np.asarray(P, np.float32)
             if P.shape != (L, k) or P.min() < 0 or P.max() > 1:
                 raise ValueError(f'start pattern {name!r} must be ({L}, {k}) LED levels in '
                                  f'[0, 1], got shape {P.shape}')
-            out[str(name)] = P
-        if self.binary:
-            out = {name: (P >= 0.5).astype(np.float32) for name, P in out.items()}
-        out = {name: P for name, P in out.items() if P.any()}
-        if not out:
+            makers.append((str(name), lambda P=P: P))
+        if not makers:
             raise ValueError('no start pattern: give starts or start_patterns')
-        return out
+        return makers
 
     def fit(self, X, y=None):
         """Fit on a SearchData or a ModelSet (its labels; y is ignored)."""
@@ -426,21 +452,45 @@ class LearnedIlluminationClassifier:
                 ctx = ev.prepare_column(P[:, :k - 1] if k > 1 else None)
                 return float(ev.score(ctx, P[:, k - 1:], parallel).mean())
 
-            candidates = self._start_candidates(data, k, rng)
-            scores = {name: inner(P) for name, P in candidates.items()}
+            # a perfect inner score cannot be beaten (a tie keeps the earlier candidate),
+            # so nothing is made or descended after one
+            candidates, scores = {}, {}
+
+            def perfect():
+                return bool(scores) and max(scores.values()) >= 1.0
+
+            for name, make in self._start_makers(data, k, rng):
+                if perfect():
+                    break
+                P = np.asarray(make(), np.float32)
+                if self.binary:
+                    P = (P >= 0.5).astype(np.float32)
+                if P.any():   # an all-dark start (e.g. greedy found nothing) is no start
+                    candidates[name], scores[name] = P, inner(P)
+            if not candidates:
+                raise ValueError('no start pattern lights anything: give starts or start_patterns')
             steps = dict.fromkeys(candidates, 0)
             self._say(k, 'starts', scores)
-            if self.fine_tune != 'none' and int(self.max_steps) > 0:
-                tuned = (list(candidates) if self.fine_tune == 'all'
-                         else [max(scores, key=scores.get)] if self.fine_tune == 'best'
-                         else [self.fine_tune] if self.fine_tune in candidates else [])
+            tune = self._tuned_names()
+            if 'none' not in tune and int(self.max_steps) > 0:
+                starts = list(candidates)
+                tuned = (starts if 'all' in tune
+                         else [max(scores, key=scores.get)] if 'best' in tune
+                         else [n for n in tune if n in candidates])
                 for name in tuned:
-                    for step, P, loss in self._descend(data, candidates[name], rng):
+                    # the random start's descent continues the stream that drew it (round
+                    # 3's draws); any other start's has a stream of its own (seed, name)
+                    chain_rng = rng if name == 'random' else np.random.default_rng(
+                        [int(self.seed), 26, zlib.crc32(name.encode())])
+                    for step, P, loss in ([] if perfect() else
+                                          self._descend(data, candidates[name], chain_rng)):
                         tag = f'{name}+{step}'
                         candidates[tag], steps[tag], scores[tag] = P, step, inner(P)
                         history.append({'start': name, 'step': step, 'loss': loss,
                                         'inner_accuracy': scores[tag]})
                         self._say(k, tag, {tag: scores[tag]}, loss)
+                        if perfect():
+                            break
             # the best inner score; a tie keeps the earlier candidate (a start before its tuning)
             chosen = max(scores, key=scores.get)
             patterns = candidates[chosen]

@@ -3,9 +3,10 @@ estimator and `lightstage eval` share (no JAX here, so the node and the CLI read
 free)."""
 from __future__ import annotations
 
-# gradient steps on the light from the random start (`learned`'s default; every
-# `eval_every` steps a snapshot is scored by the inner pose splits, the best kept). On the
-# strength-0.2 capture the inner score still rose at 200 steps (docs/LEARNED.md, round 3).
+# gradient steps on the light from each start descended (`learned`'s default: the random
+# start and greedy's columns; every `eval_every` steps a snapshot is scored by the inner pose
+# splits, the best kept). On the strength-0.2 capture the inner score still rose at 200 steps
+# from the random start (docs/LEARNED.md, round 3).
 DEFAULT_STEPS = 200
 MAX_STEPS = 100_000
 # exposure counts `lightstage eval` trains a learned model for (one model each: a learned

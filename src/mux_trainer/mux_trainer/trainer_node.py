@@ -54,7 +54,8 @@ PARAMETERS = {
         'max_images exposures; docs/LEARNED.md); a bad name aborts the goal',
         constraints=', '.join(METHODS))),
     'learned_steps': (DEFAULT_STEPS, integer(
-        'learned: gradient steps on the LED levels from the random start', 1, MAX_STEPS)),
+        'learned: gradient steps on the LED levels from each start descended (the random '
+        'one and greedy\'s columns)', 1, MAX_STEPS)),
     'learned_binary': (False, boolean(
         'learned: on/off LED levels (boards with pwm_bits 0) instead of graded ones')),
     'dask_scheduler': ('', string(
