@@ -400,7 +400,7 @@ class LearnedIlluminationClassifier:
         return data if data.features == 'intensity_stats' else replace(data, features='intensity_stats')
 
     def _start_makers(self, data: SearchData, k: int, rng) -> list:
-        """[(name, () -> (32, k) levels or None)]: each start made only when it is scored
+        """[(name, () -> (32, k) levels)]: each start made only when it is scored
         (greedy's search is the costly one; none is made after a perfect score)."""
         L = data.n_sites * data.n_channels
         per_colour = k % data.n_channels == 0
