@@ -71,7 +71,10 @@ def run_capture(path, args) -> dict:
         if name not in args.methods:
             continue
         reused = getattr(args, 'reused', {}).get(name)
-        if reused is not None and 'greedy' not in args.learned_starts:  # greedy's columns needed
+        # greedy's columns are needed (not only its figures) when they are learned's start
+        columns_needed = name == 'greedy' and 'greedy' in args.learned_starts and any(
+            m.startswith('learned') for m in args.methods)
+        if reused is not None and not columns_needed:
             out[name] = dict(reused, reused=True)
             print(f'  {name}: 4 exp {reused["4"]:.3f}, 8 exp {reused["8"]:.3f} (from --reuse)',
                   flush=True)
