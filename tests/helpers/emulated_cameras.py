@@ -1,11 +1,13 @@
 """Shared by the real-camera backend tests (tests/lightstage_camera/backends): the emulated
 cameras' serials and served files, and the ROS client of the graph tests."""
 import contextlib
+import time
 
 import numpy as np
 import pytest
 from lightstage_bringup.supervisor import Supervisor
 
+from lightstage_graph.graph_client import GraphTimeout
 from lightstage_graph.stamps import stamp_to_ns
 from helpers.suite import GraphClient, fresh_domain_id, start_nodes
 
@@ -44,9 +46,10 @@ class CameraGraphClient(GraphClient):
         from lightstage_interfaces.msg import FrameLost
         from sensor_msgs.msg import CameraInfo, Image
         self.images, self.infos, self.lost, self.diagnostics = [], [], [], []
-        self.node.create_subscription(Image, IMAGE_TOPIC, self.images.append, IMAGE_QOS)
-        self.node.create_subscription(FrameLost, FRAME_LOST_TOPIC, self.lost.append, IMAGE_QOS)
-        self.node.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self.infos.append, IMAGE_QOS)
+        self.camera_subscriptions = [
+            self.node.create_subscription(Image, IMAGE_TOPIC, self.images.append, IMAGE_QOS),
+            self.node.create_subscription(FrameLost, FRAME_LOST_TOPIC, self.lost.append, IMAGE_QOS),
+            self.node.create_subscription(CameraInfo, CAMERA_INFO_TOPIC, self.infos.append, IMAGE_QOS)]
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append, 50)
         from lightstage_interfaces.srv import ApplyPatterns
         # made now, so that the driver has discovered its reply reader by the first `fire`
@@ -66,6 +69,25 @@ class CameraGraphClient(GraphClient):
     def camera_errors(self):
         return [kv.value for msg in self.diagnostics for st in msg.status
                 if st.name.startswith('camera') for kv in st.values if kv.key == 'last_error']
+
+    def wait_images_flow(self, timeout_s=30.0):
+        """Until one trigger fired through the driver comes back as an image: the test's
+        readers and the camera's reader of /illumination are matched (a writer drops what it
+        publishes before it has discovered a reader, and the graph shows the reader earlier).
+        Fires again every few seconds; the lists are cleared after."""
+        self.spin_until(lambda: all(s.get_publisher_count() > 0 for s in self.camera_subscriptions),
+                        timeout_s, "the camera's image, camera_info and frame_lost publishers")
+        deadline = time.monotonic() + timeout_s
+        while not self.images:
+            if time.monotonic() >= deadline:
+                raise AssertionError(f'no image for a trigger within {timeout_s:g} s; '
+                                     f'camera errors: {self.camera_errors()[-3:]}')
+            self.fire(1)
+            with contextlib.suppress(GraphTimeout):
+                self.spin_until(lambda: self.images, 3.0)
+        self.spin_for(0.3)
+        for received in (self.images, self.infos, self.lost):
+            received.clear()
 
     def wait_camera_ready(self):
         from diagnostic_msgs.msg import DiagnosticStatus
@@ -88,6 +110,7 @@ def camera_graph(params):
             client.spin_until(lambda: client.subscribed_by('/illumination', 'camera'), 10.0,
                               'the camera to subscribe /illumination')
             client.wait_camera_ready()
+            client.wait_images_flow()
             yield client
     finally:
         client.close()

@@ -172,6 +172,21 @@ def test_a_sequence_that_never_ends_says_the_leds_were_switched_off_when_they_we
     assert wait_until(lambda: sim.current_word() == 0, 1.0)
 
 
+def test_a_busy_host_does_not_fail_a_sequence_that_is_progressing(sim, stage):
+    # the host stalls in its trigger callback (publishing, other processes) for longer than the
+    # whole sequence's reply margin: the firmware went on, and the sequence completes
+    margin_s = TIMEOUT_S * (RETRIES + 1)
+    stalls = []
+
+    def busy(trigger):
+        if not stalls:
+            stalls.append(trigger.index)
+            time.sleep(margin_s + 0.3)
+    triggers = stage.apply(np.ones((3, 32)), 1000, on_trigger=busy)
+    assert len(triggers) == 3 and stalls == [triggers[0].index]
+    assert wait_until(lambda: sim.current_word() == 0, 1.0)
+
+
 def test_disconnect_mid_use_then_replug_recovers(sim, stage):
     stage.set_pattern(one_hot(9))
     assert wait_until(lambda: sim.current_word() == 1 << 9, 1.0)

@@ -283,6 +283,22 @@ class LightStage:
                                   [e.word for e in entries], [e.exposure_us for e in entries], gap_us,
                                   first_index, on_trigger, applied)
 
+    def _wait_for_sequence(self, exposures_us: list[int], gap_us: int) -> float | None:
+        """Wait for the end of the running sequence; None once it ended, else the budget it
+        overran. The budget restarts at every trigger event: what is left of the sequence plus
+        the link's reply margin. A busy host (the trigger callbacks publish, other processes
+        run) then cannot fail a sequence that is visibly progressing; a silent line still fails
+        within one margin of its last event."""
+        margin_s = self.link.timeout_s * (self.link.retries + 1)
+        count = len(exposures_us)
+        while self._seq_done is None:
+            seen = len(self._seq_events)
+            budget_s = sum(exposures_us[seen:]) / 1e6 + (count - seen) * (gap_us / 1e6 + 0.005) + margin_s
+            if not self.link.wait_until(lambda: self._seq_done is not None or len(self._seq_events) != seen,
+                                        budget_s):
+                return budget_s
+        return None
+
     def _run_sequence(self, cmd: p.Command, payload: bytes, words: list[int], exposures_us: list[int],
                       gap_us: int, first_index: int, on_trigger, applied: list[tuple[float, ...]]
                       ) -> list[Trigger]:
@@ -294,14 +310,14 @@ class LightStage:
             self._running_seq = self.link._seq % 255 + 1   # the seq transact will use
             try:
                 self.link.transact(cmd, payload)
-                budget = sum(exposures_us) / 1e6 + len(entries) * (gap_us / 1e6 + 0.005) \
-                    + self.link.timeout_s * (self.link.retries + 1)
-                if not self.link.wait_until(lambda: self._seq_done is not None, budget):
+                stalled_s = self._wait_for_sequence(exposures_us, gap_us)
+                if stalled_s is not None:
                     off_failed = self.try_all_off()
                     leds = (f'switching the LEDs off failed too ({off_failed}): their state is unknown'
                             if off_failed else 'LEDs switched off')
                     raise LinkError(f'{self.link.port}: sequence of {len(entries)} did not finish within '
-                                    f'{budget:.3f} s (got {len(self._seq_events)} triggers); {leds}')
+                                    f'{stalled_s:.3f} s of its last progress (got {len(self._seq_events)} '
+                                    f'triggers); {leds}')
             finally:
                 self._running_seq = -1
                 self._seq_on_trigger = None
