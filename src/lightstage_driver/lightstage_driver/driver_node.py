@@ -54,7 +54,9 @@ PARAMETERS = {
     'port': ('sim', string('serial port path, usb:SERIAL, or sim / sim://?pwm_bits=8&latency_ms=1 '
                            'to start the Python firmware simulator')),
     'baud': (115200, integer('serial baud rate', 1200, 2_000_000)),
-    'timeout_ms': (100, integer('reply timeout per attempt [ms] (FIRE adds its exposure)', 5, 10_000)),
+    'timeout_ms': (100, integer('reply timeout per attempt [ms] (FIRE adds its exposure; a sequence '
+                                'fails after (retries + 1) x this with no trigger event beyond its '
+                                'exposures)', 5, 10_000)),
     'retries': (3, integer('retries after a lost or corrupted reply', 0, 10)),
     'connect_timeout_s': (3.0, floating('time to wait for the firmware at configure [s]', 0.1, 30.0)),
     'default_exposure_us': (30_000, integer('exposure for patterns whose exposure_us is 0 [us]',
