@@ -17,7 +17,15 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export LIGHTSTAGE_FIRMWARE_DIR="$ROOT/src/lightstage_driver/firmware"
 export LIGHTSTAGE_REQUIRE_AVR=1
 
-PYTEST=(.venv/bin/python -m pytest "$@")
+# One pytest worker per core (pytest-xdist), a test file per worker at a time (its module
+# fixtures set up once); half of a graph test's time is waiting, so the cores share well.
+# LIGHTSTAGE_TEST_WORKERS=0 runs in one process; a later -n in the arguments wins.
+WORKERS="${LIGHTSTAGE_TEST_WORKERS:-auto}"
+if [ "$WORKERS" = 0 ]; then
+  PYTEST=(.venv/bin/python -m pytest "$@")
+else
+  PYTEST=(.venv/bin/python -m pytest -n "$WORKERS" --dist loadfile "$@")
+fi
 UNSHARE=(unshare --net)
 why=""
 if [ "${LIGHTSTAGE_TEST_NETNS:-on}" = off ]; then

@@ -27,7 +27,10 @@ from lightstage_graph.ros_env import apply_ros_environment
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
-TEST_RUN_DOMAIN_ID = 100 + os.getpid() % 100
+# each worker of a parallel run (pytest-xdist) its own: 100 + worker modulo the worker count
+_WORKER = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0')[2:] or 0)
+_WORKERS = max(int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1')), 1)
+TEST_RUN_DOMAIN_ID = 100 + _WORKER + _WORKERS * (os.getpid() % (100 // _WORKERS))
 apply_ros_environment(domain_id=int(os.environ.get('LIGHTSTAGE_TEST_DOMAIN_ID', TEST_RUN_DOMAIN_ID)))
 
 

@@ -30,14 +30,25 @@ TRAIN_SITE_PATTERNS[[1, 3, 4, 6], 1] = 1
 _counter = itertools.count()
 
 
+def xdist_worker() -> tuple[int, int]:
+    """(this process's worker index, the number of workers) under pytest-xdist; (0, 1) in a
+    run without workers."""
+    name = os.environ.get('PYTEST_XDIST_WORKER', '')
+    count = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
+    return (int(name[2:]) if name.startswith('gw') else 0), max(count, 1)
+
+
 def fresh_domain_id() -> int:
     """A ROS domain id for one test, 1..99 (the suite's own run uses 100..199); one counter
-    for the whole run, so tests of different directories get different ids too.
+    for the whole run, so tests of different directories get different ids too. Workers of
+    a parallel run (pytest-xdist) draw from disjoint ids (worker w: ids = 1 + w modulo the
+    worker count), so two tests running at once never share a domain.
 
     Below 100 every RTPS port (7400 + 250 * domain + ...) stays under 32768, outside the
     kernel's ephemeral port range: a socket on such a port was bound there on purpose.
     """
-    return 1 + (os.getpid() * 7 + 50 + next(_counter)) % 99
+    worker, workers = xdist_worker()
+    return 1 + worker + workers * ((os.getpid() * 7 + 50 + next(_counter)) % (99 // workers))
 
 
 def network_interfaces() -> list[str]:
