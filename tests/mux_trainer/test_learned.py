@@ -155,6 +155,37 @@ def test_a_perfect_inner_score_ends_the_fit(tiny_data, monkeypatch):
     assert model.chosen_ == 'random' and model.best_step_ == 0
 
 
+def test_the_head_is_fitted_on_several_noise_draws(tiny_data, monkeypatch):
+    """The final SVM sees head_renders noise draws of every training sample: the inner
+    splits' draw first (the head of rounds 1-4), then draws that differ from it and from
+    each other; data without noise has one draw (the others would be copies)."""
+    import mux_trainer.learned as learned
+    fitted_on = []
+    fit_features = learned.MuxClassifier.fit_features
+
+    def spy(self, X, y, *args, **kwargs):
+        fitted_on.append((np.array(X), np.array(y)))
+        return fit_features(self, X, y, *args, **kwargs)
+
+    monkeypatch.setattr(learned.MuxClassifier, 'fit_features', spy)
+
+    def head_data(data, renders):
+        LearnedIlluminationClassifier(n_images=4, starts=('per_colour',), fine_tune='none',
+                                      n_repeats=5, head_renders=renders, seed=0).fit(data)
+        return fitted_on[-1]
+
+    n = tiny_data.n_samples
+    X, y = head_data(tiny_data, 3)
+    assert X.shape[0] == 3 * n
+    np.testing.assert_array_equal(y, np.tile(tiny_data.labels, 3))
+    np.testing.assert_array_equal(head_data(tiny_data, 1)[0], X[:n])
+    draws = X.reshape(3, n, -1)
+    assert all(np.abs(draws[i] - draws[j]).mean() > 0.01 * np.abs(draws[0]).mean()
+               for i, j in ((0, 1), (0, 2), (1, 2)))
+    noiseless = replace(tiny_data, noise_a=0.0, noise_b=0.0)
+    assert head_data(noiseless, 3)[0].shape[0] == n
+
+
 def test_site_patterns_expand_to_the_same_images(tiny_data):
     W = np.random.default_rng(0).uniform(0, 1, (8, 2)).astype(np.float32)
     P = site_to_led_patterns(W, tiny_data.n_channels)
@@ -257,6 +288,8 @@ def test_bad_settings_and_inputs_are_refused(tiny_data, fitted):
         LearnedIlluminationClassifier(ridge=0).fit(tiny_data)
     with pytest.raises(ValueError, match='n_folds'):
         LearnedIlluminationClassifier(n_folds=0).fit(tiny_data)
+    with pytest.raises(ValueError, match='head_renders'):
+        LearnedIlluminationClassifier(head_renders=0).fit(tiny_data)
     with pytest.raises(ValueError, match='start pattern'):
         LearnedIlluminationClassifier(n_images=2, start_patterns={'x': np.ones((8, 2))},
                                       n_repeats=5).fit(tiny_data)

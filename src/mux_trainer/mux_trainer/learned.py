@@ -54,7 +54,8 @@ from .evaluation import CandidateEvaluator
 from .greedy import GreedyPatternSelector
 from .holdout import test_images
 from .learned_schedule import DEFAULT_STEPS
-from .rendering import SearchData, clean_led_images
+from .rendering import SearchData, clean_led_images, image_features, standard_normal
+from .rendering import add_noise as add_noise_images
 from .search_params import SplitScoring
 
 # criteria for the light's gradient steps (docs/LEARNED.md, round 3): the pose-held-out
@@ -62,6 +63,7 @@ from .search_params import SplitScoring
 # cross-entropy through a head trained alongside (round 1)
 OBJECTIVES = ('cv_ridge', 'fisher', 'cross_entropy')
 BUILTIN_STARTS = ('random', 'per_colour', 'snr_optimal', 'greedy')
+HEAD_NOISE_STREAM = 5   # the head's extra noise draws (`_head_features`)
 _LEVEL_F = np.array(LEVEL_QUANTILES, np.float32) / 100
 _GRAD_F = np.array(GRADIENT_QUANTILES, np.float32) / 100
 
@@ -316,7 +318,10 @@ class LearnedIlluminationClassifier:
       on the logits).
     - n_repeats, test_fraction: the inner pose splits that score every start and snapshot
       (`evaluation.CandidateEvaluator` in the joint mode: greedy's split scoring, its noise
-      streams and its squared-hinge scorer), final_C: the linear SVM head's C.
+      streams and its squared-hinge scorer), final_C: the linear SVM head's C,
+      head_renders: the noise draws of the training samples it is fitted on (1, the
+      default: the inner splits' draw alone; 4 draws measured level with it, docs/LEARNED.md
+      round 5).
     - noise, dimmer, hog_config (the image size) when fitting a ModelSet; seed; progress.
 
     After fit: patterns_ (32, k) site-major levels, model_ (a numpy `LearnedModel`: the
@@ -335,7 +340,7 @@ class LearnedIlluminationClassifier:
                  fine_tune=('random', 'greedy'), objective='cv_ridge', max_steps=DEFAULT_STEPS,
                  eval_every=50, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.01,
                  fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
-                 n_repeats=400, test_fraction=0.25, final_C=1.0, noise='sigma3',
+                 n_repeats=400, test_fraction=0.25, final_C=1.0, head_renders=1, noise='sigma3',
                  dimmer=None, hog_config=None, seed=0, progress=False):
         self.n_images = n_images
         self.binary = binary
@@ -356,6 +361,7 @@ class LearnedIlluminationClassifier:
         self.n_repeats = n_repeats
         self.test_fraction = test_fraction
         self.final_C = final_C
+        self.head_renders = head_renders
         self.noise = noise
         self.dimmer = dimmer
         self.hog_config = hog_config
@@ -365,7 +371,7 @@ class LearnedIlluminationClassifier:
     def _check(self):
         if int(self.n_images) < 1:
             raise ValueError(f'n_images must be >= 1, got {self.n_images}')
-        for name in ('batch_size', 'eval_every', 'n_repeats', 'n_folds'):
+        for name in ('batch_size', 'eval_every', 'n_repeats', 'n_folds', 'head_renders'):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f'{name} must be >= 1, got {getattr(self, name)}')
         if int(self.max_steps) < 0:
@@ -566,15 +572,30 @@ class LearnedIlluminationClassifier:
             if it % int(self.eval_every) == 0 or it == int(self.max_steps):
                 yield it, np.asarray(levels(params['theta'], binary), np.float32), float(loss)
 
+    def _head_features(self, data: SearchData, ev, patterns) -> np.ndarray:
+        """The training samples' statistics under the patterns, head_renders noise draws
+        stacked: the inner splits' draw, then draws of a stream of its own (a head fitted on
+        one draw may learn that draw's noise with it; measured: docs/LEARNED.md, round 5)."""
+        parts = [ev.features(patterns)]
+        renders = int(self.head_renders) if data.noise_a or data.noise_b else 1
+        if renders > 1:
+            clean = clean_led_images(data, patterns)
+            rng = np.random.default_rng([int(self.seed), 26, HEAD_NOISE_STREAM])
+            for _ in range(renders - 1):
+                noisy = add_noise_images(data, clean, standard_normal(rng, clean.shape))
+                parts.append(image_features(data, noisy))
+        return np.vstack(parts)
+
     def _svm_head(self, data: SearchData, ev, patterns) -> LearnedModel:
         """The final classifier as greedy's: a linear SVM (`MuxClassifier`, intensity
         statistics z-scored over the training samples) on the training samples rendered
-        under the patterns with the inner splits' noise; stored as one linear layer on the
-        raw statistics."""
+        under the patterns (`_head_features`); stored as one linear layer on the raw
+        statistics."""
+        X = self._head_features(data, ev, patterns)
         clf = MuxClassifier(estimator='linear_svm', C=float(self.final_C),
                             hog_config=data.hog_config, random_state=int(self.seed),
-                            features='intensity_stats').fit_features(ev.features(patterns),
-                                                                     data.labels)
+                            features='intensity_stats').fit_features(
+                                X, np.tile(data.labels, len(X) // data.n_samples))
         n_classes, n_in = len(data.class_names), clf.coef_.shape[1]
         W = np.zeros((n_in, n_classes), np.float64)
         b = np.full(n_classes, np.finfo(np.float32).min / 2)  # no training samples: never wins
