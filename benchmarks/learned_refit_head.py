@@ -48,10 +48,14 @@ def capture_and_seed(key: str, run_args: dict) -> tuple[str, int]:
 OTHER_HEADS = ('linear_svm', 'rbf_svm', 'mlp64')
 
 
-def other_heads(train, test, light, seed, n_renders, draws=6) -> dict:
+def other_heads(train, test, light, seed, n_renders, train_instance, draws=6) -> dict:
     """Held-out accuracy of each of OTHER_HEADS fitted on `draws` noise draws of the training
     samples' statistics under `light` (the test-noise stream's generator at render indices
-    100.., samples the test never has), tested on the run's test renders."""
+    100.., samples the test never has), tested on the run's test renders; and, as a criterion
+    that could choose the head from the training samples alone, its leave-one-instance-out
+    accuracy on them (`{head}_inner_by_instance`: fitted without physical sample number u of
+    every class, scored on it, mean over u)."""
+    from sklearn.base import clone
     from sklearn.neural_network import MLPClassifier
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
@@ -63,6 +67,12 @@ def other_heads(train, test, light, seed, n_renders, draws=6) -> dict:
              'mlp64': MLPClassifier((64,), alpha=1e-3, max_iter=2000, random_state=0)}
     out = {}
     for name in OTHER_HEADS:
+        inner = []
+        for u in np.unique(train_instance):
+            kept = np.tile(train_instance != u, draws)
+            head = make_pipeline(StandardScaler(), clone(heads[name])).fit(X[kept], y[kept])
+            inner.append(np.mean(head.predict(X[~kept]) == y[~kept]))
+        out[f'{name}_inner_by_instance'] = float(np.mean(inner))
         head = make_pipeline(StandardScaler(), heads[name]).fit(X, y)
         predicted = [head.predict(t) for t in tests]
         out[name] = float(np.mean([p == test.labels for p in predicted]))
@@ -92,8 +102,9 @@ def main(argv=None):
         path, seed = capture_and_seed(key, run_args)
         ms = load_capture(path, downscale_to=120)
         data = search_data(ms, run_args.get('noise', 'sigma3'), features='intensity_stats')
-        instance = np.asarray(ms.instance) if run_args['holdout_by'] == 'instances' else None
-        tr, te = holdout_split(data, 0.25, seed, instance)
+        instance = np.asarray(ms.instance)
+        tr, te = holdout_split(data, 0.25, seed,
+                               instance if run_args['holdout_by'] == 'instances' else None)
         train, test = data.subset(tr), data.subset(te)
         for k in args.exposures.split(','):
             if not all(f'inner_{k}' in r['learned'] for r in runs):
@@ -109,11 +120,13 @@ def main(argv=None):
                 row[h] = evaluate_learned_heldout(model, test, run_args.get('n_renders', 4),
                                                   seed)['accuracy']
             if args.other_heads:
-                row.update(other_heads(train, test, light, seed, run_args.get('n_renders', 4)))
+                row.update(other_heads(train, test, light, seed, run_args.get('n_renders', 4),
+                                       instance[tr]))
             out[f'{key} {k}'] = row
             print(f'{key}, {k} exposures, kept {best}: run {100 * accuracy:.1f} %; ' + ', '.join(
                 f'head_renders {h}: {100 * row[h]:.1f} %' for h in renders) + ''.join(
-                f', {name}: {100 * row[name]:.1f} %' for name in OTHER_HEADS if name in row),
+                f', {name}: {100 * row[name]:.1f} % (inner by instance '
+                f'{100 * row[f"{name}_inner_by_instance"]:.1f})' for name in OTHER_HEADS if name in row),
                 flush=True)
     if args.json:
         with open(args.json, 'w') as f:

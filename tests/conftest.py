@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from helpers.workers import xdist_worker
 from lightstage_graph.ros_env import apply_ros_environment
 
 # A run started with SIGINT ignored (a background job of a non-interactive shell, nohup, some
@@ -28,8 +29,7 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # each worker of a parallel run (pytest-xdist) its own: 100 + worker modulo the worker count
-_WORKER = int(os.environ.get('PYTEST_XDIST_WORKER', 'gw0')[2:] or 0)
-_WORKERS = max(int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1')), 1)
+_WORKER, _WORKERS = xdist_worker()
 TEST_RUN_DOMAIN_ID = 100 + _WORKER + _WORKERS * (os.getpid() % (100 // _WORKERS))
 apply_ros_environment(domain_id=int(os.environ.get('LIGHTSTAGE_TEST_DOMAIN_ID', TEST_RUN_DOMAIN_ID)))
 

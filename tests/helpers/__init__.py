@@ -4,6 +4,7 @@ test folder pytest happened to prepend.
 
 Shared by several packages' tests:
   suite               domain ids, params files, project nodes as processes, the suite artifact's patterns
+  workers             which pytest-xdist worker this is (disjoint domain ids per worker)
   ros                 node processes checked through the graph (`running_nodes`), their environment
   dask_cluster        a real Dask scheduler and workers as processes
   proc_sockets        which sockets a process holds (nothing listens beyond loopback)

@@ -20,6 +20,8 @@ from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 from lightstage_graph.graph_client import GraphClient, parameter_msgs  # noqa: F401 (for the tests)
 from lightstage_graph.ros_env import ros_environment
 
+from helpers.workers import xdist_worker
+
 REPO = Path(__file__).resolve().parents[2]  # the repository: tests/ mirror its src/ packages
 
 # two site patterns -> a per-colour artifact with classifiers for 4 and 8 images
@@ -28,14 +30,6 @@ TRAIN_SITE_PATTERNS[[0, 2, 5], 0] = 1
 TRAIN_SITE_PATTERNS[[1, 3, 4, 6], 1] = 1
 
 _counter = itertools.count()
-
-
-def xdist_worker() -> tuple[int, int]:
-    """(this process's worker index, the number of workers) under pytest-xdist; (0, 1) in a
-    run without workers."""
-    name = os.environ.get('PYTEST_XDIST_WORKER', '')
-    count = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1'))
-    return (int(name[2:]) if name.startswith('gw') else 0), max(count, 1)
 
 
 def fresh_domain_id() -> int:

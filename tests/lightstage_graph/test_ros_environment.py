@@ -273,3 +273,18 @@ def test_the_service_profile_is_the_one_rmw_gives_the_reply_writer(tmp_path):
     path = tmp_path / 'service_writer_elsewhere.xml'
     path.write_text(moved)
     assert _probe_service(str(path), 3.0) == 'not ready'
+
+
+# -- the suite's own domain ids ---------------------------------------------------------
+def test_parallel_workers_draw_disjoint_domain_ids(monkeypatch):
+    """Two pytest-xdist workers run tests at the same time: their ids never meet, and all
+    are per-test ids (1..99, below the run's own 100..199)."""
+    from helpers.suite import fresh_domain_id
+    drawn = {}
+    for worker in (0, 1):
+        monkeypatch.setenv('PYTEST_XDIST_WORKER', f'gw{worker}')
+        monkeypatch.setenv('PYTEST_XDIST_WORKER_COUNT', '2')
+        drawn[worker] = {fresh_domain_id() for _ in range(200)}
+    assert not drawn[0] & drawn[1]
+    assert all(1 <= d <= 99 for ids in drawn.values() for d in ids)
+    assert min(len(ids) for ids in drawn.values()) >= 40   # each worker still has many
