@@ -109,6 +109,7 @@ def classify_on_the_stage_graph(params: Path, domain_id: int, *classify_args: st
     import json
     import subprocess
 
+    from lightstage_graph.names import IMAGE_TOPIC, resolved
     from lightstage_interfaces.msg import IlluminationState
     client = GraphClient(domain_id)
     seen = []
@@ -116,6 +117,10 @@ def classify_on_the_stage_graph(params: Path, domain_id: int, *classify_args: st
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
             start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
+            # the first trigger's frame is lost if the driver's /illumination writer or the
+            # camera's image writer has not yet matched its reader (seen once under load)
+            client.wait_for_subscriptions('camera', ['/illumination'], 30.0)
+            client.wait_for_subscriptions('classifier', [resolved(IMAGE_TOPIC)], 30.0)
             p = subprocess.run([sys.executable, '-m', 'lightstage_bringup.classify_cli', '--domain-id',
                                 str(domain_id), '--json', *classify_args],
                                capture_output=True, text=True, timeout=90)
