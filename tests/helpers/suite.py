@@ -81,7 +81,8 @@ def start_nodes(supervisor: Supervisor, client: GraphClient, names, domain_id: i
     """Start project nodes (`lightstage up` registry names) as processes and wait until they spin.
 
     "Spinning" = the node's parameter service is ready, which an rclpy node offers only
-    once it has finished its set-up and its executor runs.
+    once it has finished its set-up and its executor runs. Started together, the stage's
+    links are awaited too (`wait_stage_links`).
     """
     from rcl_interfaces.srv import ListParameters
     env = ros_environment(domain_id)
@@ -99,6 +100,22 @@ def start_nodes(supervisor: Supervisor, client: GraphClient, names, domain_id: i
         client.executor.spin_once(timeout_sec=0.05)
     for c in clients.values():
         client.node.destroy_client(c)
+    wait_stage_links(client, names, timeout_s)
+
+
+def wait_stage_links(client: GraphClient, names, timeout_s: float = 30.0) -> None:
+    """Until the camera subscribes /illumination (with the driver) and the classifier
+    camera/image_raw (with the camera), then a settle: a writer matches a new reader a little
+    after the graph shows the reader, and what it publishes before is lost (a classify right
+    after start-up lost its first frame so, under load)."""
+    from lightstage_graph.names import ILLUMINATION_TOPIC, IMAGE_TOPIC, resolved
+    links = {'camera': ('driver', ILLUMINATION_TOPIC), 'classifier': ('camera', resolved(IMAGE_TOPIC))}
+    waited = [(reader, topic) for reader, (writer, topic) in links.items()
+              if reader in names and writer in names]
+    for reader, topic in waited:
+        client.wait_for_subscriptions(reader, [topic], timeout_s, settle_s=0.0)
+    if waited:
+        client.spin_for(1.0)
 
 
 def classify_on_the_stage_graph(params: Path, domain_id: int, *classify_args: str,
@@ -109,7 +126,6 @@ def classify_on_the_stage_graph(params: Path, domain_id: int, *classify_args: st
     import json
     import subprocess
 
-    from lightstage_graph.names import IMAGE_TOPIC, resolved
     from lightstage_interfaces.msg import IlluminationState
     client = GraphClient(domain_id)
     seen = []
@@ -117,10 +133,6 @@ def classify_on_the_stage_graph(params: Path, domain_id: int, *classify_args: st
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
             start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
-            # the first trigger's frame is lost if the driver's /illumination writer or the
-            # camera's image writer has not yet matched its reader (seen once under load)
-            client.wait_for_subscriptions('camera', ['/illumination'], 30.0)
-            client.wait_for_subscriptions('classifier', [resolved(IMAGE_TOPIC)], 30.0)
             p = subprocess.run([sys.executable, '-m', 'lightstage_bringup.classify_cli', '--domain-id',
                                 str(domain_id), '--json', *classify_args],
                                capture_output=True, text=True, timeout=90)
