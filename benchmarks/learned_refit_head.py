@@ -28,13 +28,12 @@ import sys
 
 import numpy as np
 
-from lightstage_physics.capture_format import load_capture
-from mux_trainer.data import search_data
-from mux_trainer.holdout import holdout_split, test_features
+from mux_trainer.holdout import test_features
 from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from learned_combine_descents import combine, learned_runs  # noqa: E402
+from learned_vs_greedy import split_capture  # noqa: E402
 
 
 def capture_and_seed(key: str, run_args: dict) -> tuple[str, int]:
@@ -100,12 +99,7 @@ def main(argv=None):
     out = {}
     for key, runs in learned_runs(args.runs).items():
         path, seed = capture_and_seed(key, run_args)
-        ms = load_capture(path, downscale_to=120)
-        data = search_data(ms, run_args.get('noise', 'sigma3'), features='intensity_stats')
-        instance = np.asarray(ms.instance)
-        tr, te = holdout_split(data, 0.25, seed,
-                               instance if run_args['holdout_by'] == 'instances' else None)
-        train, test = data.subset(tr), data.subset(te)
+        train, test, train_instance = split_capture(path, run_args['holdout_by'], seed)
         for k in args.exposures.split(','):
             if not all(f'inner_{k}' in r['learned'] for r in runs):
                 continue
@@ -121,7 +115,7 @@ def main(argv=None):
                                                   seed)['accuracy']
             if args.other_heads:
                 row.update(other_heads(train, test, light, seed, run_args.get('n_renders', 4),
-                                       instance[tr]))
+                                       train_instance))
             out[f'{key} {k}'] = row
             print(f'{key}, {k} exposures, kept {best}: run {100 * accuracy:.1f} %; ' + ', '.join(
                 f'head_renders {h}: {100 * row[h]:.1f} %' for h in renders) + ''.join(

@@ -55,14 +55,21 @@ def classify_ms(model, test, seed, repeats=20) -> float:
     return (time.perf_counter() - t0) * 1e3 / repeats
 
 
-def run_capture(path, args) -> dict:
+def split_capture(path, holdout_by: str, seed: int, features: str = 'intensity_stats'):
+    """The capture at 120 px with Sigma3 noise, split by `holdout.holdout_split` (25 % of the
+    pose indices, or of the physical samples with holdout_by 'instances'): (train, test,
+    the training samples' physical sample numbers)."""
     ms = load_capture(path, downscale_to=120)
-    data = search_data(ms, 'sigma3', features=args.features)
-    instance = np.asarray(ms.instance) if args.holdout_by == 'instances' else None
-    tr, te = holdout_split(data, 0.25, args.seed, instance)
-    train, test = data.subset(tr), data.subset(te)
+    data = search_data(ms, 'sigma3', features=features)
+    instance = np.asarray(ms.instance)
+    tr, te = holdout_split(data, 0.25, seed, instance if holdout_by == 'instances' else None)
+    return data.subset(tr), data.subset(te), instance[tr]
+
+
+def run_capture(path, args) -> dict:
+    train, test, _ = split_capture(path, args.holdout_by, args.seed, args.features)
     print(f'{path}: {train.n_samples} training, {test.n_samples} held-out samples, '
-          f'{len(data.class_names)} classes, held out by {args.holdout_by}', flush=True)
+          f'{len(train.class_names)} classes, held out by {args.holdout_by}', flush=True)
     out = {}
     common = dict(seed=args.seed, scoring=SplitScoring(n_repeats=args.n_repeats))
     for name, make in (('greedy', lambda: GreedyPatternSelector(mode='per_colour', n_patterns=2,

@@ -106,9 +106,7 @@ def camera_graph(params):
     client = CameraGraphClient(domain_id)
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
-            start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)
-            client.spin_until(lambda: client.subscribed_by('/illumination', 'camera'), 10.0,
-                              'the camera to subscribe /illumination')
+            start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)  # and its links
             client.wait_camera_ready()
             client.wait_images_flow()
             yield client

@@ -73,8 +73,7 @@ def test_half_level_for_10_ms_images_like_full_level_for_5_ms_through_the_graph(
     apply = client.service(ApplyPatterns, APPLY_PATTERNS_SERVICE)
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
-            start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)
-            client.wait_for_subscriptions('camera', [ILLUMINATION_TOPIC], 10.0)
+            start_nodes(supervisor, client, ['driver', 'camera'], domain_id, params)  # and its links
             client.spin_until(lambda: images_sub.get_publisher_count() > 0, 10.0,
                               'the camera\'s image publisher')
             # a round trip without a trigger: the service's reply path is matched too
