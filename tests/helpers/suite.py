@@ -77,12 +77,13 @@ def stage_graph_params(capture, sample: str, seed: int, artifact=None, **section
 
 
 def start_nodes(supervisor: Supervisor, client: GraphClient, names, domain_id: int,
-                params: Path | None, timeout_s: float = 30.0) -> None:
+                params: Path | None, timeout_s: float = 30.0, wait_links: bool = True) -> None:
     """Start project nodes (`lightstage up` registry names) as processes and wait until they spin.
 
     "Spinning" = the node's parameter service is ready, which an rclpy node offers only
     once it has finished its set-up and its executor runs. Started together, the stage's
-    links are awaited too (`wait_stage_links`).
+    links are awaited too (`wait_stage_links`), unless `wait_links` is false (what a user
+    who classifies as soon as the nodes are up sees).
     """
     from rcl_interfaces.srv import ListParameters
     env = ros_environment(domain_id)
@@ -100,7 +101,8 @@ def start_nodes(supervisor: Supervisor, client: GraphClient, names, domain_id: i
         client.executor.spin_once(timeout_sec=0.05)
     for c in clients.values():
         client.node.destroy_client(c)
-    wait_stage_links(client, names, timeout_s)
+    if wait_links:
+        wait_stage_links(client, names, timeout_s)
 
 
 def wait_stage_links(client: GraphClient, names, timeout_s: float = 30.0) -> None:
@@ -119,10 +121,11 @@ def wait_stage_links(client: GraphClient, names, timeout_s: float = 30.0) -> Non
 
 
 def classify_on_the_stage_graph(params: Path, domain_id: int, *classify_args: str,
-                                n_illumination: int = 0) -> tuple[dict, list]:
+                                n_illumination: int = 0, wait_links: bool = True) -> tuple[dict, list]:
     """Driver, camera and classifier started as processes with `params`; one `lightstage
     classify --json` call (with `classify_args`), which must succeed; returns its answer
-    and the /illumination states seen (waiting for at least `n_illumination` of them)."""
+    and the /illumination states seen (waiting for at least `n_illumination` of them).
+    `wait_links` as `start_nodes`'."""
     import json
     import subprocess
 
@@ -132,7 +135,8 @@ def classify_on_the_stage_graph(params: Path, domain_id: int, *classify_args: st
     client.node.create_subscription(IlluminationState, '/illumination', seen.append, 100)
     try:
         with Supervisor(sigint_timeout_s=5.0) as supervisor:
-            start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
+            start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params,
+                        wait_links=wait_links)
             p = subprocess.run([sys.executable, '-m', 'lightstage_bringup.classify_cli', '--domain-id',
                                 str(domain_id), '--json', *classify_args],
                                capture_output=True, text=True, timeout=90)

@@ -27,7 +27,8 @@ from lightstage_bringup.supervisor import Supervisor
 from mux_classifier.classify_request import MAX_IMAGES_MAX, TIMEOUT_MAX_S, TIMEOUT_MIN_S
 
 from helpers.artifact_mutations import mutated_artifacts
-from helpers.suite import GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
+from helpers.suite import (GraphClient, classify_on_the_stage_graph, fresh_domain_id, stage_graph_params,
+                           start_nodes, write_params)
 
 pytestmark = pytest.mark.ros
 
@@ -132,6 +133,22 @@ def test_an_artifact_on_pose_robust_features_classifies_on_the_stage(
     finally:
         (ok,) = client.set_parameters('classifier', artifact_path=str(stage_artifact_path))
         assert ok.successful, ok.reason
+
+
+def test_a_classify_as_soon_as_the_nodes_spin_gets_every_frame(stage_capture, stage_artifact_path,
+                                                              tmp_path):
+    """Nothing waits for the stage's links here, as for a user who classifies as soon as
+    `lightstage up` is up: the driver and the camera wait for the readers the graph shows
+    and their publishers have not matched yet (lightstage_graph.links), so no trigger or
+    frame of the first sequence is published into a link that is not there yet."""
+    sample = SAMPLES[1]
+    params = write_params(tmp_path / 'params.yaml',
+                          stage_graph_params(stage_capture, sample, 3, stage_artifact_path))
+    answer, seen = classify_on_the_stage_graph(params, fresh_domain_id(), '--max-images', '8',
+                                               n_illumination=8, wait_links=False)
+    assert answer['success'] and answer['images_used'] == 8, answer
+    assert answer['label'].split('-')[0] == sample.split('-')[0], answer
+    assert len(seen) == 8
 
 
 def test_unknown_sample_is_rejected_and_the_stage_keeps_its_sample(graph):

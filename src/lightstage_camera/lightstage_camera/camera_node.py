@@ -35,6 +35,7 @@ import numpy as np
 from lightstage_graph.diagnostics import ERROR, OK, WARN, DiagnosticsPublisher, Report
 from lightstage_graph.limits import (DIMMER_MIN, DIMMER_MAX, EXPOSURE_US_MAX, EXPOSURE_US_MIN,
                                      GAIN_DB_MAX, GAIN_DB_MIN)
+from lightstage_graph.links import ReaderMatch
 from lightstage_graph.names import (CAMERA_INFO_TOPIC, CAMERA_NODE, FRAME_LOST_TOPIC,
                                     ILLUMINATION_TOPIC, IMAGE_TOPIC)
 from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
@@ -179,6 +180,9 @@ class CameraNode(Node):
         self._image_pub = self.create_publisher(Image, IMAGE_TOPIC, IMAGE_QOS)
         self._info_pub = self.create_publisher(CameraInfo, CAMERA_INFO_TOPIC, IMAGE_QOS)
         self._lost_pub = self.create_publisher(FrameLost, FRAME_LOST_TOPIC, IMAGE_QOS)
+        # a reader that just subscribed (a classifier right after start-up) gets the next frame
+        self._image_readers = ReaderMatch(self, self._image_pub)
+        self._lost_readers = ReaderMatch(self, self._lost_pub)
         try:
             self._load_calibration(self.p('camera_info_url'))
         except (ValueError, OSError) as exc:
@@ -359,6 +363,7 @@ class CameraNode(Node):
                     self.get_logger().error(f'{exc}; publishing an uncalibrated camera_info')
                 self.calibration_error, calibration = str(exc), None
         info = camera_info_message(image.header, calibration or Calibration.uncalibrated(width, height))
+        self._image_readers.wait()
         self._image_pub.publish(image)
         self._info_pub.publish(info)
         self.published += 1
@@ -377,6 +382,7 @@ class CameraNode(Node):
         msg = FrameLost(sequence=int(trigger.sequence), reason=str(reason))
         msg.header.stamp = ns_to_stamp(trigger.stamp_ns)
         msg.header.frame_id = self.p('frame_id')
+        self._lost_readers.wait()
         self._lost_pub.publish(msg)
 
     # ------------------------------------------------------------------ health

@@ -27,6 +27,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from lightstage_graph.diagnostics import ERROR, OK, WARN, DiagnosticsPublisher, Report
 from lightstage_graph.exits import describe_exit
+from lightstage_graph.links import ReaderMatch
 from lightstage_graph.names import APPLY_PATTERNS_SERVICE, DRIVER_NODE, ILLUMINATION_TOPIC
 from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
 from lightstage_graph.qos import ILLUMINATION_QOS
@@ -91,6 +92,7 @@ class LightStageDriverNode(LifecycleNode):
         self.last_error = ''
         self.link_state = 'unconfigured'
         self._illumination_pub = None
+        self._illumination_readers: ReaderMatch | None = None
         self._heartbeat_timer = None
         self._active = False
         self.link_down = ''              # why the link is down ('' while it is up)
@@ -163,6 +165,7 @@ class LightStageDriverNode(LifecycleNode):
             f'{ident.min_exposure_us}..{ident.max_exposure_us} us, watchdog {self.p("watchdog_ms")} ms')
         self._illumination_pub = self.create_lifecycle_publisher(IlluminationState, ILLUMINATION_TOPIC,
                                                                  ILLUMINATION_QOS)
+        self._illumination_readers = ReaderMatch(self, self._illumination_pub)
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: State) -> TransitionCallbackReturn:
@@ -216,6 +219,7 @@ class LightStageDriverNode(LifecycleNode):
         if self._illumination_pub is not None:
             self.destroy_lifecycle_publisher(self._illumination_pub)
             self._illumination_pub = None
+            self._illumination_readers = None
 
     def _leds_off(self, why: str) -> str:
         """Switch every LED off: '' when done, else why not (logged)."""
@@ -387,6 +391,9 @@ class LightStageDriverNode(LifecycleNode):
             published.append(trigger)
             self._publish_illumination(trigger, request.patterns[trigger.index], stamp, len(request.patterns))
 
+        readers = self._illumination_readers
+        if request.trigger and readers is not None:
+            readers.wait()   # a camera that just subscribed gets the first trigger too
         try:
             triggers = self.stage.apply(intensities, exposures, trigger=request.trigger, gap_us=self.p('gap_us'),
                                         on_trigger=publish)

@@ -33,6 +33,7 @@ from concurrent.futures import Future as ThreadFuture
 
 import numpy as np
 from lightstage_graph.errors import StageError
+from lightstage_graph.links import ReaderMatch
 from lightstage_graph.names import (CAMERA_NODE, CLASSIFIER_NODE, CLASSIFY_SERVICE,
                                     ILLUMINATION_TOPIC, RESULT_TOPIC)
 from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
@@ -103,6 +104,7 @@ class ClassifierNode(Node):
         self._busy = threading.Lock()  # held by the queue's worker while it uses the stage
         self.queue = StageQueue(name='classify-stage')
         self._result_pub = self.create_publisher(ClassificationResult, RESULT_TOPIC, 10)
+        self._result_readers = ReaderMatch(self, self._result_pub)  # a recorder just started
         # a burst of calls waits in the service's queue until the executor takes them; the
         # default depth (10) would drop the oldest of a larger burst unanswered
         service = self.create_service(Classify, CLASSIFY_SERVICE, self._on_classify,
@@ -317,6 +319,7 @@ class ClassifierNode(Node):
         msg.sequences = [int(s) for s in result.sequences]
         msg.acquisition_ms = float(result.acquisition_ms)
         msg.compute_ms = float(result.compute_ms)
+        self._result_readers.wait()
         self._result_pub.publish(msg)
 
 
