@@ -112,7 +112,7 @@ def run_capture(path, args) -> dict:
             model = LearnedIlluminationClassifier(
                 n_images=k, binary=binary, max_steps=args.steps, seed=args.seed,
                 lr_patterns=args.lr_patterns, objective=args.objective, fine_tune=fine_tune,
-                ridge=args.ridge,
+                ridge=args.ridge, class_power=args.class_power,
                 starts=builtin, start_patterns=starts, n_repeats=args.n_repeats,
                 progress=args.progress).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
@@ -146,6 +146,9 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     defaults = LearnedIlluminationClassifier()
     p.add_argument('--ridge', type=float, default=defaults.ridge,
                    help="learned, objective cv_ridge: the fold classifiers' ridge")
+    p.add_argument('--class-power', type=float, default=defaults.class_power,
+                   help='learned, objective cv_ridge: the power mean over classes of their '
+                        'held-out losses (1: the mean over samples)')
     p.add_argument('--fine-tune', default=','.join(defaults.fine_tune), type=lambda v: v.split(','),
                    help="learned: 'best', 'all', 'none' or the starts the steps run from")
     p.add_argument('--learned-starts', default=','.join(defaults.starts),

@@ -241,6 +241,33 @@ def test_cv_ridge_loss_pays_for_separation_that_holds_on_other_poses():
     assert np.isfinite(np.asarray(g)).all()
 
 
+def test_cv_ridge_loss_class_power_weighs_the_worst_separated_classes_more():
+    """class_power p > 1: the power mean over classes of their held-out losses. Four
+    classes, either evenly separated or two far apart and one pair nearly on top of each
+    other: p = 2 leaves the even light's loss almost as it is and raises the pair's."""
+    rng = np.random.default_rng(0)
+    n_poses, per, n_classes = 8, 6, 4
+    y = np.tile(np.repeat(np.arange(n_classes), per), n_poses)
+    pose = np.repeat(np.arange(n_poses), n_classes * per)
+    onehot = jnp.asarray(np.eye(n_classes, dtype=np.float32)[y])
+    held_out = jnp.asarray(pose_folds(pose, 4))
+    noise = rng.normal(0, 1, (y.size, 2)).astype(np.float32)
+    even = noise + np.array([[0, 0], [2, 0], [0, 2], [2, 2]], np.float32)[y]
+    pair = noise + np.array([[0, 0], [6, 0], [0, 6], [0.3, 6]], np.float32)[y]
+
+    def loss(F, p):
+        return float(cv_ridge_loss(jnp.asarray(F), onehot, held_out, 0.01, p))
+
+    for F in (even, pair):   # the per-class form at p -> 1 is the mean over samples
+        np.testing.assert_allclose(loss(F, 1.0 + 1e-6), loss(F, 1.0), rtol=1e-5)
+    assert loss(even, 2.0) / loss(even, 1.0) < 1.03
+    assert loss(pair, 2.0) / loss(pair, 1.0) > 1.15
+    g = jax.grad(lambda F: cv_ridge_loss(F, onehot, held_out, 0.01, 2.0))(jnp.asarray(pair))
+    assert np.isfinite(np.asarray(g)).all()
+    with pytest.raises(ValueError, match='class_power'):
+        LearnedIlluminationClassifier(class_power=0.5).fit(None)
+
+
 def test_numpy_forward_equals_jax_forward(fitted):
     model, test = fitted
     m = model.model_

@@ -240,7 +240,7 @@ def pose_folds(pose_index: np.ndarray, n_folds: int) -> np.ndarray:
 
 
 def cv_ridge_loss(F: jnp.ndarray, onehot: jnp.ndarray, held_out: jnp.ndarray,
-                  ridge: float) -> jnp.ndarray:
+                  ridge: float, class_power: float = 1.0) -> jnp.ndarray:
     """The pose-held-out loss of the classifier greedy's inner splits imitate, in closed
     form: for each fold (`held_out` (folds, n) masks from `pose_folds`) the features F
     (n, d) are z-scored over the fold's training samples, a ridge least-squares classifier
@@ -248,8 +248,14 @@ def cv_ridge_loss(F: jnp.ndarray, onehot: jnp.ndarray, held_out: jnp.ndarray,
     the squared hinge of its scores is averaged over the held-out samples; the mean over
     folds. Differentiable through the solve, so the light's gradient is that of held-out
     error under the head that is optimal for the light at this step (no head is learned
-    alongside), and light that only fits the training poses does not pay."""
+    alongside), and light that only fits the training poses does not pay.
+
+    `class_power` p: each fold's held-out loss is the power mean over classes of their mean
+    held-out loss, weighted by their held-out counts, (sum_c n_c L_c^p / sum_c n_c)^(1/p):
+    p = 1 is the mean over the held-out samples; above 1 the classes the light separates
+    worst weigh more (a 16-class capture whose errors are one pair)."""
     Y = 2.0 * onehot - 1.0
+    p = float(class_power)
     d = F.shape[1]
     eye = jnp.eye(d, dtype=F.dtype)
 
@@ -266,7 +272,12 @@ def cv_ridge_loss(F: jnp.ndarray, onehot: jnp.ndarray, held_out: jnp.ndarray,
         b = (Y * w).sum(axis=0) / n_train - ((Z * w).sum(axis=0) / n_train) @ W
         hinge = jnp.maximum(0.0, 1.0 - Y * (Z @ W + b)) ** 2
         t = test.astype(F.dtype)[:, None]
-        return (hinge * t).sum() / jnp.maximum(t.sum(), 1.0)
+        if p == 1.0:
+            return (hinge * t).sum() / jnp.maximum(t.sum(), 1.0)
+        counts = (onehot * t).sum(axis=0)                    # held-out samples per class
+        per_class = (onehot * t).T @ hinge.sum(axis=1) / jnp.maximum(counts, 1.0)
+        mean_p = (counts * per_class ** p).sum() / jnp.maximum(counts.sum(), 1.0)
+        return mean_p ** (1.0 / p)
 
     return jnp.mean(jax.vmap(fold)(held_out))
 
@@ -310,8 +321,8 @@ class LearnedIlluminationClassifier:
       'best' (the start the inner splits score best), 'all', 'none'. Each descent draws
       from a stream of its own, so one never changes another's. A perfect inner score
       ends the fit early (nothing after it could be kept: a tie keeps the earlier).
-    - objective: 'cv_ridge' (`cv_ridge_loss` over `pose_folds(n_folds)`, ridge; no head
-      during training), 'fisher' (`fisher_loss`, fisher_shrinkage) or 'cross_entropy'
+    - objective: 'cv_ridge' (`cv_ridge_loss` over `pose_folds(n_folds)`, ridge, class_power;
+      no head during training), 'fisher' (`fisher_loss`, fisher_shrinkage) or 'cross_entropy'
       (a head of n_hidden units, lr_head, weight_decay, trained together with the light).
     - max_steps, eval_every (a snapshot of the levels every so many steps), batch_size
       (samples per step; all of them when it is at least their number), lr_patterns (Adam
@@ -339,7 +350,7 @@ class LearnedIlluminationClassifier:
                  starts=('random', 'per_colour', 'snr_optimal', 'greedy'), start_patterns=None,
                  fine_tune=('random', 'greedy'), objective='cv_ridge', max_steps=DEFAULT_STEPS,
                  eval_every=50, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.01,
-                 fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
+                 class_power=1.0, fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
                  n_repeats=400, test_fraction=0.25, final_C=1.0, head_renders=1, noise='sigma3',
                  dimmer=None, hog_config=None, seed=0, progress=False):
         self.n_images = n_images
@@ -354,6 +365,7 @@ class LearnedIlluminationClassifier:
         self.lr_patterns = lr_patterns
         self.n_folds = n_folds
         self.ridge = ridge
+        self.class_power = class_power
         self.fisher_shrinkage = fisher_shrinkage
         self.n_hidden = n_hidden
         self.lr_head = lr_head
@@ -389,6 +401,8 @@ class LearnedIlluminationClassifier:
             raise ValueError(f"unknown starts {sorted(unknown)}; use {', '.join(BUILTIN_STARTS)}")
         if not (np.isfinite(float(self.ridge)) and float(self.ridge) > 0):
             raise ValueError(f'ridge must be a positive number, got {self.ridge}')
+        if not (np.isfinite(float(self.class_power)) and float(self.class_power) >= 1):
+            raise ValueError(f'class_power must be a number >= 1, got {self.class_power}')
 
     def _tuned_names(self) -> tuple:
         """fine_tune as a tuple of names (one name may be given as a string)."""
@@ -530,7 +544,7 @@ class LearnedIlluminationClassifier:
         onehot = jax.nn.one_hot(labels, len(data.class_names), dtype=jnp.float32)
         shape, a, b, top = data.image_shape, data.noise_a, data.noise_b, data.max_level
         wd, shrink = float(self.weight_decay), float(self.fisher_shrinkage)
-        objective, ridge = self.objective, float(self.ridge)
+        objective, ridge, power = self.objective, float(self.ridge), float(self.class_power)
         folds = pose_folds(data.pose_index, int(self.n_folds))
 
         def loss_fn(params, idx, eps):
@@ -538,7 +552,7 @@ class LearnedIlluminationClassifier:
             images = add_noise(mean, eps, a, b, top)
             F = stack_stats(images, shape)
             if objective == 'cv_ridge':
-                return cv_ridge_loss(F, onehot[idx], jnp.take(held_out, idx, axis=1), ridge)
+                return cv_ridge_loss(F, onehot[idx], jnp.take(held_out, idx, axis=1), ridge, power)
             if objective == 'fisher':
                 return fisher_loss(F, onehot[idx], shrink)
             # z-scored by the batch's own statistics, not differentiated (no collapse of scale)
