@@ -15,9 +15,11 @@ test renders as the run had them.
         .venv/bin/python benchmarks/learned_refit_head.py r4_poses.json r5_poses.json --head-renders 1,4
 
 --other-heads also fits, on the same light, heads the learned model does not have (a probe of
-what a nonlinear head would add; scikit-learn, on the standardised statistics of 6 noise
-draws of the training samples): the linear SVM as the model's, an RBF SVM (C 100) and a
-64-unit MLP (alpha 1e-3).
+what another head would add; scikit-learn, on the standardised statistics of 6 noise draws of
+the training samples): the linear SVM as the model's (one-vs-rest), an RBF SVM (C 100), a
+64-unit MLP (alpha 1e-3), and three other linear heads: one-vs-one linear SVMs (a classifier
+per pair of classes), multinomial logistic regression, and object type first, then a linear
+SVM per type for its variants (`TypeThenVariant`, types from the class names' "type-variant").
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ import os
 import sys
 
 import numpy as np
+from sklearn.base import BaseEstimator, ClassifierMixin
 
 from mux_trainer.holdout import test_features
 from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
@@ -44,7 +47,34 @@ def capture_and_seed(key: str, run_args: dict) -> tuple[str, int]:
     return key, int(run_args['seed'])
 
 
-OTHER_HEADS = ('linear_svm', 'rbf_svm', 'mlp64')
+OTHER_HEADS = ('linear_svm', 'rbf_svm', 'mlp64', 'ovo_linear_svm', 'logistic', 'type_then_variant')
+
+
+class TypeThenVariant(BaseEstimator, ClassifierMixin):
+    """A linear SVM for the object type (the class name before its first '-'), then one per
+    type for its variants (real / fake): each pair gets a classifier of its own."""
+
+    def __init__(self, class_names, C=1.0):
+        self.class_names, self.C = class_names, C
+
+    def fit(self, X, y):
+        from sklearn.svm import LinearSVC
+        names = dict.fromkeys(n.split('-')[0] for n in self.class_names)
+        type_of = np.array([list(names).index(n.split('-')[0]) for n in self.class_names])
+        t = type_of[y]
+        self.type_head_ = LinearSVC(C=self.C, max_iter=20000).fit(X, t)
+        self.heads_ = {ty: (LinearSVC(C=self.C, max_iter=20000).fit(X[t == ty], y[t == ty])
+                            if np.unique(y[t == ty]).size > 1 else int(y[t == ty][0]))
+                       for ty in np.unique(t)}
+        return self
+
+    def predict(self, X):
+        t = self.type_head_.predict(X)
+        out = np.empty(len(X), np.int64)
+        for ty in np.unique(t):
+            head = self.heads_[ty]
+            out[t == ty] = head.predict(X[t == ty]) if hasattr(head, 'predict') else head
+        return out
 
 
 def other_heads(train, test, light, seed, n_renders, train_instance, draws=6) -> dict:
@@ -55,6 +85,7 @@ def other_heads(train, test, light, seed, n_renders, train_instance, draws=6) ->
     accuracy on them (`{head}_inner_by_instance`: fitted without physical sample number u of
     every class, scored on it, mean over u)."""
     from sklearn.base import clone
+    from sklearn.linear_model import LogisticRegression
     from sklearn.neural_network import MLPClassifier
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
@@ -63,7 +94,10 @@ def other_heads(train, test, light, seed, n_renders, train_instance, draws=6) ->
     y = np.tile(train.labels, draws)
     tests = [test_features(test, 'joint', light, r, seed) for r in range(n_renders)]
     heads = {'linear_svm': LinearSVC(C=1.0, max_iter=20000), 'rbf_svm': SVC(C=100.0),
-             'mlp64': MLPClassifier((64,), alpha=1e-3, max_iter=2000, random_state=0)}
+             'mlp64': MLPClassifier((64,), alpha=1e-3, max_iter=2000, random_state=0),
+             'ovo_linear_svm': SVC(kernel='linear', C=1.0),
+             'logistic': LogisticRegression(C=1.0, max_iter=5000),
+             'type_then_variant': TypeThenVariant(list(train.class_names))}
     out = {}
     for name in OTHER_HEADS:
         inner = []

@@ -16,6 +16,8 @@ split of `holdout.holdout_split` (25 % of the pose indices, or of the physical s
   the control for what the gradient steps add; evaluated by
   `learned.evaluate_learned_heldout`: the same test-noise stream (`holdout.test_images`)
   and the same n_renders.
+With `--inner-groups instances` every method's inner splits (greedy's, SNR-optimal's, the
+learned loss's folds and its candidate scoring) hold out physical samples instead of poses.
 Prints held-out accuracy and training seconds per method and exposure count, and writes the
 figures as JSON with --json.
 
@@ -25,6 +27,7 @@ figures as JSON with --json.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -66,8 +69,17 @@ def split_capture(path, holdout_by: str, seed: int, features: str = 'intensity_s
     return data.subset(tr), data.subset(te), instance[tr]
 
 
+def grouped_by_instance(train, train_instance):
+    """The training data with its pose numbers replaced by the physical sample numbers: every
+    method's inner splits (and the learned loss's folds) then hold out whole instances."""
+    _, groups = np.unique(train_instance, return_inverse=True)
+    return dataclasses.replace(train, pose_index=groups.astype(np.int64))
+
+
 def run_capture(path, args) -> dict:
-    train, test, _ = split_capture(path, args.holdout_by, args.seed, args.features)
+    train, test, train_instance = split_capture(path, args.holdout_by, args.seed, args.features)
+    if getattr(args, 'inner_groups', 'poses') == 'instances':
+        train = grouped_by_instance(train, train_instance)
     print(f'{path}: {train.n_samples} training, {test.n_samples} held-out samples, '
           f'{len(train.class_names)} classes, held out by {args.holdout_by}', flush=True)
     out = {}
@@ -137,6 +149,9 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     """The options of `run_capture` (shared with learned_strength_sweep.py)."""
     p.add_argument('--features', default='intensity_stats')
     p.add_argument('--holdout-by', default='poses', choices=('poses', 'instances'))
+    p.add_argument('--inner-groups', default='poses', choices=('poses', 'instances'),
+                   help="what every method's inner splits hold out on the training part: pose "
+                        "numbers (the methods' own) or physical samples (a probe)")
     p.add_argument('--n-repeats', type=int, default=400, help="greedy's / SNR's inner splits")
     p.add_argument('--n-renders', type=int, default=4)
     p.add_argument('--steps', type=int, default=DEFAULT_STEPS, help='learned: gradient steps')
