@@ -96,6 +96,21 @@ def test_a_node_that_never_joins_the_graph_times_out_naming_it():
     assert time.monotonic() - t0 < 20
 
 
+def test_a_late_node_does_not_cost_a_busy_node_its_answer(tmp_path):
+    """While a node is missing from the graph, the watcher renews its participant (so that
+    the late node is found sooner), and a renewal drops its calls in flight. A node that is
+    in the graph but busy in its set-up answered the dropped call later, into nothing: rmw
+    blocked it for the profile's 2 s and it logged "failed to send response". The watcher
+    now calls only once every node is in the graph."""
+    params = tmp_path / 'params.yaml'
+    params.write_text('busy:\n  ros__parameters:\n    spin_delay_s: 4.0\n')
+    p = run_up('busy', 'late', '--node', f'busy={FAKE}', '--node', 'late=bringup_late_node',
+               '--params', str(params), '--exit-after-up')
+    assert p.returncode == 0, p.stderr
+    assert 'graph up: ' in p.stdout
+    assert 'failed to send response' not in p.stdout + p.stderr, p.stdout + p.stderr
+
+
 def test_a_node_that_does_not_stop_on_sigint_is_escalated_and_reported(tmp_path):
     params = tmp_path / 'params.yaml'
     params.write_text('deaf:\n  ros__parameters:\n    ignore_sigint: true\n')

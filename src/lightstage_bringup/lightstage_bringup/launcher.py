@@ -142,7 +142,8 @@ class GraphWatcher:
     only at this one's next periodic announcement (measured: ~3.5 s), while one that
     already exists is found in ~0.1 s. So while expected nodes are missing from the graph,
     the watcher re-creates its participant, which announces it afresh: after `renew_s`,
-    then after twice that, and so on (a renewal drops calls in flight, so it backs off).
+    then after twice that, and so on (a renewal drops calls in flight, so it backs off, and
+    the nodes' spinning is checked only once none is missing from the graph).
     Its own context makes it usable inside a process that uses rclpy otherwise.
     """
 
@@ -182,8 +183,9 @@ class GraphWatcher:
         "Spinning" = its parameter service answers a `list_parameters` call, which an rclpy
         node does only once its executor runs, i.e. after its set-up code; a node without
         parameter services counts as up once discoverable. Stops early when a child of
-        `supervisor` exits or `stop_event` is set. Returns (names not up, name of a child
-        that died meanwhile or None); an empty first list means all are up.
+        `supervisor` exits or `stop_event` is set. Returns (names not up: those not in the
+        graph if any, else those not answering; name of a child that died meanwhile or
+        None); an empty first list means all are up.
         """
         from rcl_interfaces.srv import ListParameters
 
@@ -196,6 +198,12 @@ class GraphWatcher:
         while True:
             now = time.monotonic()
             graph = self.node.get_node_names_and_namespaces()
+            in_graph = {n for n, _ns in graph}
+            # A renewal (below) drops the calls in flight, and a node busy in its set-up
+            # answers a dropped call later into nothing (rmw blocks it for the profile's
+            # max_blocking_time, then it logs "failed to send response"). So call only when
+            # no renewal is due: every node is in the graph.
+            may_call = all(n in in_graph for n in names)
             for n, ns in graph:
                 if n not in names or n in up:
                     continue
@@ -210,15 +218,17 @@ class GraphWatcher:
                     continue
                 if n in pending and pending[n][0].done():
                     up.add(n)
-                elif clients[n].service_is_ready() and (n not in pending or now - pending[n][1] > 1.0):
+                elif may_call and clients[n].service_is_ready() and (
+                        n not in pending or now - pending[n][1] > 1.0):
                     # (re)send: a request sent while the match is still settling can get lost
                     pending[n] = (clients[n].call_async(ListParameters.Request(depth=1)), now)
             missing = [n for n in names if n not in up]
             dead = supervisor.exited() if supervisor is not None else []
             stopped = stop_event is not None and stop_event.is_set()
             if not missing or dead or stopped or time.monotonic() >= deadline:
-                return missing, (dead[0].name if dead else None)
-            in_graph = {n for n, _ns in graph}
+                # the nodes not in the graph if any (the others' spinning was not asked yet)
+                return ([n for n in missing if n not in in_graph] or missing,
+                        dead[0].name if dead else None)
             if any(n not in in_graph for n in missing) and now - self._opened_at > renew_s:
                 renew_s *= 2
                 self._close()

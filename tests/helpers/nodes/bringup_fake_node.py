@@ -3,7 +3,8 @@
 Parameters (settable from a params YAML): `greeting` (printed on stdout at start),
 `die_after_s` (> 0: exit with `exit_code` after that long), `ignore_sigint` (stay up after
 SIGINT, so the launcher has to escalate to SIGTERM), `exit_code_on_stop` (exit status when
-stopped by a signal, to play a node that fails its shutdown).
+stopped by a signal, to play a node that fails its shutdown), `spin_delay_s` (in the graph,
+its parameter services there, but not spinning for that long: a node busy in its set-up).
 """
 import signal
 import sys
@@ -22,7 +23,9 @@ def main() -> int:
     exit_code_on_stop = node.declare_parameter('exit_code_on_stop', 0).value
     if node.declare_parameter('ignore_sigint', False).value:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    spin_delay_s = node.declare_parameter('spin_delay_s', 0.0).value
     print(f'greeting={greeting} name={node.get_name()}', flush=True)
+    time.sleep(spin_delay_s)
     node.get_logger().info('fake node up')
     t0 = time.monotonic()
     try:
