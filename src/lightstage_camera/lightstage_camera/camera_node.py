@@ -183,6 +183,11 @@ class CameraNode(Node):
         # a reader that just subscribed (a classifier right after start-up) gets the next frame
         self._image_readers = ReaderMatch(self, self._image_pub)
         self._lost_readers = ReaderMatch(self, self._lost_pub)
+        # subscribed before the backend starts (a capture can take seconds to load): a client
+        # that sees the image publisher finds this reader in the graph too, so the driver's
+        # wait for /illumination's readers includes it; triggers meanwhile queue until spin
+        self.create_subscription(IlluminationState, ILLUMINATION_TOPIC, self._on_illumination,
+                                 ILLUMINATION_QOS)
         try:
             self._load_calibration(self.p('camera_info_url'))
         except (ValueError, OSError) as exc:
@@ -190,8 +195,6 @@ class CameraNode(Node):
             self.get_logger().error(self.calibration_error)
         self._start_backend(self._settings())
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.create_subscription(IlluminationState, ILLUMINATION_TOPIC, self._on_illumination,
-                                 ILLUMINATION_QOS)
         self.diagnostics = DiagnosticsPublisher(self, 'camera', self._camera_status,
                                                 self.p('diagnostics_period_s'))
         self.diagnostics.publish()
