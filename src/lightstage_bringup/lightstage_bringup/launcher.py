@@ -226,8 +226,9 @@ class GraphWatcher:
             dead = supervisor.exited() if supervisor is not None else []
             stopped = stop_event is not None and stop_event.is_set()
             if not missing or dead or stopped or time.monotonic() >= deadline:
-                # the nodes not in the graph if any (the others' spinning was not asked yet)
-                return ([n for n in missing if n not in in_graph] or missing,
+                # the nodes never seen in the graph if any (the others' spinning was not
+                # asked yet; a renewal just before may hide a node it had seen)
+                return ([n for n in missing if n not in discovered_at] or missing,
                         dead[0].name if dead else None)
             if any(n not in in_graph for n in missing) and now - self._opened_at > renew_s:
                 renew_s *= 2
