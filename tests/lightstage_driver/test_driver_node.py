@@ -24,14 +24,9 @@ from lifecycle_msgs.srv import ChangeState  # noqa: E402
 from lightstage_interfaces.msg import IlluminationState, Pattern  # noqa: E402
 from lightstage_interfaces.srv import ApplyPatterns  # noqa: E402
 
-from helpers.suite import REPO
+from helpers.suite import REPO, fresh_domain_id
 
 SRC = REPO / 'src'
-
-
-def own_domain(k: int) -> int:
-    """A domain id of this test run's own (the suite's in-process domain is 100..199)."""
-    return 1 + (os.getpid() * 7 + k) % 99
 
 
 def start_node(port: str, name: str, *params: str, domain_id: int) -> subprocess.Popen:
@@ -138,8 +133,9 @@ class Client:
 def rig():
     backend = PythonSimBackend()
     backend.start()
-    proc = start_node(backend.port, 'stage_driver_under_test', domain_id=own_domain(0))
-    client = Client('stage_driver_under_test', own_domain(0))
+    domain = fresh_domain_id()
+    proc = start_node(backend.port, 'stage_driver_under_test', domain_id=domain)
+    client = Client('stage_driver_under_test', domain)
     yield backend, proc, client
     client.close()
     stop_node(proc)
@@ -277,7 +273,7 @@ def test_firmware_killed_mid_sequence_the_reply_says_the_leds_state_is_unknown(r
 def test_the_drivers_own_simulator_killed_is_noticed_reported_and_restarted():
     # issue 12, item 10: with port sim, the simulator child killed was never restarted and every
     # request waited 10-12 s for "driver did not answer"
-    domain = own_domain(5)
+    domain = fresh_domain_id()
     proc = start_node('sim', 'stage_driver_sim_killed', 'reconnect_period_s:=5.0', domain_id=domain)
     client = Client('stage_driver_sim_killed', domain)
     try:
@@ -321,8 +317,9 @@ def test_the_drivers_own_simulator_killed_is_noticed_reported_and_restarted():
 def test_shutdown_switches_the_leds_off():
     backend = PythonSimBackend()
     backend.start()
-    proc = start_node(backend.port, 'stage_driver_shutdown', domain_id=own_domain(1))
-    client = Client('stage_driver_shutdown', own_domain(1))
+    domain = fresh_domain_id()
+    proc = start_node(backend.port, 'stage_driver_shutdown', domain_id=domain)
+    client = Client('stage_driver_shutdown', domain)
     try:
         assert client.apply([eye(30, 31)], trigger=False).success
         assert wait_until(lambda: backend.current_word() == 3 << 30, 2.0), backend.led_words()
@@ -335,8 +332,9 @@ def test_shutdown_switches_the_leds_off():
 
 
 def test_port_sim_starts_its_own_simulator():
-    proc = start_node('sim://?pwm_bits=8', 'stage_driver_own_sim', domain_id=own_domain(2))
-    client = Client('stage_driver_own_sim', own_domain(2))
+    domain = fresh_domain_id()
+    proc = start_node('sim://?pwm_bits=8', 'stage_driver_own_sim', domain_id=domain)
+    client = Client('stage_driver_own_sim', domain)
     try:
         half = np.full(32, 0.25)
         response = client.apply([half, eye(2)], exposure_us=500)
@@ -362,8 +360,9 @@ def test_a_configure_failure_leaves_the_node_up_unconfigured_with_the_reason(por
     if port == 'REGULAR_FILE':
         port = str(tmp_path / 'ttyACM0')
         Path(port).write_bytes(b'')
-    proc = start_node(port, 'stage_driver_no_port', *params, domain_id=own_domain(3))
-    client = Client('stage_driver_no_port', own_domain(3))
+    domain = fresh_domain_id()
+    proc = start_node(port, 'stage_driver_no_port', *params, domain_id=domain)
+    client = Client('stage_driver_no_port', domain)
     try:
         assert client.spin_until(lambda: bool(client.diagnostics), 20.0)
         status = client.diagnostics[-1].status[0]
@@ -382,9 +381,10 @@ def test_a_configure_failure_leaves_the_node_up_unconfigured_with_the_reason(por
 def test_a_crashed_driver_does_not_leave_the_leds_on():
     backend = PythonSimBackend()
     backend.start()
+    domain = fresh_domain_id()
     proc = start_node(backend.port, 'stage_driver_crash', 'watchdog_ms:=300', 'heartbeat_period_s:=0.1',
-                      domain_id=own_domain(4))
-    client = Client('stage_driver_crash', own_domain(4))
+                      domain_id=domain)
+    client = Client('stage_driver_crash', domain)
     try:
         assert client.apply([eye(12)], trigger=False).success
         time.sleep(0.6)                    # heartbeats keep the pattern lit past the watchdog time

@@ -6,6 +6,7 @@ SIGINT, so the launcher has to escalate to SIGTERM), `exit_code_on_stop` (exit s
 stopped by a signal, to play a node that fails its shutdown), `spin_delay_s` (in the graph,
 its parameter services there, but not spinning for that long: a node busy in its set-up).
 """
+import faulthandler
 import signal
 import sys
 import time
@@ -16,6 +17,9 @@ from rclpy.executors import ExternalShutdownException
 
 def main() -> int:
     rclpy.init()
+    # a node the launcher has to escalate to SIGTERM shows where it was stuck (then
+    # rclpy's own handler, installed by init, runs as before)
+    faulthandler.register(signal.SIGTERM, chain=True)
     node = rclpy.create_node('bringup_fake_node')
     greeting = node.declare_parameter('greeting', 'hello').value
     die_after_s = node.declare_parameter('die_after_s', 0.0).value
