@@ -125,6 +125,7 @@ def run_capture(path, args) -> dict:
                 n_images=k, binary=binary, max_steps=args.steps, seed=args.seed,
                 lr_patterns=args.lr_patterns, objective=args.objective, fine_tune=fine_tune,
                 ridge=args.ridge, class_power=args.class_power,
+                split_classifier=args.split_classifier,
                 starts=builtin, start_patterns=starts, n_repeats=args.n_repeats,
                 progress=args.progress).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
@@ -164,6 +165,9 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     p.add_argument('--class-power', type=float, default=defaults.class_power,
                    help='learned, objective cv_ridge: the power mean over classes of their '
                         'held-out losses (1: the mean over samples)')
+    p.add_argument('--split-classifier', default=defaults.split_classifier,
+                   choices=('ridge', 'squared_hinge', 'linear_svm'),
+                   help="learned: the inner splits' classifier that scores starts and snapshots")
     p.add_argument('--fine-tune', default=','.join(defaults.fine_tune), type=lambda v: v.split(','),
                    help="learned: 'best', 'all', 'none' or the starts the steps run from")
     p.add_argument('--learned-starts', default=','.join(defaults.starts),

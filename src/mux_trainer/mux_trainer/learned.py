@@ -24,9 +24,10 @@ logits) against the pose-held-out loss of a closed-form ridge classifier (`cv_ri
 per fold of training poses, the head solved on the other poses, its squared hinge on the
 fold's), so the light is asked for what greedy's inner splits measure: separation that holds
 on poses it was not fitted on. Snapshots of the levels every few steps and the fixed starts
-(the per-colour start, the SNR-optimal baseline's site columns expanded to LED levels, any
-the caller gives, e.g. greedy's) are scored with the greedy search's own inner pose splits
-(`evaluation.CandidateEvaluator` in the joint mode), the best is kept (a start wins ties).
+(the per-colour start, the SNR-optimal baseline's site columns expanded to LED levels,
+greedy's columns, any the caller gives) are scored with the greedy search's own inner
+pose splits and its ridge screen (`evaluation.CandidateEvaluator` in the joint mode), the
+best is kept (a start wins ties).
 The final classifier is greedy's: a linear SVM on the chosen patterns' rendered training
 statistics, stored as one linear layer. Round 2's shrunk Fisher criterion and round 1's
 cross-entropy through a head trained alongside remain as `objective` options.
@@ -42,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from joblib import Parallel
 from lightstage_physics.render_jax import add_noise, relight
-from lightstage_physics.rig import site_to_led_patterns
+from lightstage_physics.rig import CHANNELS, Rig, site_to_led_patterns
 from mux_classifier.estimator import MuxClassifier
 from mux_classifier.intensity_stats import GRADIENT_QUANTILES, LEVEL_QUANTILES, N_STATS
 from mux_classifier.learned_model import LearnedModel
@@ -57,12 +58,13 @@ from .learned_schedule import DEFAULT_STEPS
 from .rendering import SearchData, clean_led_images, image_features, standard_normal
 from .rendering import add_noise as add_noise_images
 from .search_params import SplitScoring
+from .split_scoring import SCORERS
 
 # criteria for the light's gradient steps (docs/LEARNED.md, round 3): the pose-held-out
 # ridge classifier's squared hinge (default), the shrunk Fisher criterion (round 2),
 # cross-entropy through a head trained alongside (round 1)
 OBJECTIVES = ('cv_ridge', 'fisher', 'cross_entropy')
-BUILTIN_STARTS = ('random', 'per_colour', 'snr_optimal', 'greedy')
+BUILTIN_STARTS = ('random', 'per_colour', 'snr_optimal', 'greedy', 'raking_sides')
 HEAD_NOISE_STREAM = 5   # the head's extra noise draws (`_head_features`)
 _LEVEL_F = np.array(LEVEL_QUANTILES, np.float32) / 100
 _GRAD_F = np.array(GRADIENT_QUANTILES, np.float32) / 100
@@ -211,6 +213,53 @@ def per_colour_start(n_sites: int, n_channels: int, k: int, rng) -> np.ndarray:
     return on.reshape(n_sites * n_channels, k)
 
 
+def opposite_low_sides(site_positions_mm) -> tuple[np.ndarray, np.ndarray]:
+    """Two groups of the low sites (elevation at most the median) on opposite sides of the
+    object: of the splits of the low sites, in azimuth order, into two contiguous halves,
+    the one whose halves' mean horizontal directions are most nearly opposite. Low sites
+    light at a grazing angle, where shallow relief casts shading that turns with the light."""
+    pos = np.asarray(site_positions_mm, np.float64)
+    horizontal = np.hypot(pos[:, 0], pos[:, 1])
+    elevation = np.arctan2(pos[:, 2], horizontal)
+    low = np.flatnonzero(elevation <= np.median(elevation))
+    if low.size < 2:
+        low = np.arange(len(pos))
+    ring = low[np.argsort(np.arctan2(pos[low, 1], pos[low, 0]))]
+    half = ring.size // 2
+
+    def direction(sites):
+        v = (pos[sites, :2] / np.maximum(horizontal[sites, None], 1e-9)).mean(axis=0)
+        return v / max(np.linalg.norm(v), 1e-9)
+
+    splits = [(np.roll(ring, -s)[:half], np.roll(ring, -s)[half:]) for s in range(ring.size)]
+    a, b = min(splits, key=lambda ab: float(direction(ab[0]) @ direction(ab[1])))
+    return np.sort(a), np.sort(b)
+
+
+def raking_sides_start(site_positions_mm, n_channels: int, k: int, rng) -> np.ndarray:
+    """The raking-sides start (sites * channels, k), site-major, 0/1, for k >= 4: every
+    colour from one of two opposite groups of low sites (`opposite_low_sides`), then from
+    the other (relief's shading differs between the two, a flat print's does not), the
+    visible colours from every site, NIR from every site (inks that differ in NIR); the
+    images after the first four are `per_colour_start`'s (each colour alone). A light a
+    person would set up to tell relief and inks apart; measured against the other starts
+    in docs/LEARNED.md (round 7): not a default start."""
+    positions = np.asarray(site_positions_mm, np.float64)
+    n_sites = len(positions)
+    side_a, side_b = opposite_low_sides(positions)
+    nir = CHANNELS.index('nir')
+    visible = [c for c in range(n_channels) if c != nir]
+    on = np.zeros((n_sites, n_channels, 4), np.float32)
+    on[side_a, :, 0] = 1
+    on[side_b, :, 1] = 1
+    on[:, visible, 2] = 1
+    on[:, nir, 3] = 1
+    first = on.reshape(n_sites * n_channels, 4)
+    if k == 4:
+        return first
+    return np.hstack([first, per_colour_start(n_sites, n_channels, k - 4, rng)])
+
+
 def fisher_loss(F: jnp.ndarray, onehot: jnp.ndarray, shrinkage: float) -> jnp.ndarray:
     """Minus the shrunk Fisher discriminant criterion tr((S_w + shrinkage I)^-1 S_b) of the
     features F (n, d) z-scored over the batch (differentiably, so scaling the light up does
@@ -310,10 +359,12 @@ class LearnedIlluminationClassifier:
     - n_images: k exposures = k images; binary: on/off levels (straight-through).
     - starts: built-in start patterns, among 'random' (`random_start`), 'per_colour'
       (`per_colour_start`), 'snr_optimal' (the SNR-optimal baseline's first k / 4 site
-      columns) and 'greedy' (the greedy search's k / 4 per-colour columns on the same
-      training data and inner splits), both expanded to LEDs by `rig.site_to_led_patterns`
-      and skipped unless 4 divides k; start_patterns: more starts, {name: (32, k) LED
-      levels}. Every start is scored by the inner splits and may be kept as it is.
+      columns), 'greedy' (the greedy search's k / 4 per-colour columns on the same
+      training data and inner splits), both expanded to LEDs by `rig.site_to_led_patterns`,
+      and 'raking_sides' (`raking_sides_start` on the rig's site positions; not among the
+      defaults: measured in docs/LEARNED.md round 7); the last three are skipped unless 4
+      divides k; start_patterns: more starts, {name: (32, k) LED levels}. Every start is
+      scored by the inner splits and may be kept as it is.
     - fine_tune: the starts the gradient steps run from, each for max_steps: names of starts
       (default ('random', 'greedy'): from the random start, which needs many steps to find
       the cue where no on/off column shows it, and from greedy's columns, whose choice of
@@ -327,12 +378,18 @@ class LearnedIlluminationClassifier:
     - max_steps, eval_every (a snapshot of the levels every so many steps), batch_size
       (samples per step; all of them when it is at least their number), lr_patterns (Adam
       on the logits).
-    - n_repeats, test_fraction: the inner pose splits that score every start and snapshot
-      (`evaluation.CandidateEvaluator` in the joint mode: greedy's split scoring, its noise
-      streams and its squared-hinge scorer), final_C: the linear SVM head's C,
+    - n_repeats, test_fraction, split_classifier: the inner pose splits that score every
+      start and snapshot (`evaluation.CandidateEvaluator` in the joint mode: greedy's split
+      scoring and its noise streams) and their classifier: 'ridge' (default: the search's
+      fast screen, what rounds 3-6 measured) or 'squared_hinge' (the exact linear SVM, the
+      head's kind; it ranks lights more nearly as their held-out accuracy does, but as a
+      default it moved the 16-class mix by +0.0 to +0.3, docs/LEARNED.md round 7), final_C:
+      the linear SVM head's C,
       head_renders: the noise draws of the training samples it is fitted on (1, the
       default: the inner splits' draw alone; 4 draws measured level with it, docs/LEARNED.md
       round 5).
+    - site_positions_mm: (n_sites, 3) for the raking-sides start; None: the rig of the
+      ModelSet fitted, or the paper's stage for a SearchData (which carries no rig).
     - noise, dimmer, hog_config (the image size) when fitting a ModelSet; seed; progress.
 
     After fit: patterns_ (32, k) site-major levels, model_ (a numpy `LearnedModel`: the
@@ -351,7 +408,8 @@ class LearnedIlluminationClassifier:
                  fine_tune=('random', 'greedy'), objective='cv_ridge', max_steps=DEFAULT_STEPS,
                  eval_every=50, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.01,
                  class_power=1.0, fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
-                 n_repeats=400, test_fraction=0.25, final_C=1.0, head_renders=1, noise='sigma3',
+                 n_repeats=400, test_fraction=0.25, split_classifier='ridge',
+                 final_C=1.0, head_renders=1, site_positions_mm=None, noise='sigma3',
                  dimmer=None, hog_config=None, seed=0, progress=False):
         self.n_images = n_images
         self.binary = binary
@@ -372,8 +430,10 @@ class LearnedIlluminationClassifier:
         self.weight_decay = weight_decay
         self.n_repeats = n_repeats
         self.test_fraction = test_fraction
+        self.split_classifier = split_classifier
         self.final_C = final_C
         self.head_renders = head_renders
+        self.site_positions_mm = site_positions_mm
         self.noise = noise
         self.dimmer = dimmer
         self.hog_config = hog_config
@@ -403,6 +463,9 @@ class LearnedIlluminationClassifier:
             raise ValueError(f'ridge must be a positive number, got {self.ridge}')
         if not (np.isfinite(float(self.class_power)) and float(self.class_power) >= 1):
             raise ValueError(f'class_power must be a number >= 1, got {self.class_power}')
+        if self.split_classifier not in SCORERS:
+            raise ValueError(f"split_classifier must be one of {', '.join(sorted(SCORERS))}, "
+                             f"got {self.split_classifier!r}")
 
     def _tuned_names(self) -> tuple:
         """fine_tune as a tuple of names (one name may be given as a string)."""
@@ -418,6 +481,17 @@ class LearnedIlluminationClassifier:
                                features='intensity_stats', **kwargs)
         # the inner splits and the head score what the model classifies with
         return data if data.features == 'intensity_stats' else replace(data, features='intensity_stats')
+
+    def _site_positions(self, X) -> np.ndarray:
+        """(n_sites, 3) mm: site_positions_mm, else the fitted capture's rig (a ModelSet's),
+        else the paper's stage (a SearchData carries no rig)."""
+        if self.site_positions_mm is not None:
+            positions = np.asarray(self.site_positions_mm, np.float64)
+            if positions.ndim != 2 or positions.shape[1] != 3:
+                raise ValueError(f'site_positions_mm must be (n_sites, 3), got shape {positions.shape}')
+            return positions
+        rig = getattr(X, 'rig', None)
+        return (rig if rig is not None else Rig.paper_default()).site_positions_mm()
 
     def _start_makers(self, data: SearchData, k: int, rng) -> list:
         """[(name, () -> (32, k) levels)]: each start made only when it is scored
@@ -443,6 +517,12 @@ class LearnedIlluminationClassifier:
                                      test_fraction=float(self.test_fraction)))
             makers.append(('greedy', lambda: site_to_led_patterns(
                 greedy.fit(data).patterns_, data.n_channels)))
+        positions = self._site_positions_
+        if 'raking_sides' in self.starts and per_colour and len(positions) == data.n_sites:
+            # a stream of its own (its later images' random halves): the others' draws stay
+            raking_rng = np.random.default_rng([int(self.seed), 26, zlib.crc32(b'raking_sides'), 1])
+            makers.append(('raking_sides', lambda: raking_sides_start(
+                positions, data.n_channels, k, raking_rng)))
         for name, P in dict(self.start_patterns or {}).items():
             P = np.asarray(P, np.float32)
             if P.shape != (L, k) or P.min() < 0 or P.max() > 1:
@@ -458,6 +538,7 @@ class LearnedIlluminationClassifier:
         self._check()
         t_start = time.perf_counter()
         data = self._data(X)
+        self._site_positions_ = self._site_positions(X)
         if np.unique(data.pose_index).size < 2:
             raise ValueError('learned illumination needs at least 2 training poses per class '
                              '(the inner splits hold poses out); capture more poses')
@@ -465,7 +546,7 @@ class LearnedIlluminationClassifier:
         rng = np.random.default_rng([int(self.seed), 26])
         ev = CandidateEvaluator(data, mode='joint', n_repeats=int(self.n_repeats),
                                 test_fraction=float(self.test_fraction), seed=int(self.seed),
-                                n_jobs=1)
+                                inner_classifier=self.split_classifier, n_jobs=1)
         history = []
         with Parallel(n_jobs=1) as parallel:
             def inner(P):
