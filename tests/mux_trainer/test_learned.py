@@ -162,6 +162,9 @@ def test_the_raking_sides_start_lights_each_side_then_visible_then_nir():
     np.testing.assert_array_equal(P8[:, :4], P)
     lit_channels = [np.flatnonzero(P8.reshape(8, 4, 8)[:, :, j].any(axis=0)) for j in range(4, 8)]
     assert [list(c) for c in lit_channels] == [[0], [1], [2], [3]]   # each colour alone
+    for channels, k in ((3, 4), (4, 3)):
+        with pytest.raises(ValueError, match='raking-sides start needs the 4 channels'):
+            raking_sides_start(paper, channels, k, None)
 
 
 def test_the_raking_sides_start_follows_the_rig_and_is_skipped_where_it_cannot_be_made(tiny_data):

@@ -244,6 +244,9 @@ def raking_sides_start(site_positions_mm, n_channels: int, k: int, rng) -> np.nd
     images after the first four are `per_colour_start`'s (each colour alone). A light a
     person would set up to tell relief and inks apart; measured against the other starts
     in docs/LEARNED.md (round 7): not a default start."""
+    if n_channels != len(CHANNELS) or k < 4:
+        raise ValueError(f'the raking-sides start needs the {len(CHANNELS)} channels '
+                         f'{", ".join(CHANNELS)} and k >= 4; got {n_channels} channels, k {k}')
     positions = np.asarray(site_positions_mm, np.float64)
     n_sites = len(positions)
     side_a, side_b = opposite_low_sides(positions)
@@ -382,9 +385,9 @@ class LearnedIlluminationClassifier:
       start and snapshot (`evaluation.CandidateEvaluator` in the joint mode: greedy's split
       scoring and its noise streams) and their classifier: 'ridge' (default: the search's
       fast screen, what rounds 3-6 measured) or 'squared_hinge' (the exact linear SVM, the
-      head's kind; it ranks lights more nearly as their held-out accuracy does, but as a
-      default it moved the 16-class mix by +0.0 to +0.3, docs/LEARNED.md round 7), final_C:
-      the linear SVM head's C,
+      head's kind; it ranks lights more nearly as their held-out accuracy does; with the
+      raking-sides start it moved the 16-class mix by +0.0 to +5.3, the other captures not
+      re-measured, docs/LEARNED.md round 7), final_C: the linear SVM head's C,
       head_renders: the noise draws of the training samples it is fitted on (1, the
       default: the inner splits' draw alone; 4 draws measured level with it, docs/LEARNED.md
       round 5).
