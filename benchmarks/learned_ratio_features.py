@@ -52,24 +52,29 @@ seal = [i for i, n in enumerate(test.class_names) if n.startswith('seal')]
 
 
 # --- pair features, numpy and jax ---------------------------------------------------------
+def _pair_stats(xp, L, m, grad_eps):
+    """Per image pair: the log ratio's spread over the object mask m and its mean gradient
+    magnitude (xp: numpy or jax.numpy; grad_eps keeps JAX's gradient finite at 0)."""
+    cnt = m.sum((1, 2))
+    out = []
+    for i, j in PAIRS:
+        R = L[i] - L[j]
+        gr = xp.pad(R[:, 2:, :] - R[:, :-2, :], ((0, 0), (1, 1), (0, 0)))
+        gc = xp.pad(R[:, :, 2:] - R[:, :, :-2], ((0, 0), (0, 0), (1, 1)))
+        g = xp.sqrt(gr ** 2 + gc ** 2 + grad_eps)
+        mu = (R * m).sum((1, 2)) / cnt
+        sd = xp.sqrt((((R - mu[:, None, None]) ** 2) * m).sum((1, 2)) / cnt + 1e-8)
+        out += [sd, (g * m).sum((1, 2)) / cnt]
+    return xp.stack(out, 1)
+
+
 def pair_np(images):                         # (k, n, pixels) -> (n, 12)
     k, n, p = images.shape
     img = images.reshape(k, n, *shape).astype(np.float64)
     mask = image_masks(img.sum(0))
     mask[~mask.reshape(n, -1).any(1)] = True
     L = np.log(np.maximum(img, 0) + C_LOG * top)
-    out = []
-    for i, j in PAIRS:
-        R = L[i] - L[j]
-        gr = np.pad(R[:, 2:, :] - R[:, :-2, :], ((0, 0), (1, 1), (0, 0)))
-        gc = np.pad(R[:, :, 2:] - R[:, :, :-2], ((0, 0), (0, 0), (1, 1)))
-        g = np.sqrt(gr ** 2 + gc ** 2)
-        m = mask.astype(np.float64)
-        cnt = m.sum((1, 2))
-        mu = (R * m).sum((1, 2)) / cnt
-        sd = np.sqrt((((R - mu[:, None, None]) ** 2) * m).sum((1, 2)) / cnt + 1e-8)
-        out += [sd, (g * m).sum((1, 2)) / cnt]
-    return np.stack(out, 1)
+    return _pair_stats(np, L, mask.astype(np.float64), 0.0)
 
 
 def pair_jax(images):                        # (k, n, pixels) -> (n, 12)
@@ -79,20 +84,8 @@ def pair_jax(images):                        # (k, n, pixels) -> (n, 12)
         lambda s: (lambda m: np.where(~m.reshape(n, -1).any(1)[:, None, None], True, m))(
             image_masks(np.asarray(s))), jax.ShapeDtypeStruct((n, *shape), jnp.bool_),
         jax.lax.stop_gradient(img.sum(0)))
-    m = mask.astype(jnp.float32)
-    cnt = m.sum((1, 2))
     L = jnp.log(jnp.maximum(img, 0) + C_LOG * top)
-    out = []
-    for i, j in PAIRS:
-        R = L[i] - L[j]
-        gr = jnp.pad(R[:, 2:, :] - R[:, :-2, :], ((0, 0), (1, 1), (0, 0)))
-        gc = jnp.pad(R[:, :, 2:] - R[:, :, :-2], ((0, 0), (0, 0), (1, 1)))
-        sq = gr ** 2 + gc ** 2
-        g = jnp.sqrt(sq + 1e-12)
-        mu = (R * m).sum((1, 2)) / cnt
-        sd = jnp.sqrt((((R - mu[:, None, None]) ** 2) * m).sum((1, 2)) / cnt + 1e-8)
-        out += [sd, (g * m).sum((1, 2)) / cnt]
-    return jnp.stack(out, 1)
+    return _pair_stats(jnp, L, mask.astype(jnp.float32), 1e-12)
 
 
 def base_np(images):
