@@ -125,8 +125,8 @@ def run_capture(path, args) -> dict:
                 n_images=k, binary=binary, max_steps=args.steps, seed=args.seed,
                 lr_patterns=args.lr_patterns, objective=args.objective, fine_tune=fine_tune,
                 ridge=args.ridge, class_power=args.class_power,
-                split_classifier=args.split_classifier,
-                starts=builtin, start_patterns=starts, n_repeats=args.n_repeats,
+                split_classifier=args.split_classifier, ratio_stats=args.ratio_stats,
+                head_renders=args.head_renders, starts=builtin, start_patterns=starts, n_repeats=args.n_repeats,
                 progress=args.progress).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
             out[name][str(k)] = acc
@@ -168,6 +168,10 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     p.add_argument('--split-classifier', default=defaults.split_classifier,
                    choices=('ridge', 'squared_hinge', 'linear_svm'),
                    help="learned: the inner splits' classifier that scores starts and snapshots")
+    p.add_argument('--ratio-stats', action='store_true',
+                   help="learned: classify with the images' cross-image relief statistics too")
+    p.add_argument('--head-renders', type=int, default=defaults.head_renders,
+                   help="learned: noise draws of the training samples the final SVM is fitted on")
     p.add_argument('--fine-tune', default=','.join(defaults.fine_tune), type=lambda v: v.split(','),
                    help="learned: 'best', 'all', 'none' or the starts the steps run from")
     p.add_argument('--learned-starts', default=','.join(defaults.starts),

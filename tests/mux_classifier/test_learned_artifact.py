@@ -191,3 +191,29 @@ def test_fuzz_malformed_learned_files_raise_only_artifact_error(learned_bytes, t
 
 def test_fuzz_every_learned_header_field_out_of_range_is_refused_naming_it(learned, tmp_path):
     check_header_fields_refused_naming_them(learned, tmp_path)
+
+
+def test_a_model_with_cross_image_statistics_round_trips(toy_stacks, tmp_path):
+    stacks, _ = toy_stacks
+    base = learned_model(stacks=stacks)
+    k = base.n_images
+    n_in = k * 9 + 2 * k * (k - 1) // 2
+    rng = np.random.default_rng(5)
+    with_ratio = LearnedModel(base.patterns, np.zeros(n_in), np.ones(n_in),
+                              [(rng.normal(0, 1, (n_in, len(NAMES))), np.zeros(len(NAMES)))],
+                              NAMES, ratio_offset=8.0)
+    assert with_ratio.n_features == n_in and with_ratio.features(stacks).shape == (len(stacks), n_in)
+    TrainedArtifact.from_learned(with_ratio, noise=SIGMA3).save(tmp_path / "r.npz")
+    loaded = TrainedArtifact.load(tmp_path / "r.npz")
+    assert loaded.learned.ratio_offset == 8.0
+    np.testing.assert_allclose(loaded.decision_function(stacks),
+                               with_ratio.logits_from_features(with_ratio.features(stacks)), rtol=1e-6)
+    # a model without them stores no offset (older releases read it as before)
+    assert "ratio_offset" not in base.to_arrays()
+    assert LearnedModel.from_arrays(base.to_arrays()).ratio_offset == 0.0
+    with pytest.raises(ValueError, match="cross-image"):
+        LearnedModel(base.patterns, base.feature_mean, base.feature_scale, base.layers, NAMES,
+                     ratio_offset=8.0)
+    with pytest.raises(ValueError, match="ratio_offset"):
+        LearnedModel(base.patterns, base.feature_mean, base.feature_scale, base.layers, NAMES,
+                     ratio_offset=-1.0)

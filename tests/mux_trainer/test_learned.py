@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from mux_classifier.intensity_stats import intensity_stats_images_numpy
 from mux_classifier.learned_model import LearnedModel
+from mux_classifier.ratio_stats import n_ratio_stats, ratio_stats
 
 from helpers.trainer import TINY_HOG
 
@@ -16,8 +17,8 @@ from lightstage_physics.rig import Rig
 from mux_trainer.evaluation import CandidateEvaluator
 from mux_trainer.learned import (LearnedIlluminationClassifier, cv_ridge_loss,
                                  evaluate_learned_heldout, fisher_loss, forward_features,
-                                 image_stats, opposite_low_sides, pose_folds,
-                                 raking_sides_start, stack_stats)
+                                 image_stats, low_side_splits, opposite_low_sides, pose_folds,
+                                 raking_sides_start, stack_ratio_stats, stack_stats)
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.rendering import SearchData, clean_led_images, clean_site_images
 from mux_trainer.search_params import SplitScoring
@@ -71,6 +72,42 @@ def test_statistics_pass_a_finite_gradient_to_the_levels(tiny_data):
 
     g = np.asarray(jax.grad(score)(jnp.full((32, 2), 0.5)))
     assert np.isfinite(g).all() and np.abs(g).max() > 0
+
+
+def test_cross_image_statistics_equal_the_numpy_ones_and_pass_a_gradient(tiny_data):
+    images = _images(tiny_data, k=3) + np.float32(4.0)
+    k, n, p = images.shape
+    stacks = images.reshape(k, n, *tiny_data.image_shape).transpose(1, 0, 2, 3)
+    out = np.asarray(jax.jit(lambda x: stack_ratio_stats(x, tiny_data.image_shape, 5.0))(
+        jnp.asarray(images)))
+    np.testing.assert_allclose(out, ratio_stats(stacks, 5.0), rtol=1e-4, atol=1e-5)
+    basis = jnp.asarray(tiny_data.basis[:, :, :8].reshape(32, 8, -1))
+    g = np.asarray(jax.grad(lambda P: stack_ratio_stats(
+        jnp.tensordot(P, basis, axes=([0], [0])), tiny_data.image_shape, 5.0).sum())(
+            jnp.asarray(np.random.default_rng(2).uniform(0, 1, (32, 3)), jnp.float32)))
+    assert np.isfinite(g).all() and np.abs(g).max() > 0
+
+
+def test_the_model_can_classify_with_the_cross_image_statistics(tiny_data):
+    kwargs = dict(n_images=2, starts=('per_colour',), fine_tune='per_colour', max_steps=4,
+                  eval_every=2, batch_size=8,
+                  n_repeats=20, head_renders=2, seed=0)
+    model = LearnedIlluminationClassifier(ratio_stats=True, **kwargs).fit(tiny_data)
+    m = model.model_
+    assert m.ratio_offset == pytest.approx(0.01 * tiny_data.max_level)
+    assert m.n_features == 2 * 9 + n_ratio_stats(2) and m.layers[0][0].shape[0] == m.n_features
+    # inner scores come from the whole stack's features; they differ from the model without
+    plain = LearnedIlluminationClassifier(**kwargs).fit(tiny_data)
+    assert set(model.candidate_scores_) == set(plain.candidate_scores_)
+    assert model.candidate_scores_ != plain.candidate_scores_
+    assert plain.model_.ratio_offset == 0 and plain.model_.n_features == 18
+    images = clean_led_images(tiny_data, m.patterns)
+    k, n, _ = images.shape
+    stacks = images.transpose(1, 0, 2).reshape(n, k, *tiny_data.image_shape)
+    np.testing.assert_array_equal(model.predict_images(images), m.predict(stacks))
+    np.testing.assert_array_equal(model.predict_features(m.features(stacks), 2), m.predict(stacks))
+    with pytest.raises(ValueError, match='cross-image'):
+        model.predict_features(np.zeros((3, 18)), 2)
 
 
 @pytest.fixture(scope='module')
@@ -147,6 +184,22 @@ def test_the_raking_sides_are_opposite_groups_of_low_sites():
     assert _horizontal_direction(ring, a) @ _horizontal_direction(ring, b) < -0.99
 
 
+def test_every_split_of_the_low_sites_once_the_most_opposite_first():
+    paper = Rig.paper_default().site_positions_mm()
+    splits = low_side_splits(paper)
+    # 4 low sites in azimuth order (0, 1, 2, 3): {0, 3} | {1, 2} and {0, 1} | {2, 3}
+    assert [(list(a), list(b)) for a, b in splits] == [([0, 3], [1, 2]), ([0, 1], [2, 3])]
+    cosines = [_horizontal_direction(paper, a) @ _horizontal_direction(paper, b) for a, b in splits]
+    assert cosines == sorted(cosines)
+    angles = np.deg2rad(np.arange(6) * 60.0 + 10.0)
+    ring = np.stack([200 * np.cos(angles), 200 * np.sin(angles), np.full(6, 80.0)], axis=1)
+    assert len(low_side_splits(ring)) == 3     # 6 contiguous halves, each split twice
+    P1 = raking_sides_start(paper, 4, 4, None, split=1)
+    np.testing.assert_array_equal(np.flatnonzero(P1.reshape(8, 4, 4)[:, :, 0].all(axis=1)), [0, 1])
+    with pytest.raises(ValueError, match='split must be in 0..1'):
+        raking_sides_start(paper, 4, 4, None, split=2)
+
+
 def test_the_raking_sides_start_lights_each_side_then_visible_then_nir():
     paper = Rig.paper_default().site_positions_mm()
     a, b = opposite_low_sides(paper)
@@ -168,16 +221,28 @@ def test_the_raking_sides_start_lights_each_side_then_visible_then_nir():
 
 
 def test_the_raking_sides_start_follows_the_rig_and_is_skipped_where_it_cannot_be_made(tiny_data):
+    def split_of(model):
+        return 0 if model.chosen_ == 'raking_sides' else int(model.chosen_.split('/')[1])
+
     kept = LearnedIlluminationClassifier(n_images=4, starts=('raking_sides',), fine_tune='none',
                                          n_repeats=10, seed=0).fit(tiny_data)
-    np.testing.assert_array_equal(
-        kept.patterns_, raking_sides_start(Rig.paper_default().site_positions_mm(), 4, 4, None))
+    assert set(kept.candidate_scores_) == {'raking_sides', 'raking_sides/1'}   # one per split
+    np.testing.assert_array_equal(kept.patterns_, raking_sides_start(
+        Rig.paper_default().site_positions_mm(), 4, 4, None, split_of(kept)))
     # positions for another stage (the sites in reverse order) give that stage's sides
     flipped = Rig.paper_default().site_positions_mm()[::-1]
     other = LearnedIlluminationClassifier(n_images=4, starts=('raking_sides',), fine_tune='none',
                                           site_positions_mm=flipped, n_repeats=10,
                                           seed=0).fit(tiny_data)
-    np.testing.assert_array_equal(other.patterns_, raking_sides_start(flipped, 4, 4, None))
+    np.testing.assert_array_equal(other.patterns_,
+                                  raking_sides_start(flipped, 4, 4, None, split_of(other)))
+    # fine-tuning 'raking_sides' descends from the best scored of its splits
+    tuned = LearnedIlluminationClassifier(n_images=4, starts=('raking_sides',),
+                                          fine_tune='raking_sides', max_steps=2, eval_every=2,
+                                          batch_size=8, n_repeats=10, seed=0).fit(tiny_data)
+    scores = tuned.candidate_scores_
+    best = max(('raking_sides', 'raking_sides/1'), key=scores.get)
+    assert [h['start'] for h in tuned.history_] == [best] and f'{best}+2' in scores
     # positions of 6 sites for data of 8, or 3 exposures (not one per colour): not made
     for options in ({'site_positions_mm': flipped[:6]}, {'n_images': 3}):
         model = LearnedIlluminationClassifier(**{'n_images': 4, **options},
@@ -246,13 +311,13 @@ def test_the_head_is_fitted_on_several_noise_draws(tiny_data, monkeypatch):
     each other; data without noise has one draw (the others would be copies)."""
     import mux_trainer.learned as learned
     fitted_on = []
-    fit_features = learned.MuxClassifier.fit_features
+    fit_linear = learned.fit_linear
 
-    def spy(self, X, y, *args, **kwargs):
+    def spy(X, y, *args, **kwargs):
         fitted_on.append((np.array(X), np.array(y)))
-        return fit_features(self, X, y, *args, **kwargs)
+        return fit_linear(X, y, *args, **kwargs)
 
-    monkeypatch.setattr(learned.MuxClassifier, 'fit_features', spy)
+    monkeypatch.setattr(learned, 'fit_linear', spy)
 
     def head_data(data, renders):
         LearnedIlluminationClassifier(n_images=4, starts=('per_colour',), fine_tune='none',

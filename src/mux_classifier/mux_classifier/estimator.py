@@ -16,7 +16,8 @@ from sklearn.utils.validation import check_is_fitted
 from .features import DEFAULT_EXTRACTOR, check_stacks, column_scaling, searchable_extractor
 from .hog import HogConfig
 
-__all__ = ["ESTIMATORS", "LearnedModelClassifier", "MuxClassifier", "column_scaling"]
+__all__ = ["ESTIMATORS", "LearnedModelClassifier", "MuxClassifier", "column_scaling",
+           "fit_linear"]
 
 ESTIMATORS = ("linear_svm", "ridge")
 
@@ -34,6 +35,44 @@ def _linear_arrays(estimator, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
         coef = np.vstack([-coef, coef])
         intercept = np.concatenate([-intercept, intercept])
     return coef, intercept
+
+
+def _make_estimator(estimator: str, C: float, alpha: float, max_iter: int, random_state):
+    if estimator == "linear_svm":
+        from sklearn.svm import LinearSVC
+
+        return LinearSVC(C=C, max_iter=max_iter, random_state=random_state)
+    if estimator == "ridge":
+        from sklearn.linear_model import RidgeClassifier
+
+        return RidgeClassifier(alpha=alpha)
+    raise ValueError(f"MuxClassifier: estimator must be one of {ESTIMATORS}, got {estimator!r}")
+
+
+def fit_linear(X, y, estimator="linear_svm", C=1.0, alpha=1.0, max_iter=10000, random_state=0,
+               standardise=True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A multi-class linear classifier (`MuxClassifier`'s ``estimator``) on raw features X
+    (n, F), each column z-scored over X first if ``standardise``. Returns coef (n_classes, F),
+    intercept (n_classes,), both applying to the raw features (the scaling folded in), and
+    the classes. For features that are not k images' alike (`MuxClassifier.fit_features`
+    checks that layout and calls this)."""
+    X = np.asarray(X, dtype=np.float64)
+    y = np.asarray(y)
+    if y.shape != (X.shape[0],):
+        raise ValueError(f"y must have one label per sample ({X.shape[0]}), got shape {y.shape}")
+    classes = np.unique(y)
+    if classes.size < 2:
+        raise ValueError(f"need samples of at least 2 classes to fit, got {classes.size}")
+    est = _make_estimator(estimator, C, alpha, max_iter, random_state)
+    if not standardise:
+        est.fit(X, y)
+        return (*_linear_arrays(est, classes.size), est.classes_)
+    mean, scale = column_scaling(X)
+    est.fit((X - mean) / scale, y)
+    coef, intercept = _linear_arrays(est, classes.size)
+    # w.((x - mean) / scale) + b = (w / scale).x + (b - (w / scale).mean)
+    coef = coef / scale
+    return coef, intercept - coef @ mean, est.classes_
 
 
 class MuxClassifier(ClassifierMixin, BaseEstimator):
@@ -82,17 +121,6 @@ class MuxClassifier(ClassifierMixin, BaseEstimator):
     def _extractor(self):
         return searchable_extractor(self.features, self._config())
 
-    def _make_estimator(self):
-        if self.estimator == "linear_svm":
-            from sklearn.svm import LinearSVC
-
-            return LinearSVC(C=self.C, max_iter=self.max_iter, random_state=self.random_state)
-        if self.estimator == "ridge":
-            from sklearn.linear_model import RidgeClassifier
-
-            return RidgeClassifier(alpha=self.alpha)
-        raise ValueError(f"MuxClassifier: estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
-
     # --- stacks of images
     def fit(self, stacks, y):
         """Fit on stacks (n, k, H, W) of images and labels y (n,); returns self."""
@@ -120,25 +148,12 @@ class MuxClassifier(ClassifierMixin, BaseEstimator):
         if X.ndim != 2 or X.shape[1] == 0 or X.shape[1] % n_per_image:
             raise ValueError(
                 f"features must be (n_samples, k * {n_per_image}), got shape {X.shape}")
-        if y.shape != (X.shape[0],):
-            raise ValueError(f"y must have one label per sample ({X.shape[0]}), got shape {y.shape}")
-        classes = np.unique(y)
-        if classes.size < 2:
-            raise ValueError(f"need samples of at least 2 classes to fit, got {classes.size}")
         k = X.shape[1] // n_per_image
         if n_images is not None and n_images != k:
             raise ValueError(f"features hold {k} images but n_images={n_images}")
-        if extractor.standardise:
-            mean, scale = column_scaling(X)
-            est = self._make_estimator().fit((X - mean) / scale, y)
-            coef, intercept = _linear_arrays(est, classes.size)
-            # w.((x - mean) / scale) + b = (w / scale).x + (b - (w / scale).mean)
-            self.coef_ = coef / scale
-            self.intercept_ = intercept - self.coef_ @ mean
-        else:
-            est = self._make_estimator().fit(X, y)
-            self.coef_, self.intercept_ = _linear_arrays(est, classes.size)
-        self.classes_ = est.classes_
+        self.coef_, self.intercept_, self.classes_ = fit_linear(
+            X, y, self.estimator, self.C, self.alpha, self.max_iter, self.random_state,
+            standardise=extractor.standardise)
         self.n_images_ = k
         self.n_features_in_ = X.shape[1]
         return self

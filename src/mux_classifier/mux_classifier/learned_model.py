@@ -6,7 +6,10 @@ images: per image the 9 pose-robust object statistics of `intensity_stats` (exac
 `intensity_stats_images_numpy`: the values the training differentiated through), the
 concatenated ``k * 9`` values z-scored with the training set's ``feature_mean`` and
 ``feature_scale``, then dense layers (ReLU between them; none after the last), whose
-argmax is the class. Everything is plain arrays, for an npz artifact without pickle.
+argmax is the class. A model with a ``ratio_offset`` (gray levels, > 0) has the stack's
+cross-image relief statistics after those (`ratio_stats`, that offset inside the log); one
+without has none (every model written before them). Everything is plain arrays, for an npz
+artifact without pickle.
 """
 from __future__ import annotations
 
@@ -15,20 +18,23 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .intensity_stats import N_STATS, intensity_stats_images_numpy
+from .ratio_stats import n_ratio_stats, ratio_stats
 
 __all__ = ["LearnedModel"]
 
 
 @dataclass
 class LearnedModel:
-    """patterns (32, k); feature_mean, feature_scale (k * 9,); layers: [(W, b), ...] with
-    W (inputs, outputs), the last layer's outputs the classes' logits; class_names."""
+    """patterns (32, k); feature_mean, feature_scale (`n_features`,); layers: [(W, b), ...]
+    with W (inputs, outputs), the last layer's outputs the classes' logits; class_names;
+    ratio_offset: 0 (no cross-image statistics) or the offset of `ratio_stats`."""
 
     patterns: np.ndarray
     feature_mean: np.ndarray
     feature_scale: np.ndarray
     layers: list
     class_names: list = field(default_factory=list)
+    ratio_offset: float = 0.0
 
     def __post_init__(self):
         self.patterns = np.asarray(self.patterns, dtype=np.float32)
@@ -36,12 +42,18 @@ class LearnedModel:
             raise ValueError(f"patterns must be (LEDs, k), got shape {self.patterns.shape}")
         if self.patterns.min() < 0 or self.patterns.max() > 1:
             raise ValueError("patterns: LED levels must lie in [0, 1]")
+        self.ratio_offset = float(self.ratio_offset)
+        if not (np.isfinite(self.ratio_offset) and self.ratio_offset >= 0):
+            raise ValueError(f"ratio_offset must be 0 or a positive number of gray levels, "
+                             f"got {self.ratio_offset}")
         self.feature_mean = np.asarray(self.feature_mean, dtype=np.float32).reshape(-1)
         self.feature_scale = np.asarray(self.feature_scale, dtype=np.float32).reshape(-1)
-        n_in = self.n_images * N_STATS
+        n_in = self.n_features
         if self.feature_mean.size != n_in or self.feature_scale.size != n_in:
+            ratio = (f" + {n_ratio_stats(self.n_images)} cross-image statistics"
+                     if self.ratio_offset else "")
             raise ValueError(f"feature_mean and feature_scale must hold {n_in} values "
-                             f"({self.n_images} images x {N_STATS}), got "
+                             f"({self.n_images} images x {N_STATS}{ratio}), got "
                              f"{self.feature_mean.size} and {self.feature_scale.size}")
         if not (self.feature_scale > 0).all():
             raise ValueError("feature_scale must be > 0 everywhere")
@@ -62,20 +74,29 @@ class LearnedModel:
         return self.patterns.shape[1]
 
     @property
+    def n_features(self) -> int:
+        """Raw features per stack: k * 9 object statistics (+ the cross-image ones)."""
+        k = self.n_images
+        return k * N_STATS + (n_ratio_stats(k) if self.ratio_offset else 0)
+
+    @property
     def n_classes(self) -> int:
         return self.layers[-1][0].shape[1]
 
     def features(self, stacks) -> np.ndarray:
-        """Stacks (n, k, H, W) gray levels -> float32 (n, k * 9) raw object statistics."""
+        """Stacks (n, k, H, W) gray levels -> float32 (n, `n_features`) raw statistics."""
         arr = np.asarray(stacks, dtype=np.float32)
         if arr.ndim != 4 or arr.shape[1] != self.n_images:
             raise ValueError(f"expected stacks (n, {self.n_images}, H, W), one image per "
                              f"learned pattern in pattern order; got shape {arr.shape}")
         n, k, H, W = arr.shape
-        return intensity_stats_images_numpy(arr.reshape(n * k, H, W)).reshape(n, k * N_STATS)
+        X = intensity_stats_images_numpy(arr.reshape(n * k, H, W)).reshape(n, k * N_STATS)
+        if not self.ratio_offset:
+            return X
+        return np.hstack([X, ratio_stats(arr, self.ratio_offset)])
 
     def logits_from_features(self, X) -> np.ndarray:
-        """Raw features (n, k * 9) -> logits (n, classes), float32."""
+        """Raw features (n, `n_features`) -> logits (n, classes), float32."""
         h = (np.asarray(X, np.float32) - self.feature_mean) / self.feature_scale
         for i, (W, b) in enumerate(self.layers):
             h = h @ W + b
@@ -95,6 +116,8 @@ class LearnedModel:
         out = {"patterns": self.patterns, "feature_mean": self.feature_mean,
                "feature_scale": self.feature_scale,
                "class_names": np.asarray(self.class_names, dtype=str)}
+        if self.ratio_offset:   # absent: a model without them, readable by older releases too
+            out["ratio_offset"] = np.float64(self.ratio_offset)
         for i, (W, b) in enumerate(self.layers):
             out[f"layer{i}_W"] = W
             out[f"layer{i}_b"] = b
@@ -109,5 +132,8 @@ class LearnedModel:
         missing = {"patterns", "feature_mean", "feature_scale"} - set(arrays)
         if missing:
             raise ValueError(f"learned model arrays lack {sorted(missing)}")
+        offset = np.asarray(arrays.get("ratio_offset", 0.0), dtype=np.float64)
+        if offset.size != 1:
+            raise ValueError(f"ratio_offset must be one number, got shape {offset.shape}")
         return cls(arrays["patterns"], arrays["feature_mean"], arrays["feature_scale"], layers,
-                   [str(c) for c in arrays.get("class_names", [])])
+                   [str(c) for c in arrays.get("class_names", [])], float(offset.reshape(())))

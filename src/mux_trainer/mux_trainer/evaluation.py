@@ -240,15 +240,18 @@ class CandidateEvaluator:
                              for chunk in chunks)
         return np.vstack(parts) if parts else np.empty((0, len(self.test_masks)))
 
-    def features(self, columns: np.ndarray, column_noise_of: int | None = None) -> np.ndarray:
-        """Raw features of all images of `columns` (a classifier scales its own) with the noise
-        the search used for its last column (the earlier columns' noise of that step, the
-        candidate noise for the last)."""
+    def images(self, columns: np.ndarray, column_noise_of: int | None = None) -> np.ndarray:
+        """Noisy images `(n_images, n, pixels)` of all `columns` with the noise the search
+        used for its last column (the earlier columns' noise of that step, the candidate
+        noise for the last)."""
         k = columns.shape[1]
         last = k - 1 if column_noise_of is None else column_noise_of
-        parts = []
-        if k > 1:
-            parts.append(image_features(self.data, self.noisy_images(columns[:, :-1], last)))
         clean = render(self.data, self.mode, columns[:, -1:])
-        parts.append(image_features(self.data, add_noise(self.data, clean, self.candidate_noise(last))))
-        return np.hstack(parts)
+        last_images = add_noise(self.data, clean, self.candidate_noise(last))
+        if k == 1:
+            return last_images
+        return np.concatenate([self.noisy_images(columns[:, :-1], last), last_images])
+
+    def features(self, columns: np.ndarray, column_noise_of: int | None = None) -> np.ndarray:
+        """Raw features of all images of `columns` (a classifier scales its own), `images`."""
+        return image_features(self.data, self.images(columns, column_noise_of))

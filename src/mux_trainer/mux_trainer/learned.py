@@ -44,10 +44,13 @@ import numpy as np
 from joblib import Parallel
 from lightstage_physics.render_jax import add_noise, relight
 from lightstage_physics.rig import CHANNELS, Rig, site_to_led_patterns
-from mux_classifier.estimator import MuxClassifier
+from mux_classifier.estimator import fit_linear
+from mux_classifier.features import column_scaling
 from mux_classifier.intensity_stats import GRADIENT_QUANTILES, LEVEL_QUANTILES, N_STATS
 from mux_classifier.learned_model import LearnedModel
 from mux_classifier.object_mask import image_masks
+from mux_classifier.ratio_stats import (OFFSET_FRACTION, n_ratio_stats, object_masks,
+                                        pair_ratio_stats, ratio_stats)
 
 from .baselines import SnrOptimalClassifier
 from .data import search_data
@@ -148,6 +151,19 @@ def stack_stats(images: jnp.ndarray, image_shape) -> jnp.ndarray:
     return f.transpose(1, 0, 2).reshape(n, k * N_STATS)
 
 
+def stack_ratio_stats(images: jnp.ndarray, image_shape, offset: float) -> jnp.ndarray:
+    """`ratio_stats` in JAX, differentiable in the gray levels: images (k, n, pixels) ->
+    (n, 2 * k (k - 1) / 2). The stack's object mask is found without gradient (numpy,
+    `ratio_stats.object_masks`), as the statistics' masks are."""
+    k, n, P = images.shape
+    img = images.reshape(k, n, *image_shape)
+    mask = jax.pure_callback(
+        lambda x: object_masks(np.asarray(x).transpose(1, 0, 2, 3)),
+        jax.ShapeDtypeStruct((n, *image_shape), jnp.bool_), jax.lax.stop_gradient(img))
+    log_images = jnp.log(jnp.maximum(img, 0) + jnp.float32(offset))
+    return pair_ratio_stats(jnp, log_images, mask.astype(jnp.float32), 1e-12)
+
+
 # --- the model --------------------------------------------------------------------------
 
 def levels(theta: jnp.ndarray, binary: bool) -> jnp.ndarray:
@@ -213,11 +229,13 @@ def per_colour_start(n_sites: int, n_channels: int, k: int, rng) -> np.ndarray:
     return on.reshape(n_sites * n_channels, k)
 
 
-def opposite_low_sides(site_positions_mm) -> tuple[np.ndarray, np.ndarray]:
-    """Two groups of the low sites (elevation at most the median) on opposite sides of the
-    object: of the splits of the low sites, in azimuth order, into two contiguous halves,
-    the one whose halves' mean horizontal directions are most nearly opposite. Low sites
-    light at a grazing angle, where shallow relief casts shading that turns with the light."""
+def low_side_splits(site_positions_mm) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The splits of the low sites (elevation at most the median), in azimuth order, into
+    two contiguous halves (two groups on two sides of the object), each once, the one whose
+    halves' mean horizontal directions are most nearly opposite first (then by that
+    measure; ties in azimuth order). Low sites light at a grazing angle, where shallow
+    relief casts shading that turns with the light; which axis of the relief shows best
+    depends on the object, so each split is a start of its own (`raking_sides_start`)."""
     pos = np.asarray(site_positions_mm, np.float64)
     horizontal = np.hypot(pos[:, 0], pos[:, 1])
     elevation = np.arctan2(pos[:, 2], horizontal)
@@ -231,15 +249,32 @@ def opposite_low_sides(site_positions_mm) -> tuple[np.ndarray, np.ndarray]:
         v = (pos[sites, :2] / np.maximum(horizontal[sites, None], 1e-9)).mean(axis=0)
         return v / max(np.linalg.norm(v), 1e-9)
 
-    splits = [(np.roll(ring, -s)[:half], np.roll(ring, -s)[half:]) for s in range(ring.size)]
-    a, b = min(splits, key=lambda ab: float(direction(ab[0]) @ direction(ab[1])))
-    return np.sort(a), np.sort(b)
+    splits, seen = [], set()
+    for shift in range(ring.size):
+        a, b = np.sort(np.roll(ring, -shift)[:half]), np.sort(np.roll(ring, -shift)[half:])
+        key = frozenset((tuple(a), tuple(b)))
+        if key not in seen:
+            seen.add(key)
+            splits.append((a, b))
+    # a stable sort: equally opposite splits keep their azimuth order
+    return sorted(splits, key=lambda ab: float(direction(ab[0]) @ direction(ab[1])))
 
 
-def raking_sides_start(site_positions_mm, n_channels: int, k: int, rng) -> np.ndarray:
+def opposite_low_sides(site_positions_mm) -> tuple[np.ndarray, np.ndarray]:
+    """The two groups of low sites most nearly opposite (`low_side_splits`' first)."""
+    return low_side_splits(site_positions_mm)[0]
+
+
+def raking_name(split: int) -> str:
+    """The start's name for the split-th split of the low sites."""
+    return 'raking_sides' if split == 0 else f'raking_sides/{split}'
+
+
+def raking_sides_start(site_positions_mm, n_channels: int, k: int, rng,
+                       split: int = 0) -> np.ndarray:
     """The raking-sides start (sites * channels, k), site-major, 0/1, for k >= 4: every
-    colour from one of two opposite groups of low sites (`opposite_low_sides`), then from
-    the other (relief's shading differs between the two, a flat print's does not), the
+    colour from one of two groups of low sites on two sides of the object
+    (`low_side_splits`, its `split`-th; 0: the most nearly opposite), then from the other (relief's shading differs between the two, a flat print's does not), the
     visible colours from every site, NIR from every site (inks that differ in NIR); the
     images after the first four are `per_colour_start`'s (each colour alone). A light a
     person would set up to tell relief and inks apart; measured against the other starts
@@ -249,7 +284,10 @@ def raking_sides_start(site_positions_mm, n_channels: int, k: int, rng) -> np.nd
                          f'{", ".join(CHANNELS)} and k >= 4; got {n_channels} channels, k {k}')
     positions = np.asarray(site_positions_mm, np.float64)
     n_sites = len(positions)
-    side_a, side_b = opposite_low_sides(positions)
+    splits = low_side_splits(positions)
+    if not 0 <= int(split) < len(splits):
+        raise ValueError(f'split must be in 0..{len(splits) - 1} (the low sites\' splits), got {split}')
+    side_a, side_b = splits[int(split)]
     nir = CHANNELS.index('nir')
     visible = [c for c in range(n_channels) if c != nir]
     on = np.zeros((n_sites, n_channels, 4), np.float32)
@@ -364,15 +402,17 @@ class LearnedIlluminationClassifier:
       (`per_colour_start`), 'snr_optimal' (the SNR-optimal baseline's first k / 4 site
       columns), 'greedy' (the greedy search's k / 4 per-colour columns on the same
       training data and inner splits), both expanded to LEDs by `rig.site_to_led_patterns`,
-      and 'raking_sides' (`raking_sides_start` on the rig's site positions; not among the
-      defaults: measured in docs/LEARNED.md round 7); the last three are skipped unless 4
+      and 'raking_sides' (`raking_sides_start` on the rig's site positions, one start per
+      split of the low sites, `low_side_splits`: 'raking_sides', 'raking_sides/1', ...; not
+      among the defaults: measured in docs/LEARNED.md rounds 7 and 8); the last three are skipped unless 4
       divides k; start_patterns: more starts, {name: (32, k) LED levels}. Every start is
       scored by the inner splits and may be kept as it is.
     - fine_tune: the starts the gradient steps run from, each for max_steps: names of starts
       (default ('random', 'greedy'): from the random start, which needs many steps to find
       the cue where no on/off column shows it, and from greedy's columns, whose choice of
       sites a descent refines where many classes need them, docs/LEARNED.md round 4), or
-      'best' (the start the inner splits score best), 'all', 'none'. Each descent draws
+      'best' (the start the inner splits score best), 'all', 'none'; 'raking_sides' means
+      the best scored of its splits. Each descent draws
       from a stream of its own, so one never changes another's. A perfect inner score
       ends the fit early (nothing after it could be kept: a tie keeps the earlier).
     - objective: 'cv_ridge' (`cv_ridge_loss` over `pose_folds(n_folds)`, ridge, class_power;
@@ -393,6 +433,12 @@ class LearnedIlluminationClassifier:
       round 5).
     - site_positions_mm: (n_sites, 3) for the raking-sides start; None: the rig of the
       ModelSet fitted, or the paper's stage for a SearchData (which carries no rig).
+    - ratio_stats: after the images' own statistics, the cross-image relief statistics of
+      every pair of images (`mux_classifier.ratio_stats`: the log ratio's spread and mean
+      gradient over the object; albedo and print cancel in a ratio, relief's shading does
+      not) in the descent's criterion, the inner splits and the head (the model stores their
+      offset). False (default): the 9 statistics per image alone, as rounds 1-7 measured;
+      docs/LEARNED.md round 8.
     - noise, dimmer, hog_config (the image size) when fitting a ModelSet; seed; progress.
 
     After fit: patterns_ (32, k) site-major levels, model_ (a numpy `LearnedModel`: the
@@ -412,7 +458,8 @@ class LearnedIlluminationClassifier:
                  eval_every=50, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.01,
                  class_power=1.0, fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
                  n_repeats=400, test_fraction=0.25, split_classifier='ridge',
-                 final_C=1.0, head_renders=1, site_positions_mm=None, noise='sigma3',
+                 final_C=1.0, head_renders=1, site_positions_mm=None, ratio_stats=False,
+                 noise='sigma3',
                  dimmer=None, hog_config=None, seed=0, progress=False):
         self.n_images = n_images
         self.binary = binary
@@ -437,6 +484,7 @@ class LearnedIlluminationClassifier:
         self.final_C = final_C
         self.head_renders = head_renders
         self.site_positions_mm = site_positions_mm
+        self.ratio_stats = ratio_stats
         self.noise = noise
         self.dimmer = dimmer
         self.hog_config = hog_config
@@ -522,10 +570,14 @@ class LearnedIlluminationClassifier:
                 greedy.fit(data).patterns_, data.n_channels)))
         positions = self._site_positions_
         if 'raking_sides' in self.starts and per_colour and len(positions) == data.n_sites:
-            # a stream of its own (its later images' random halves): the others' draws stay
-            raking_rng = np.random.default_rng([int(self.seed), 26, zlib.crc32(b'raking_sides'), 1])
-            makers.append(('raking_sides', lambda: raking_sides_start(
-                positions, data.n_channels, k, raking_rng)))
+            # one start per split of the low sites ('raking_sides' the most nearly opposite,
+            # then 'raking_sides/1', ...), each with a stream of its own (its later images'
+            # random halves): the others' draws stay
+            for split in range(len(low_side_splits(positions))):
+                raking_rng = np.random.default_rng(
+                    [int(self.seed), 26, zlib.crc32(b'raking_sides'), 1 + split])
+                makers.append((raking_name(split), lambda rng=raking_rng, split=split: (
+                    raking_sides_start(positions, data.n_channels, k, rng, split))))
         for name, P in dict(self.start_patterns or {}).items():
             P = np.asarray(P, np.float32)
             if P.shape != (L, k) or P.min() < 0 or P.max() > 1:
@@ -553,6 +605,14 @@ class LearnedIlluminationClassifier:
         history = []
         with Parallel(n_jobs=1) as parallel:
             def inner(P):
+                if self.ratio_stats:   # cross-image statistics: the whole stack's features
+                    X = self._features(data, ev.images(P))
+                    mean, scale = column_scaling(X)
+                    X = ((X - mean) / scale).astype(np.float32)
+                    return float(ev.scorer.split_accuracies(
+                        data.labels, ev.test_masks, n_classes=ev.n_classes,
+                        **({'X': X} if ev.scorer.needs_features
+                           else {'K': X.astype(np.float64) @ X.T.astype(np.float64)})).mean())
                 ctx = ev.prepare_column(P[:, :k - 1] if k > 1 else None)
                 return float(ev.score(ctx, P[:, k - 1:], parallel).mean())
 
@@ -580,7 +640,8 @@ class LearnedIlluminationClassifier:
                 starts = list(candidates)
                 tuned = (starts if 'all' in tune
                          else [max(scores, key=scores.get)] if 'best' in tune
-                         else [n for n in tune if n in candidates])
+                         else [self._family_best(n, scores) for n in tune
+                               if self._family_best(n, scores) is not None])
                 for name in tuned:
                     # the random start's descent continues the stream that drew it (round
                     # 3's draws); any other start's has a stream of its own (seed, name)
@@ -611,6 +672,14 @@ class LearnedIlluminationClassifier:
         self.train_seconds_ = time.perf_counter() - t_start
         return self
 
+    @staticmethod
+    def _family_best(name: str, scores: dict) -> str | None:
+        """The start a fine_tune name means: itself, or for 'raking_sides' the best scored of
+        its splits (a tie keeps the earlier); None if no such start was made."""
+        family = [n for n in scores if n == name or (name == 'raking_sides'
+                                                      and n.startswith('raking_sides/'))]
+        return max(family, key=scores.get) if family else None
+
     def _say(self, k, what, scores, loss=None):
         if self.progress:
             text = ', '.join(f'{n} {s:.3f}' for n, s in scores.items())
@@ -630,11 +699,14 @@ class LearnedIlluminationClassifier:
         wd, shrink = float(self.weight_decay), float(self.fisher_shrinkage)
         objective, ridge, power = self.objective, float(self.ridge), float(self.class_power)
         folds = pose_folds(data.pose_index, int(self.n_folds))
+        offset = self._ratio_offset(data)
 
         def loss_fn(params, idx, eps):
             mean = relight(jnp.take(basis, idx, axis=1), levels(params['theta'], binary))
             images = add_noise(mean, eps, a, b, top)
             F = stack_stats(images, shape)
+            if offset:
+                F = jnp.concatenate([F, stack_ratio_stats(images, shape, offset)], axis=1)
             if objective == 'cv_ridge':
                 return cv_ridge_loss(F, onehot[idx], jnp.take(held_out, idx, axis=1), ridge, power)
             if objective == 'fisher':
@@ -649,7 +721,8 @@ class LearnedIlluminationClassifier:
         held_out = jnp.asarray(folds)
         params = {'theta': jnp.asarray(_logits_of(P0)), 'head': []}
         if objective == 'cross_entropy':
-            params['head'] = _init_head(rng, k * N_STATS, int(self.n_hidden), len(data.class_names))
+            n_in = k * N_STATS + (n_ratio_stats(k) if offset else 0)
+            params['head'] = _init_head(rng, n_in, int(self.n_hidden), len(data.class_names))
         lr = {'theta': jnp.float32(self.lr_patterns),
               'head': jax.tree_util.tree_map(lambda _: jnp.float32(self.lr_head), params['head'])}
 
@@ -674,33 +747,46 @@ class LearnedIlluminationClassifier:
         """The training samples' statistics under the patterns, head_renders noise draws
         stacked: the inner splits' draw, then draws of a stream of its own (a head fitted on
         one draw may learn that draw's noise with it; measured: docs/LEARNED.md, round 5)."""
-        parts = [ev.features(patterns)]
+        parts = [self._features(data, ev.images(patterns))]
         renders = int(self.head_renders) if data.noise_a or data.noise_b else 1
         if renders > 1:
             clean = clean_led_images(data, patterns)
             rng = np.random.default_rng([int(self.seed), 26, HEAD_NOISE_STREAM])
             for _ in range(renders - 1):
                 noisy = add_noise_images(data, clean, standard_normal(rng, clean.shape))
-                parts.append(image_features(data, noisy))
+                parts.append(self._features(data, noisy))
         return np.vstack(parts)
 
+    def _ratio_offset(self, data: SearchData) -> float:
+        """The cross-image statistics' offset (gray levels), 0 without them."""
+        return float(OFFSET_FRACTION * data.max_level) if self.ratio_stats else 0.0
+
+    def _features(self, data: SearchData, images: np.ndarray) -> np.ndarray:
+        """Raw features (n, k * 9 [+ cross-image]) of images (k, n, pixels)."""
+        X = image_features(data, images)
+        offset = self._ratio_offset(data)
+        if not offset:
+            return X
+        k, n, _ = images.shape
+        stacks = images.reshape(k, n, *data.image_shape).transpose(1, 0, 2, 3)
+        return np.hstack([X, ratio_stats(stacks, offset)])
+
     def _svm_head(self, data: SearchData, ev, patterns) -> LearnedModel:
-        """The final classifier as greedy's: a linear SVM (`MuxClassifier`, intensity
-        statistics z-scored over the training samples) on the training samples rendered
-        under the patterns (`_head_features`); stored as one linear layer on the raw
+        """The final classifier as greedy's: a linear SVM (`fit_linear`, as `MuxClassifier`
+        fits it: statistics z-scored over the training samples) on the training samples
+        rendered under the patterns (`_head_features`); stored as one linear layer on the raw
         statistics."""
         X = self._head_features(data, ev, patterns)
-        clf = MuxClassifier(estimator='linear_svm', C=float(self.final_C),
-                            hog_config=data.hog_config, random_state=int(self.seed),
-                            features='intensity_stats').fit_features(
-                                X, np.tile(data.labels, len(X) // data.n_samples))
-        n_classes, n_in = len(data.class_names), clf.coef_.shape[1]
+        coef, intercept, classes = fit_linear(
+            X, np.tile(data.labels, len(X) // data.n_samples), 'linear_svm',
+            C=float(self.final_C), random_state=int(self.seed))
+        n_classes, n_in = len(data.class_names), coef.shape[1]
         W = np.zeros((n_in, n_classes), np.float64)
         b = np.full(n_classes, np.finfo(np.float32).min / 2)  # no training samples: never wins
-        W[:, clf.classes_] = clf.coef_.T
-        b[clf.classes_] = clf.intercept_
+        W[:, classes] = coef.T
+        b[classes] = intercept
         return LearnedModel(patterns, np.zeros(n_in), np.ones(n_in), [(W, b)],
-                            list(data.class_names))
+                            list(data.class_names), ratio_offset=self._ratio_offset(data))
 
     # --- prediction ----------------------------------------------------------------------
     def predict_images(self, images: np.ndarray) -> np.ndarray:
@@ -711,12 +797,17 @@ class LearnedIlluminationClassifier:
         return self.model_.predict(stacks)
 
     def predict_features(self, X: np.ndarray, n_patterns: int) -> np.ndarray:
-        """Class indices from intensity-statistics features (n, k * 9) of the k images (the
-        PatternModelMixin interface; only n_patterns = n_images exists)."""
+        """Class indices from the model's raw features (n, `LearnedModel.n_features`) of the
+        k images (the PatternModelMixin interface; only n_patterns = n_images exists)."""
         if int(n_patterns) not in self.classifiers_:
             raise ValueError(f'this learned model has {self.n_images} images; n_patterns '
                              f'{n_patterns} is not available')
         X = np.asarray(X)
+        if self.model_.ratio_offset:
+            if X.shape[1] != self.model_.n_features:
+                raise ValueError(f'features must be the model\'s {self.model_.n_features} '
+                                 f'statistics (intensity and cross-image); got {X.shape[1]}')
+            return self.model_.predict_features(X)
         if X.shape[1] != self.model_.n_images * N_STATS:
             raise ValueError(f'features must be the {N_STATS} intensity statistics of each of '
                              f'{self.model_.n_images} images ({self.model_.n_images * N_STATS} '
