@@ -1,11 +1,11 @@
 """Round 7's probe: does a cross-image feature learned jointly with the light carry the seal
-pair's relief cue in the 16-class mix at 4 exposures? (docs/LEARNED.md, round 7; not a
-feature of the model)
+pair's relief cue in the 16-class mix at 4 exposures? (docs/LEARNED.md, round 7; since
+round 8 the model's option `ratio_stats`, whose functions this probe now uses)
 
-Pair features, per pair of images (i, j), over the object (the mask of the images' sum,
-`image_masks`): R = log(I_i + c) - log(I_j + c) (albedo and print cancel; relief's shading
-does not), its spread (std over the object) and its mean gradient magnitude. 2 * 6 = 12
-features beside the 36 intensity statistics.
+Pair features, per pair of images (i, j), over the object (the mask of the images' sum):
+R = log(I_i + c) - log(I_j + c) (albedo and print cancel; relief's shading does not), its
+spread (std over the object) and its mean gradient magnitude (`mux_classifier.ratio_stats`).
+2 * 6 = 12 features beside the 36 intensity statistics.
 
 From the same start light (a run's kept learned light), `steps` more steps of the round-4
 descent (cv_ridge, pose folds, batch 256, fresh noise) with features 'base' (the 36
@@ -16,7 +16,6 @@ draws, tested on 4 renders), overall and on the seal pair.
     PYTHONPATH=src/lightstage_physics:src/mux_classifier:src/mux_trainer \\
         .venv/bin/python benchmarks/learned_ratio_features.py DIR/mix16 instances 0 r5_instances.json pair 200 OUT.json
 """
-import itertools
 import json
 import os
 import sys
@@ -33,16 +32,15 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from learned_vs_greedy import split_capture  # noqa: E402
 from lightstage_physics.render_jax import add_noise, relight  # noqa: E402
 from mux_classifier.intensity_stats import intensity_stats_images  # noqa: E402
-from mux_classifier.object_mask import image_masks  # noqa: E402
+from mux_classifier.ratio_stats import OFFSET_FRACTION, ratio_stats  # noqa: E402
 from mux_trainer.holdout import test_images  # noqa: E402
 from mux_trainer.learned import (_adam_init, _adam_update, _logits_of, cv_ridge_loss, levels,  # noqa: E402
-                                 pose_folds, stack_stats)
+                                 pose_folds, stack_ratio_stats, stack_stats)
 
 cap, hold, seed, start_json, mode, steps, out_json = (sys.argv[1], sys.argv[2], int(sys.argv[3]),
                                                       sys.argv[4], sys.argv[5], int(sys.argv[6]),
                                                       sys.argv[7])
-C_LOG = 0.01   # of max level, inside the log
-PAIRS = list(itertools.combinations(range(4), 2))
+C_LOG = OFFSET_FRACTION   # of max level, inside the log
 
 train, test, train_instance = split_capture(cap, hold, seed)
 shape, top = train.image_shape, train.max_level
@@ -51,41 +49,14 @@ P0 = np.array(next(iter(res.values()))['learned']['patterns_4'], np.float32)
 seal = [i for i, n in enumerate(test.class_names) if n.startswith('seal')]
 
 
-# --- pair features, numpy and jax ---------------------------------------------------------
-def _pair_stats(xp, L, m, grad_eps):
-    """Per image pair: the log ratio's spread over the object mask m and its mean gradient
-    magnitude (xp: numpy or jax.numpy; grad_eps keeps JAX's gradient finite at 0)."""
-    cnt = m.sum((1, 2))
-    out = []
-    for i, j in PAIRS:
-        R = L[i] - L[j]
-        gr = xp.pad(R[:, 2:, :] - R[:, :-2, :], ((0, 0), (1, 1), (0, 0)))
-        gc = xp.pad(R[:, :, 2:] - R[:, :, :-2], ((0, 0), (0, 0), (1, 1)))
-        g = xp.sqrt(gr ** 2 + gc ** 2 + grad_eps)
-        mu = (R * m).sum((1, 2)) / cnt
-        sd = xp.sqrt((((R - mu[:, None, None]) ** 2) * m).sum((1, 2)) / cnt + 1e-8)
-        out += [sd, (g * m).sum((1, 2)) / cnt]
-    return xp.stack(out, 1)
-
-
+# --- pair features: the product's (mux_classifier.ratio_stats, learned.stack_ratio_stats) --
 def pair_np(images):                         # (k, n, pixels) -> (n, 12)
     k, n, p = images.shape
-    img = images.reshape(k, n, *shape).astype(np.float64)
-    mask = image_masks(img.sum(0))
-    mask[~mask.reshape(n, -1).any(1)] = True
-    L = np.log(np.maximum(img, 0) + C_LOG * top)
-    return _pair_stats(np, L, mask.astype(np.float64), 0.0)
+    return ratio_stats(images.reshape(k, n, *shape).transpose(1, 0, 2, 3), C_LOG * top)
 
 
 def pair_jax(images):                        # (k, n, pixels) -> (n, 12)
-    k, n, p = images.shape
-    img = images.reshape(k, n, *shape)
-    mask = jax.pure_callback(
-        lambda s: (lambda m: np.where(~m.reshape(n, -1).any(1)[:, None, None], True, m))(
-            image_masks(np.asarray(s))), jax.ShapeDtypeStruct((n, *shape), jnp.bool_),
-        jax.lax.stop_gradient(img.sum(0)))
-    L = jnp.log(jnp.maximum(img, 0) + C_LOG * top)
-    return _pair_stats(jnp, L, mask.astype(jnp.float32), 1e-12)
+    return stack_ratio_stats(images, shape, C_LOG * top)
 
 
 def base_np(images):

@@ -206,6 +206,7 @@ def test_a_model_with_cross_image_statistics_round_trips(toy_stacks, tmp_path):
     TrainedArtifact.from_learned(with_ratio, noise=SIGMA3).save(tmp_path / "r.npz")
     loaded = TrainedArtifact.load(tmp_path / "r.npz")
     assert loaded.learned.ratio_offset == 8.0
+    assert "intensity_stats + cross-image relief features" in loaded.describe()
     np.testing.assert_allclose(loaded.decision_function(stacks),
                                with_ratio.logits_from_features(with_ratio.features(stacks)), rtol=1e-6)
     # a model without them stores no offset (older releases read it as before)

@@ -311,7 +311,9 @@ class TrainedArtifact:
         if self.learned is not None:
             levels = "on/off" if np.isin(self.led_patterns, (0, 1)).all() else "graded"
             mode = f"learned {levels} patterns ({len(self.learned.layers)}-layer head)"
-        return (f"{len(self.class_names)} classes, {mode}, {self.features} "
+        features = self.features + (" + cross-image relief"
+                                    if self.learned is not None and self.learned.ratio_offset else "")
+        return (f"{len(self.class_names)} classes, {mode}, {features} "
                 f"features, classifiers for {self.n_images} images, noise "
                 f"{self.noise.get('name')}, {dimmer}")
 
