@@ -52,6 +52,7 @@ def test_layout_and_bad_input():
     assert n_ratio_stats(4) == 12 and n_ratio_stats(1) == 0
     dark = np.zeros((2, 2, 8, 8), np.float32)   # no object: the whole image, finite values
     assert np.isfinite(ratio_stats(dark, 1.0)).all()
+    assert ratio_stats(dark[:, :1], 1.0).shape == (2, 0)   # one image: no pair
     with pytest.raises(ValueError, match='offset'):
         ratio_stats(dark, 0.0)
     with pytest.raises(ValueError, match=r'\(n, k, H, W\)'):

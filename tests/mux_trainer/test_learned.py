@@ -108,6 +108,10 @@ def test_the_model_can_classify_with_the_cross_image_statistics(tiny_data):
     np.testing.assert_array_equal(model.predict_features(m.features(stacks), 2), m.predict(stacks))
     with pytest.raises(ValueError, match='cross-image'):
         model.predict_features(np.zeros((3, 18)), 2)
+    # one image has no pair: the model is the 9 statistics' (an offset, no extra values)
+    one = LearnedIlluminationClassifier(**{**kwargs, 'n_images': 1, 'max_steps': 2},
+                                        ratio_stats=True).fit(tiny_data)
+    assert one.model_.n_features == 9
 
 
 @pytest.fixture(scope='module')

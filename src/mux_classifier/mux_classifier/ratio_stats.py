@@ -26,7 +26,7 @@ import numpy as np
 
 from .object_mask import stack_masks
 
-__all__ = ["ratio_stats", "pair_ratio_stats", "image_pairs", "n_ratio_stats",
+__all__ = ["ratio_stats", "pair_ratio_stats", "object_masks", "image_pairs", "n_ratio_stats",
            "N_RATIO_STATS", "OFFSET_FRACTION"]
 
 N_RATIO_STATS = 2        # per image pair: the log ratio's spread and its mean gradient
@@ -49,6 +49,8 @@ def pair_ratio_stats(xp, log_images, mask, grad_eps: float = 0.0):
     grad_eps (inside the gradient's square root) keeps JAX's derivative finite where the ratio
     is locally flat."""
     count = mask.sum((1, 2))
+    if log_images.shape[0] < 2:   # one image: no pair
+        return xp.zeros((mask.shape[0], 0), log_images.dtype)
     out = []
     for i, j in image_pairs(log_images.shape[0]):
         R = log_images[i] - log_images[j]

@@ -16,7 +16,11 @@ anywhere and any way; the statistics ignore where the object lies by constructio
 would have to learn that from a handful of poses), they are what the greedy search scores
 with on free placement (`--features intensity_stats`), so a comparison isolates what
 learning the light adds, and they are cheap (two sorts per image) and exact to reproduce
-in numpy for the node (`mux_classifier.learned_model`).
+in numpy for the node (`mux_classifier.learned_model`). A small CNN over the images was
+measured (round 8: 65-82 % where the statistics give 97 %, 15 training samples per class).
+Option `ratio_stats` adds statistics across images (`mux_classifier.ratio_stats`, in JAX
+`stack_ratio_stats`): per pair, the log ratio's spread and gradient, which a relief's
+shading keeps and a print of it does not.
 
 Training (why: docs/LEARNED.md, round 3). Gradient steps run from a random graded start
 (every LED partly on) on the training samples (a fresh noise draw each step, Adam on the LED
@@ -274,7 +278,8 @@ def raking_sides_start(site_positions_mm, n_channels: int, k: int, rng,
                        split: int = 0) -> np.ndarray:
     """The raking-sides start (sites * channels, k), site-major, 0/1, for k >= 4: every
     colour from one of two groups of low sites on two sides of the object
-    (`low_side_splits`, its `split`-th; 0: the most nearly opposite), then from the other (relief's shading differs between the two, a flat print's does not), the
+    (`low_side_splits`, its `split`-th; 0: the most nearly opposite), then from the other
+    (relief's shading differs between the two, a flat print's does not), the
     visible colours from every site, NIR from every site (inks that differ in NIR); the
     images after the first four are `per_colour_start`'s (each colour alone). A light a
     person would set up to tell relief and inks apart; measured against the other starts
@@ -640,8 +645,8 @@ class LearnedIlluminationClassifier:
                 starts = list(candidates)
                 tuned = (starts if 'all' in tune
                          else [max(scores, key=scores.get)] if 'best' in tune
-                         else [self._family_best(n, scores) for n in tune
-                               if self._family_best(n, scores) is not None])
+                         else [n for n in (self._family_best(t, scores) for t in tune)
+                               if n is not None])
                 for name in tuned:
                     # the random start's descent continues the stream that drew it (round
                     # 3's draws); any other start's has a stream of its own (seed, name)
