@@ -126,8 +126,8 @@ def run_capture(path, args) -> dict:
                 lr_patterns=args.lr_patterns, objective=args.objective, fine_tune=fine_tune,
                 ridge=args.ridge, class_power=args.class_power,
                 split_classifier=args.split_classifier, ratio_stats=args.ratio_stats,
-                head_renders=args.head_renders, starts=builtin, start_patterns=starts, n_repeats=args.n_repeats,
-                progress=args.progress).fit(train)
+                head_renders=args.head_renders, starts=builtin, start_patterns=starts,
+                n_repeats=args.n_repeats, progress=args.progress).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
             out[name][str(k)] = acc
             out[name][f'train_seconds_{k}'] = model.train_seconds_

@@ -32,7 +32,7 @@ from threadpoolctl import threadpool_limits
 
 from .cluster import ArraySized, active_cluster
 from .rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
-                        image_features, scoring_features, standard_normal)
+                        image_features, scoring_features, standard_normal, standardise_columns)
 from .split_scoring import make_scorer
 from .splits import pose_splits
 
@@ -239,6 +239,18 @@ class CandidateEvaluator:
             parts = parallel(delayed(score_chunk_with)(self.data, ctx, chunk, scorer)
                              for chunk in chunks)
         return np.vstack(parts) if parts else np.empty((0, len(self.test_masks)))
+
+    def score_features(self, X: np.ndarray) -> np.ndarray:
+        """Split accuracies `(n_splits,)` of features X (n, F) of a whole stack, z-scored over
+        the samples (`standardise_columns`): for features that are not each image's alone
+        (cross-image statistics), which `score`'s column-by-column kernel cannot add up."""
+        X = standardise_columns(X)
+        if self.scorer.needs_features:
+            return self.scorer.split_accuracies(self.data.labels, self.test_masks, X=X,
+                                                n_classes=self.n_classes)
+        X64 = X.astype(np.float64)
+        return self.scorer.split_accuracies(self.data.labels, self.test_masks, K=X64 @ X64.T,
+                                            n_classes=self.n_classes)
 
     def images(self, columns: np.ndarray, column_noise_of: int | None = None) -> np.ndarray:
         """Noisy images `(n_images, n, pixels)` of all `columns` with the noise the search

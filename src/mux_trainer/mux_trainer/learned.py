@@ -49,7 +49,6 @@ from joblib import Parallel
 from lightstage_physics.render_jax import add_noise, relight
 from lightstage_physics.rig import CHANNELS, Rig, site_to_led_patterns
 from mux_classifier.estimator import fit_linear
-from mux_classifier.features import column_scaling
 from mux_classifier.intensity_stats import GRADIENT_QUANTILES, LEVEL_QUANTILES, N_STATS
 from mux_classifier.learned_model import LearnedModel
 from mux_classifier.object_mask import image_masks
@@ -611,13 +610,7 @@ class LearnedIlluminationClassifier:
         with Parallel(n_jobs=1) as parallel:
             def inner(P):
                 if self.ratio_stats:   # cross-image statistics: the whole stack's features
-                    X = self._features(data, ev.images(P))
-                    mean, scale = column_scaling(X)
-                    X = ((X - mean) / scale).astype(np.float32)
-                    return float(ev.scorer.split_accuracies(
-                        data.labels, ev.test_masks, n_classes=ev.n_classes,
-                        **({'X': X} if ev.scorer.needs_features
-                           else {'K': X.astype(np.float64) @ X.T.astype(np.float64)})).mean())
+                    return float(ev.score_features(self._features(data, ev.images(P))).mean())
                 ctx = ev.prepare_column(P[:, :k - 1] if k > 1 else None)
                 return float(ev.score(ctx, P[:, k - 1:], parallel).mean())
 

@@ -209,8 +209,11 @@ def scoring_features(data: SearchData, images: np.ndarray) -> np.ndarray:
     `standardise` has each column z-scored over the search's samples (its training data;
     held-out poses are never among them), as `MuxClassifier` does on its training samples."""
     X = image_features(data, images)
-    if not data.extractor.standardise:
-        return X
+    return standardise_columns(X) if data.extractor.standardise else X
+
+
+def standardise_columns(X: np.ndarray) -> np.ndarray:
+    """Each column of X z-scored over its rows (the search's samples), float32."""
     mean, scale = column_scaling(X)
     return ((X - mean) / scale).astype(np.float32)
 
