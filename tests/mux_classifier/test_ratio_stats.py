@@ -3,7 +3,8 @@ light shows in them, a print of it does not; layout, and bad input refused."""
 import numpy as np
 import pytest
 
-from mux_classifier.ratio_stats import image_pairs, n_ratio_stats, ratio_stats
+from mux_classifier.ratio_stats import (image_pairs, n_ratio_stats, object_masks, pair_ratio_stats,
+                                       ratio_stats)
 
 SIZE = 48
 
@@ -45,6 +46,25 @@ def test_what_multiplies_every_image_cancels():
     tinted[stacks > 100] *= 0.7   # another instance's overall albedo, on the object only
     np.testing.assert_allclose(ratio_stats(tinted, offset=1.0), ratio_stats(stacks, offset=1.0),
                                rtol=0.05, atol=2e-3)
+
+
+def _whole_image_stats(stacks, offset):
+    """The formula over every pixel, in float64: what the crop must reproduce."""
+    arr = np.asarray(stacks, np.float64)
+    log_images = np.log(np.maximum(arr, 0) + offset).transpose(1, 0, 2, 3)
+    return pair_ratio_stats(np, log_images, object_masks(arr).astype(np.float64))
+
+
+@pytest.mark.parametrize("centre", [(24, 24), (4, 30), (30, 45), (47, 0)])
+def test_the_object_crop_in_float32_gives_the_whole_image_values(centre):
+    # a small object inside the image, and cut by each border (no gradient on the border)
+    stacks = _stage_stacks(True, seed=3)
+    yy, xx = np.mgrid[:SIZE, :SIZE]
+    outside = (yy - centre[0]) ** 2 + (xx - centre[1]) ** 2 >= 9 ** 2
+    stacks[:, :, outside] = 20.0
+    fast = ratio_stats(stacks, offset=10.0)
+    assert fast.dtype == np.float32
+    np.testing.assert_allclose(fast, _whole_image_stats(stacks, 10.0), rtol=1e-4, atol=1e-6)
 
 
 def test_layout_and_bad_input():

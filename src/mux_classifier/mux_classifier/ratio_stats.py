@@ -26,8 +26,8 @@ import numpy as np
 
 from .object_mask import stack_masks
 
-__all__ = ["ratio_stats", "pair_ratio_stats", "object_masks", "image_pairs", "n_ratio_stats",
-           "N_RATIO_STATS", "OFFSET_FRACTION"]
+__all__ = ["ratio_stats", "pair_ratio_stats", "object_masks", "object_box", "image_pairs",
+           "n_ratio_stats", "N_RATIO_STATS", "OFFSET_FRACTION"]
 
 N_RATIO_STATS = 2        # per image pair: the log ratio's spread and its mean gradient
 OFFSET_FRACTION = 0.01   # c, as a fraction of the camera's top gray level
@@ -70,13 +70,29 @@ def object_masks(stacks: np.ndarray) -> np.ndarray:
     return mask
 
 
+def object_box(mask: np.ndarray) -> tuple[slice, slice]:
+    """The rows and columns of a mask ``(H, W)``'s pixels with one pixel around them (inside
+    the image): the crop in which `pair_ratio_stats` gives a mask's pixels the values it gives
+    them in the whole image (a mask pixel is on the crop's border only where it is on the
+    image's, where its gradient is zero in both)."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    H, W = mask.shape
+    return (slice(max(rows[0] - 1, 0), min(rows[-1] + 2, H)),
+            slice(max(cols[0] - 1, 0), min(cols[-1] + 2, W)))
+
+
 def ratio_stats(stacks: np.ndarray, offset: float) -> np.ndarray:
-    """Stacks ``(n, k, H, W)`` gray levels -> float32 ``(n, n_ratio_stats(k))``."""
-    arr = np.asarray(stacks, dtype=np.float64)
+    """Stacks ``(n, k, H, W)`` gray levels -> float32 ``(n, n_ratio_stats(k))``, in float32
+    over each stack's object box (`object_box`): what the classifier computes per sample."""
+    arr = np.asarray(stacks, dtype=np.float32)
     if arr.ndim != 4:
         raise ValueError(f"ratio_stats expects stacks of shape (n, k, H, W), got {arr.shape}")
     if not (np.isfinite(offset) and offset > 0):
         raise ValueError(f"offset must be a positive number of gray levels, got {offset}")
-    log_images = np.log(np.maximum(arr, 0) + float(offset)).transpose(1, 0, 2, 3)
-    mask = object_masks(arr).astype(np.float64)
-    return pair_ratio_stats(np, log_images, mask).astype(np.float32)
+    masks = object_masks(arr)
+    out = np.empty((arr.shape[0], n_ratio_stats(arr.shape[1])), np.float32)
+    for s, (stack, mask) in enumerate(zip(arr, masks)):
+        rows, cols = object_box(mask)
+        log_images = np.log(np.maximum(stack[:, rows, cols], 0) + np.float32(offset))
+        out[s] = pair_ratio_stats(np, log_images[:, None], mask[None, rows, cols].astype(np.float32))[0]
+    return out
