@@ -168,7 +168,8 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     p.add_argument('--split-classifier', default=defaults.split_classifier,
                    choices=('ridge', 'squared_hinge', 'linear_svm'),
                    help="learned: the inner splits' classifier that scores starts and snapshots")
-    p.add_argument('--ratio-stats', action='store_true',
+    p.add_argument('--ratio-stats', action=argparse.BooleanOptionalAction,
+                   default=defaults.ratio_stats,
                    help="learned: classify with the images' cross-image relief statistics too")
     p.add_argument('--head-renders', type=int, default=defaults.head_renders,
                    help="learned: noise draws of the training samples the final SVM is fitted on")

@@ -18,7 +18,8 @@ from mux_trainer.evaluation import CandidateEvaluator
 from mux_trainer.learned import (LearnedIlluminationClassifier, cv_ridge_loss,
                                  evaluate_learned_heldout, fisher_loss, forward_features,
                                  image_stats, low_side_splits, opposite_low_sides, pose_folds,
-                                 raking_sides_start, stack_ratio_stats, stack_stats)
+                                 raking_name, raking_sides_start, stack_ratio_stats,
+                                 stack_stats)
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.rendering import SearchData, clean_led_images, clean_site_images
 from mux_trainer.search_params import SplitScoring
@@ -97,7 +98,7 @@ def test_the_model_can_classify_with_the_cross_image_statistics(tiny_data):
     assert m.ratio_offset == pytest.approx(0.01 * tiny_data.max_level)
     assert m.n_features == 2 * 9 + n_ratio_stats(2) and m.layers[0][0].shape[0] == m.n_features
     # inner scores come from the whole stack's features; they differ from the model without
-    plain = LearnedIlluminationClassifier(**kwargs).fit(tiny_data)
+    plain = LearnedIlluminationClassifier(ratio_stats=False, **kwargs).fit(tiny_data)
     assert set(model.candidate_scores_) == set(plain.candidate_scores_)
     assert model.candidate_scores_ != plain.candidate_scores_
     assert plain.model_.ratio_offset == 0 and plain.model_.n_features == 18
@@ -154,8 +155,11 @@ def test_the_kept_patterns_score_best_on_the_inner_splits(fitted):
 def test_without_fine_tuning_a_start_is_kept(tiny_data):
     model = LearnedIlluminationClassifier(n_images=4, fine_tune='none', n_repeats=20,
                                           seed=0).fit(tiny_data)
-    starts = {'random', 'per_colour', 'snr_optimal', 'greedy'}
-    assert model.chosen_ in starts and model.best_step_ == 0
+    # the default starts, one raking start per split of the paper stage's low sites
+    raking = {raking_name(i) for i in
+              range(len(low_side_splits(Rig.paper_default().site_positions_mm())))}
+    starts = {'random', 'per_colour', 'snr_optimal', 'greedy'} | raking
+    assert len(raking) >= 2 and model.chosen_ in starts and model.best_step_ == 0
     assert set(model.candidate_scores_) == starts
     # the greedy start is the greedy search's column on the same data, features and inner
     # splits (the statistics the learned model classifies with)
@@ -260,10 +264,12 @@ def test_the_raking_sides_start_follows_the_rig_and_is_skipped_where_it_cannot_b
 @pytest.mark.parametrize('split_classifier', ['ridge', 'squared_hinge'])
 def test_starts_are_scored_by_the_inner_splits_with_the_split_classifier(tiny_data, split_classifier):
     """The inner score of a start is the evaluator's mean split accuracy with that classifier
-    (by default the ridge screen; the two differ on these data: 0.300 and 0.3125)."""
+    (by default the exact SVM; the two differ on these data: 0.300 and 0.3125), on the
+    images' own statistics column by column (with the cross-image ones: the whole stack,
+    `test_the_model_can_classify_with_the_cross_image_statistics`)."""
     model = LearnedIlluminationClassifier(n_images=4, starts=('per_colour',), fine_tune='none',
-                                          n_repeats=20, seed=0,
-                                          **({} if split_classifier == 'ridge'
+                                          n_repeats=20, seed=0, ratio_stats=False,
+                                          **({} if split_classifier == 'squared_hinge'
                                              else {'split_classifier': split_classifier})
                                           ).fit(tiny_data)
     ev = CandidateEvaluator(replace(tiny_data, features='intensity_stats'), mode='joint',
@@ -298,6 +304,7 @@ def test_a_perfect_inner_score_ends_the_fit(tiny_data, monkeypatch):
     import mux_trainer.learned as learned
     monkeypatch.setattr(learned.CandidateEvaluator, 'score',
                         lambda self, ctx, cols, parallel: np.ones(4))
+    monkeypatch.setattr(learned.CandidateEvaluator, 'score_features', lambda self, X: np.ones(4))
 
     def no_search(*args, **kwargs):
         raise AssertionError('greedy searched after a perfect score')
@@ -429,6 +436,9 @@ def test_numpy_forward_equals_jax_forward(fitted):
     k, n, p = images.shape
     stacks = images.transpose(1, 0, 2).reshape(n, k, *test.image_shape)
     F_jax = stack_stats(jnp.asarray(images), test.image_shape)
+    assert m.ratio_offset > 0   # the default: the cross-image statistics follow
+    F_jax = jnp.concatenate([F_jax, stack_ratio_stats(jnp.asarray(images), test.image_shape,
+                                                      m.ratio_offset)], axis=1)
     logits_jax = np.asarray(forward_features([(jnp.asarray(W), jnp.asarray(b)) for W, b in m.layers],
                                              jnp.asarray(m.feature_mean),
                                              jnp.asarray(m.feature_scale), F_jax))
@@ -475,7 +485,7 @@ def test_bad_settings_and_inputs_are_refused(tiny_data, fitted):
         LearnedIlluminationClassifier(n_images=2, start_patterns={'x': np.ones((8, 2))},
                                       n_repeats=5).fit(tiny_data)
     model, _ = fitted
-    with pytest.raises(ValueError, match='intensity statistics'):
+    with pytest.raises(ValueError, match='statistics'):
         model.predict_features(np.zeros((3, 5)), 2)
     with pytest.raises(ValueError, match='not available'):
         model.predict_features(np.zeros((3, 18)), 1)

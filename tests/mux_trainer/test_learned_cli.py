@@ -49,7 +49,8 @@ def test_train_learned_binary_gives_on_off_levels(capture, tmp_path, capsys):
 @pytest.mark.parametrize('argv, message', [
     (['--method', 'greedy', '--steps', '3'], '--binary and --steps apply to --method learned only'),
     (['--binary'], '--binary and --steps apply to --method learned only'),
-    (['--method', 'learned', '--steps', '0'], 'steps (training steps of the learned patterns) must be 1 .. 100000, got 0'),
+    (['--method', 'learned', '--steps', '-1'], 'steps (training steps of the learned patterns; 0: the '
+     'starts only) must be 0 .. 100000, got -1'),
 ])
 def test_learned_options_are_checked_before_the_capture_is_loaded(capture, tmp_path, no_work,
                                                                   argv, message):
@@ -83,8 +84,8 @@ def test_eval_has_a_learned_row(capture, tmp_path, capsys):
 def test_eval_refuses_bad_learned_options_before_the_load(capture, no_work):
     with pytest.raises(SystemExit, match='--learned-exposures must list counts >= 1'):
         eval_main([str(capture), '--methods', 'learned', '--learned-exposures', '0', *TINY])
-    with pytest.raises(SystemExit, match='steps .* must be 1 .. 100000, got 0'):
-        eval_main([str(capture), '--methods', 'learned', '--learned-steps', '0', *TINY])
+    with pytest.raises(SystemExit, match='steps .* must be 0 .. 100000, got -1'):
+        eval_main([str(capture), '--methods', 'learned', '--learned-steps', '-1', *TINY])
 
 
 def test_trainer_node_parameters_choose_the_method(capture):
@@ -97,9 +98,10 @@ def test_trainer_node_parameters_choose_the_method(capture):
     default, descriptor = PARAMETERS['method']
     assert default == 'greedy' and 'learned' in descriptor.additional_constraints
     default, descriptor = PARAMETERS['learned_steps']
-    assert check_value('learned_steps', 40, descriptor) == 40
+    assert default == 0 and check_value('learned_steps', 40, descriptor) == 40
+    assert check_value('learned_steps', 0, descriptor) == 0   # the starts alone
     with pytest.raises(ValueError, match='out of range'):
-        check_value('learned_steps', 0, descriptor)
+        check_value('learned_steps', -1, descriptor)
     params = {'method': 'learned', 'learned_steps': 7, 'learned_binary': True}
     node = SimpleNamespace(p=params.get)
     options = TrainerNode._method_options(node, SimpleNamespace(method=''))
@@ -110,4 +112,6 @@ def test_trainer_node_parameters_choose_the_method(capture):
 def test_the_kept_candidate_is_described_as_what_it_is():
     from mux_trainer.learned_method import describe_choice
     assert describe_choice('random+200') == 'random+200: 200 gradient steps from the random start'
-    assert describe_choice('per_colour').startswith('per_colour: a start kept as it is')
+    assert describe_choice('per_colour', 200).startswith('per_colour: a start kept as it is, no snapshot')
+    assert describe_choice('per_colour') == ('per_colour: the start the inner splits score best, '
+                                             'kept as it is (no gradient steps)')

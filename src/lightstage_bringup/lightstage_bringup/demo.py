@@ -141,10 +141,10 @@ def _train(out: Path, capture: Path, args) -> tuple[dict, list[str]]:
     return summary, held_out
 
 
-# The demo's learned schedule: 8 exposures (half of greedy's 16), a tenth of the default's
-# gradient steps, a quarter of its samples per step and of its inner pose splits
-# (`learned_schedule`, `LearnedIlluminationClassifier`'s defaults)
-LEARNED_SCHEDULE = dict(steps=20, n_repeats=100, batch_size=64)
+# The demo's learned schedule: 8 exposures (half of greedy's 16), the default's starts
+# without gradient steps (`learned_schedule`), a quarter of its inner pose splits
+# (`LearnedIlluminationClassifier`'s defaults)
+LEARNED_SCHEDULE = dict(n_repeats=100)
 LEARNED_EXPOSURES = 8
 
 
@@ -165,7 +165,7 @@ def _train_learned(train, artifact: Path, capture: Path, args) -> dict:
                      ).save(artifact)
     k = int(model.best_n_patterns_)
     accuracy = float(model.accuracy_by_images_[k])
-    _say(f'training: learned: {seconds:.0f} s, {k} graded patterns (kept {describe_choice(model.chosen_)}; '
+    _say(f'training: learned: {seconds:.0f} s, {k} graded patterns (kept {describe_choice(model.chosen_, model.max_steps)}; '
          f'inner split accuracy {100 * accuracy:.1f} %)')
     return {'artifact': str(artifact), 'train_seconds': seconds, 'best_n_images': k,
             'patterns': pattern_levels(model.patterns_),

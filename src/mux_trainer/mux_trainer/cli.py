@@ -133,9 +133,10 @@ def _learned_arguments(p: argparse.ArgumentParser) -> None:
                    help='on/off LED levels (boards with pwm_bits 0) instead of graded ones '
                         '(pwm_bits 8)')
     g.add_argument('--steps', type=int, default=None,
-                   help=f'gradient steps on the LED levels from each start descended (the random one '
-                        f'and greedy\'s columns; default: {DEFAULT_STEPS}; snapshots scored by the inner '
-                        f'pose splits, the best kept)')
+                   help=f'gradient steps on the LED levels from each start descended (the random '
+                        f'one, greedy\'s columns and the best raking split; snapshots scored by the '
+                        f'inner pose splits, the best kept); default: {DEFAULT_STEPS}, the starts '
+                        f'alone (docs/LEARNED.md, round 9)')
 
 
 def _learned_options(prog: str, args) -> dict:
@@ -160,7 +161,8 @@ def _learned_eval_arguments(p: argparse.ArgumentParser) -> None:
                    metavar='K[,K]', help='exposure counts to train a learned model for, one '
                    'model each (default: %(default)s)')
     g.add_argument('--learned-steps', type=int, default=DEFAULT_STEPS,
-                   help='most training steps of each learned model (default: %(default)s)')
+                   help='gradient steps of each learned model from each start descended '
+                        '(default: %(default)s, the starts alone)')
     g.add_argument('--learned-binary', action='store_true',
                    help='on/off LED levels instead of graded ones')
 

@@ -18,23 +18,26 @@ with on free placement (`--features intensity_stats`), so a comparison isolates 
 learning the light adds, and they are cheap (two sorts per image) and exact to reproduce
 in numpy for the node (`mux_classifier.learned_model`). A small CNN over the images was
 measured (round 8: 65-82 % where the statistics give 97 %, 15 training samples per class).
-Option `ratio_stats` adds statistics across images (`mux_classifier.ratio_stats`, in JAX
-`stack_ratio_stats`): per pair, the log ratio's spread and gradient, which a relief's
-shading keeps and a print of it does not.
+By default (`ratio_stats`) statistics across images follow (`mux_classifier.ratio_stats`,
+in JAX `stack_ratio_stats`): per pair, the log ratio's spread and gradient, which a
+relief's shading keeps and a print of it does not.
 
-Training (why: docs/LEARNED.md, round 3). Gradient steps run from a random graded start
-(every LED partly on) on the training samples (a fresh noise draw each step, Adam on the LED
+Training (why: docs/LEARNED.md, rounds 3, 8 and 9). Candidate lights are scored with the
+greedy search's own inner pose splits and the exact linear SVM on them
+(`evaluation.CandidateEvaluator` in the joint mode) and the best is kept (a tie keeps the
+earlier): the starts (a random graded light with every LED partly on, the per-colour
+start, the SNR-optimal baseline's site columns expanded to LED levels, greedy's columns,
+a raking-sides light per split of the rig's low sites, any the caller gives) and, with
+``max_steps`` > 0 (0 by default: round 9), snapshots of gradient steps from some of them.
+The steps run on the training samples (a fresh noise draw each step, Adam on the LED
 logits) against the pose-held-out loss of a closed-form ridge classifier (`cv_ridge_loss`:
 per fold of training poses, the head solved on the other poses, its squared hinge on the
-fold's), so the light is asked for what greedy's inner splits measure: separation that holds
-on poses it was not fitted on. Snapshots of the levels every few steps and the fixed starts
-(the per-colour start, the SNR-optimal baseline's site columns expanded to LED levels,
-greedy's columns, any the caller gives) are scored with the greedy search's own inner
-pose splits and its ridge screen (`evaluation.CandidateEvaluator` in the joint mode), the
-best is kept (a start wins ties).
-The final classifier is greedy's: a linear SVM on the chosen patterns' rendered training
-statistics, stored as one linear layer. Round 2's shrunk Fisher criterion and round 1's
-cross-entropy through a head trained alongside remain as `objective` options.
+fold's), so the light is asked for what the inner splits measure: separation that holds on
+poses it was not fitted on.
+The final classifier is greedy's kind: a linear SVM on the chosen patterns' rendered
+training statistics (`head_renders` noise draws), stored as one linear layer. Round 2's
+shrunk Fisher criterion and round 1's cross-entropy through a head trained alongside remain
+as `objective` options.
 """
 from __future__ import annotations
 
@@ -407,14 +410,16 @@ class LearnedIlluminationClassifier:
       columns), 'greedy' (the greedy search's k / 4 per-colour columns on the same
       training data and inner splits), both expanded to LEDs by `rig.site_to_led_patterns`,
       and 'raking_sides' (`raking_sides_start` on the rig's site positions, one start per
-      split of the low sites, `low_side_splits`: 'raking_sides', 'raking_sides/1', ...; not
-      among the defaults: measured in docs/LEARNED.md rounds 7 and 8); the last three are skipped unless 4
-      divides k; start_patterns: more starts, {name: (32, k) LED levels}. Every start is
+      split of the low sites, `low_side_splits`: 'raking_sides', 'raking_sides/1', ...;
+      docs/LEARNED.md rounds 7 and 8); default: all five; the last three are skipped unless
+      4 divides k; start_patterns: more starts, {name: (32, k) LED levels}. Every start is
       scored by the inner splits and may be kept as it is.
-    - fine_tune: the starts the gradient steps run from, each for max_steps: names of starts
-      (default ('random', 'greedy'): from the random start, which needs many steps to find
-      the cue where no on/off column shows it, and from greedy's columns, whose choice of
-      sites a descent refines where many classes need them, docs/LEARNED.md round 4), or
+    - fine_tune: the starts the gradient steps run from, each for max_steps (default 0: no
+      descent, the starts alone; docs/LEARNED.md round 9): names of starts (default
+      ('random', 'greedy', 'raking_sides'): from the random start, which needs many steps to
+      find the cue where no on/off column shows it, from greedy's columns, whose choice of
+      sites a descent refines where many classes need them, round 4, and from the raking
+      sides, round 8), or
       'best' (the start the inner splits score best), 'all', 'none'; 'raking_sides' means
       the best scored of its splits. Each descent draws
       from a stream of its own, so one never changes another's. A perfect inner score
@@ -427,22 +432,21 @@ class LearnedIlluminationClassifier:
       on the logits).
     - n_repeats, test_fraction, split_classifier: the inner pose splits that score every
       start and snapshot (`evaluation.CandidateEvaluator` in the joint mode: greedy's split
-      scoring and its noise streams) and their classifier: 'ridge' (default: the search's
-      fast screen, what rounds 3-6 measured) or 'squared_hinge' (the exact linear SVM, the
-      head's kind; it ranks lights more nearly as their held-out accuracy does; with the
-      raking-sides start it moved the 16-class mix by +0.0 to +5.3, the other captures not
-      re-measured, docs/LEARNED.md round 7), final_C: the linear SVM head's C,
-      head_renders: the noise draws of the training samples it is fitted on (1, the
-      default: the inner splits' draw alone; 4 draws measured level with it, docs/LEARNED.md
-      round 5).
+      scoring and its noise streams) and their classifier: 'squared_hinge' (default: the
+      exact linear SVM, the head's kind; it ranks lights more nearly as their held-out
+      accuracy does, docs/LEARNED.md rounds 7 and 8) or 'ridge' (the search's fast screen,
+      what rounds 3-6 measured), final_C: the linear SVM head's C, head_renders: the noise
+      draws of the training samples it is fitted on (default 6: the inner splits' draw and
+      5 more; a head on one draw may learn its noise, round 8; 4 draws measured level with
+      one without the cross-image statistics, round 5).
     - site_positions_mm: (n_sites, 3) for the raking-sides start; None: the rig of the
       ModelSet fitted, or the paper's stage for a SearchData (which carries no rig).
     - ratio_stats: after the images' own statistics, the cross-image relief statistics of
       every pair of images (`mux_classifier.ratio_stats`: the log ratio's spread and mean
       gradient over the object; albedo and print cancel in a ratio, relief's shading does
       not) in the descent's criterion, the inner splits and the head (the model stores their
-      offset). False (default): the 9 statistics per image alone, as rounds 1-7 measured;
-      docs/LEARNED.md round 8.
+      offset). Default True (docs/LEARNED.md rounds 8 and 9); False: the 9 statistics per
+      image alone, as rounds 1-7 measured.
     - noise, dimmer, hog_config (the image size) when fitting a ModelSet; seed; progress.
 
     After fit: patterns_ (32, k) site-major levels, model_ (a numpy `LearnedModel`: the
@@ -457,12 +461,13 @@ class LearnedIlluminationClassifier:
     images_per_pattern = 1
 
     def __init__(self, n_images=4, binary=False,
-                 starts=('random', 'per_colour', 'snr_optimal', 'greedy'), start_patterns=None,
-                 fine_tune=('random', 'greedy'), objective='cv_ridge', max_steps=DEFAULT_STEPS,
+                 starts=BUILTIN_STARTS, start_patterns=None,
+                 fine_tune=('random', 'greedy', 'raking_sides'), objective='cv_ridge',
+                 max_steps=DEFAULT_STEPS,
                  eval_every=50, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.01,
                  class_power=1.0, fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
-                 n_repeats=400, test_fraction=0.25, split_classifier='ridge',
-                 final_C=1.0, head_renders=1, site_positions_mm=None, ratio_stats=False,
+                 n_repeats=400, test_fraction=0.25, split_classifier='squared_hinge',
+                 final_C=1.0, head_renders=6, site_positions_mm=None, ratio_stats=True,
                  noise='sigma3',
                  dimmer=None, hog_config=None, seed=0, progress=False):
         self.n_images = n_images

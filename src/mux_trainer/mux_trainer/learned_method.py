@@ -33,14 +33,16 @@ def build_learned(n_images=8, *, binary=False, steps=DEFAULT_STEPS, noise='sigma
                                          progress=progress, **params)
 
 
-def describe_choice(chosen: str) -> str:
+def describe_choice(chosen: str, max_steps: int = 0) -> str:
     """What a fitted model's `chosen_` candidate is, in words: 'random+200' is 200 gradient
-    steps from the random start, 'per_colour' a start kept as it is (no snapshot of the
-    gradient steps scored better on the inner splits)."""
+    steps from the random start, 'per_colour' a start kept as it is (the best scored of the
+    starts; with ``max_steps`` > 0, also better than every snapshot of the descents)."""
     start, _, steps = str(chosen).partition('+')
     if steps:
         return f'{chosen}: {steps} gradient steps from the {start} start'
-    return f'{chosen}: a start kept as it is, no snapshot of the gradient steps scored better'
+    if int(max_steps) > 0:
+        return f'{chosen}: a start kept as it is, no snapshot of the gradient steps scored better'
+    return f'{chosen}: the start the inner splits score best, kept as it is (no gradient steps)'
 
 
 def pattern_levels(patterns) -> list:

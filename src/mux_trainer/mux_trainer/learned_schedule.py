@@ -3,11 +3,15 @@ estimator and `lightstage eval` share (no JAX here, so the node and the CLI read
 free)."""
 from __future__ import annotations
 
-# gradient steps on the light from each start descended (`learned`'s default: the random
-# start and greedy's columns; every `eval_every` steps a snapshot is scored by the inner pose
-# splits, the best kept). On the strength-0.2 capture the inner score still rose at 200 steps
-# from the random start (docs/LEARNED.md, round 3).
-DEFAULT_STEPS = 200
+# gradient steps on the light from each start descended (`learned`'s fine_tune: the random
+# start, greedy's columns and the best raking split; every `eval_every` steps a snapshot is
+# scored by the inner pose splits, the best kept). 0: the starts are scored and the best
+# kept, no descent. Why 0 by default (docs/LEARNED.md, round 9): with the cross-image
+# statistics no snapshot of 200 steps from any of the three was kept on the 16-class mix, at
+# 17 min per descent; the starts alone are at least round 4's descents on every capture
+# measured but the weakest cue strength. 200 was rounds 3-8's (the inner score still rose at
+# 200 steps from the random start on the strength-0.2 capture, round 3).
+DEFAULT_STEPS = 0
 MAX_STEPS = 100_000
 # exposure counts `lightstage eval` trains a learned model for (one model each: a learned
 # k-image model's patterns are not the first k of a larger one's)
@@ -15,6 +19,6 @@ EVAL_EXPOSURES = (4, 8)
 
 
 def check_steps(steps: int) -> None:
-    if not 1 <= int(steps) <= MAX_STEPS:
-        raise ValueError(f'steps (training steps of the learned patterns) must be 1 .. '
-                         f'{MAX_STEPS}, got {steps}')
+    if not 0 <= int(steps) <= MAX_STEPS:
+        raise ValueError(f'steps (training steps of the learned patterns; 0: the starts only) '
+                         f'must be 0 .. {MAX_STEPS}, got {steps}')

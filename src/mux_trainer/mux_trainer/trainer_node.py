@@ -55,7 +55,7 @@ PARAMETERS = {
         constraints=', '.join(METHODS))),
     'learned_steps': (DEFAULT_STEPS, integer(
         'learned: gradient steps on the LED levels from each start descended (the random '
-        'one and greedy\'s columns)', 1, MAX_STEPS)),
+        'one, greedy\'s columns and the best raking split); 0: the starts alone', 0, MAX_STEPS)),
     'learned_binary': (False, boolean(
         'learned: on/off LED levels (boards with pwm_bits 0) instead of graded ones')),
     'dask_scheduler': ('', string(
