@@ -94,5 +94,6 @@ def ratio_stats(stacks: np.ndarray, offset: float) -> np.ndarray:
     for s, (stack, mask) in enumerate(zip(arr, masks)):
         rows, cols = object_box(mask)
         log_images = np.log(np.maximum(stack[:, rows, cols], 0) + np.float32(offset))
-        out[s] = pair_ratio_stats(np, log_images[:, None], mask[None, rows, cols].astype(np.float32))[0]
+        box_mask = mask[None, rows, cols].astype(np.float32)
+        out[s] = pair_ratio_stats(np, log_images[:, None], box_mask)[0]
     return out
