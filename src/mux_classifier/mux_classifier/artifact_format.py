@@ -27,21 +27,25 @@ from .hog import HogConfig
 
 __all__ = ["ArtifactError", "FORMAT_NAME", "FORMAT_VERSION", "READABLE_VERSIONS",
            "UNRECORDED_DIMMER", "MODES", "MAX_IMAGES", "LEARNED_MODE", "LEARNED_PREFIX",
-           "read_artifact", "write_artifact"]
+           "read_artifact", "write_artifact", "written_version"]
 
 FORMAT_NAME = "lightstage.mux_classifier"
+# 5: a learned model with the cross-image statistics (its "learned_ratio_offset"): a
+# release that reads 4 would take its features for the 9 per image and refuse or misread
+# it, so such a file says 5. Every other file is still written as 4, which those read.
 # 4: mode "learned": a learned-illumination model, every array of its `to_arrays()` stored
 # as "learned_<name>" (new arrays of the model need no format change), no coef_/intercept_.
 # 3: the header names the feature extractor ("features"); before, it was always the HOG grid.
 # 2: the header records the dimmer the training rendered with. 1: it did not; every
 # training that wrote version 1 rendered at the authors' dimmer, `UNRECORDED_DIMMER` (should
 # DEFAULT_DIMMER ever change, this must keep its old value).
-FORMAT_VERSION = 4
-READABLE_VERSIONS = (1, 2, 3, 4)
+FORMAT_VERSION = 5   # the newest this release reads and writes
+READABLE_VERSIONS = (1, 2, 3, 4, 5)
 UNRECORDED_DIMMER = DEFAULT_DIMMER
 LEARNED_MODE = "learned"
 MODES = ("per_colour", "joint", "naive", LEARNED_MODE)
 LEARNED_SINCE = 4  # the first format version with learned models
+RATIO_SINCE = 5    # ... and with learned models' cross-image statistics
 LEARNED_PREFIX = "learned_"
 MAX_IMAGES = 4096  # images of one classification: far beyond any search (16 in the paper)
 MAX_LEARNED_WIDTH = 4096  # hidden units of a learned model's layer (the trainer's: 0 .. 64)
@@ -52,10 +56,18 @@ class ArtifactError(ValueError):
     """A trained-classifier file or its input is unusable; the message says why and what to do."""
 
 
+def written_version(artifact) -> int:
+    """The format version a file of `artifact` says: the lowest that holds it (`RATIO_SINCE`
+    for a learned model with cross-image statistics, else `LEARNED_SINCE`), so that an older
+    release refuses only what it would misread."""
+    learned = artifact.learned
+    return RATIO_SINCE if learned is not None and learned.ratio_offset else LEARNED_SINCE
+
+
 def _header(artifact) -> dict:
     return {
         "format": FORMAT_NAME,
-        "format_version": FORMAT_VERSION,
+        "format_version": written_version(artifact),
         "mode": artifact.mode,
         "class_names": artifact.class_names,
         "noise": artifact.noise,
