@@ -93,8 +93,8 @@ def main(argv=None):
                                          f'{r.get(m, {}).get("8", np.nan):.3f}'
                                          for m in methods))
         for (v, e), count in ahead.items():
-            if e not in r.get(v, {}) or not all(e in r.get(m, {}) for m in baselines):
-                continue
+            if not baselines or e not in r.get(v, {}) or not all(e in r.get(m, {}) for m in baselines):
+                continue   # nothing to be ahead of (e.g. learned_binary alone, to merge later)
             others = [r[m][e] for m in baselines]
             if min(others + [r[v][e]]) < 0.95:
                 count[1] += 1
