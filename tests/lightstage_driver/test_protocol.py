@@ -72,6 +72,27 @@ def test_stream_decoder_splits_joins_and_resyncs():
     assert decoder.length_errors == 1     # the stray A5 99 claimed 153 payload bytes
 
 
+def test_the_host_skips_a_corrupted_frame_whole_and_not_a_sof_in_its_payload():
+    # a reply whose payload holds 0xA5 and whose CRC fails, then the next reply: rescanning
+    # from the byte after its SOF reads 'A5 30 ...' as a frame of 48 payload bytes and waits
+    # for them (the host has no inter-byte timeout); skipping the frame by its LEN does not
+    corrupted = bytearray(p.encode_frame(7, p.Command.HEARTBEAT | p.REPLY_BIT,
+                                         bytes([0xA5, 0x30, 1, 2, 3, 4, 5])))
+    corrupted[-1] ^= 0x01
+    following = p.encode_frame(8, p.Command.HEARTBEAT | p.REPLY_BIT, bytes(7))
+    rescan, host = (p.FrameDecoder(inter_byte_timeout_s=float('inf'), skip_bad_frames=skip)
+                    for skip in (False, True))
+    for decoder in (rescan, host):
+        assert [type(x) for x in decoder.feed(bytes(corrupted), now=0.0)] == [p.BadFrame]
+    assert rescan.feed(following, now=1.0) == []            # stuck behind the phantom frame
+    assert host.feed(following, now=1.0) == [p.Frame(8, p.Command.HEARTBEAT | p.REPLY_BIT, bytes(7))]
+    # garbage after a corrupted frame (its LEN may be wrong too): the byte-by-byte rescan
+    decoder = p.FrameDecoder(skip_bad_frames=True)
+    stream = bytes(corrupted[:4]) + b'\x00' + bytes(corrupted[5:]) + b'\x11' + following
+    out = decoder.feed(stream, now=0.0)
+    assert out[-1] == p.Frame(8, p.Command.HEARTBEAT | p.REPLY_BIT, bytes(7))
+
+
 def test_stream_decoder_drops_a_stalled_frame_after_the_inter_byte_timeout():
     decoder = p.FrameDecoder()
     frame = p.encode_frame(9, p.Command.HEARTBEAT)

@@ -122,8 +122,10 @@ class SerialLink:
     def _new_decoder() -> p.FrameDecoder:
         # The host reads when it is scheduled, not when bytes arrive: a gap between two reads
         # says nothing about the line, so a stalled frame is dropped at the reply timeout instead
-        # of the 10 ms inter-byte timeout (see PROTOCOL.md, changelog).
-        return p.FrameDecoder(inter_byte_timeout_s=float('inf'))
+        # of the 10 ms inter-byte timeout (see PROTOCOL.md, changelog). For the same reason it
+        # skips a frame that fails its CRC whole where its length is believable, instead of
+        # waiting behind a SOF found in its payload (`FrameDecoder.skip_bad_frames`).
+        return p.FrameDecoder(inter_byte_timeout_s=float('inf'), skip_bad_frames=True)
 
     @property
     def is_open(self) -> bool:

@@ -166,9 +166,14 @@ class FrameDecoder:
     Resynchronisation follows the protocol: hunt for SOF; drop a frame whose LEN is too
     big, whose CRC fails (reported as `BadFrame`) or that stalls longer than the
     inter-byte timeout, then rescan from the byte after the dropped frame's SOF.
-    Never raises on any input.
+    `skip_bad_frames` (the host's rule): a frame whose CRC fails is skipped whole when a SOF
+    or the end of the bytes so far follows it, as its LEN says. Rescanning inside it could
+    take a byte of its payload for a SOF and wait, behind that phantom frame, for bytes that
+    never come: the host, which has no inter-byte timeout, would then miss the next reply
+    until its reply timeout. Never raises on any input.
     """
     inter_byte_timeout_s: float = INTER_BYTE_TIMEOUT_S
+    skip_bad_frames: bool = False
     buffer: bytearray = field(default_factory=bytearray)
     crc_errors: int = 0
     length_errors: int = 0
@@ -225,7 +230,8 @@ class FrameDecoder:
             if received != computed:
                 self.crc_errors += 1
                 out.append(BadFrame(buf[2], buf[3], received, computed))
-                self._discard(1)
+                whole = self.skip_bad_frames and (len(buf) == total or buf[total] == SOF)
+                self._discard(total if whole else 1)
                 continue
             out.append(Frame(buf[2], buf[3], bytes(buf[HEADER_LEN:total - 2])))
             del buf[:total]
