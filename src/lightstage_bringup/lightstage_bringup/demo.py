@@ -2,9 +2,9 @@
 
 1. Synthesise a capture folder (relightable models of 5 fruit types x real/fake).
 2. Train on the models of some physical samples per class: the greedy illumination
-   search (the paper's method), learned illumination (graded LED levels and a classifier
-   trained end to end, a short schedule; docs/LEARNED.md) and the naive all-LEDs-on
-   baseline, at noise setting Sigma3.
+   search (the paper's method), learned illumination (LED levels, graded or on/off, chosen
+   with the classifier by its inner splits, with fewer splits; docs/LEARNED.md) and the
+   naive all-LEDs-on baseline, at noise setting Sigma3.
 3. Bring up the graph (driver on the simulated firmware, simulated camera, classifier) as
    separate processes, with the recorder writing everything the graph says to the bag
    `OUT/stage_session` (replacing the previous demo's), put each held-out sample -- a physical
