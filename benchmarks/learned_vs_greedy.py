@@ -126,7 +126,8 @@ def run_capture(path, args) -> dict:
                 lr_patterns=args.lr_patterns, objective=args.objective, fine_tune=fine_tune,
                 ridge=args.ridge, class_power=args.class_power,
                 split_classifier=args.split_classifier, ratio_stats=args.ratio_stats,
-                head_renders=args.head_renders, starts=builtin, start_patterns=starts,
+                head_renders=args.head_renders, inner_draws=args.inner_draws,
+                starts=builtin, start_patterns=starts,
                 n_repeats=args.n_repeats, progress=args.progress).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
             out[name][str(k)] = acc
@@ -171,6 +172,9 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     p.add_argument('--ratio-stats', action=argparse.BooleanOptionalAction,
                    default=defaults.ratio_stats,
                    help="learned: classify with the images' cross-image relief statistics too")
+    p.add_argument('--inner-draws', type=int, default=defaults.inner_draws,
+                   help="learned: independent sets of inner splits (each its own noise draw) "
+                        "whose mean scores a candidate")
     p.add_argument('--head-renders', type=int, default=defaults.head_renders,
                    help="learned: noise draws of the training samples the final SVM is fitted on")
     p.add_argument('--fine-tune', default=','.join(defaults.fine_tune), type=lambda v: v.split(','),

@@ -18,8 +18,8 @@ from mux_trainer.evaluation import CandidateEvaluator
 from mux_trainer.learned import (LearnedIlluminationClassifier, cv_ridge_loss,
                                  evaluate_learned_heldout, fisher_loss, forward_features,
                                  image_stats, low_side_splits, opposite_low_sides, pose_folds,
-                                 raking_name, raking_sides_start, stack_ratio_stats,
-                                 stack_stats)
+                                 inner_seeds, raking_name, raking_sides_start,
+                                 stack_ratio_stats, stack_stats)
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.rendering import SearchData, clean_led_images, clean_site_images
 from mux_trainer.search_params import SplitScoring
@@ -277,6 +277,27 @@ def test_starts_are_scored_by_the_inner_splits_with_the_split_classifier(tiny_da
     P = model.patterns_
     expected = float(ev.score(ev.prepare_column(P[:, :3]), P[:, 3:]).mean())
     assert model.candidate_scores_['per_colour'] == pytest.approx(expected, abs=1e-12)
+
+
+def test_inner_draws_score_a_start_by_the_mean_of_independent_splits(tiny_data):
+    """With inner_draws the inner score is the mean over that many evaluators: the first the
+    single draw's (seed), the others of seeds of their own."""
+    P = np.random.default_rng(4).uniform(0, 1, (32, 4)).astype(np.float32)
+    kwargs = dict(n_images=4, starts=(), start_patterns={'mine': P}, fine_tune='none',
+                  n_repeats=10, seed=3)
+    one = LearnedIlluminationClassifier(**kwargs).fit(tiny_data)
+    three = LearnedIlluminationClassifier(inner_draws=3, **kwargs).fit(tiny_data)
+    seeds = inner_seeds(3, 3)
+    assert seeds[0] == 3 and len(set(seeds)) == 3 and inner_seeds(3, 1) == [3]
+    data = replace(tiny_data, features='intensity_stats')
+    draws = [float(ev.score_features(three._features(data, ev.images(P))).mean())
+             for ev in (CandidateEvaluator(data, mode='joint', n_repeats=10, seed=s,
+                                           inner_classifier='squared_hinge') for s in seeds)]
+    assert one.candidate_scores_['mine'] == pytest.approx(draws[0], abs=1e-12)
+    assert three.candidate_scores_['mine'] == pytest.approx(np.mean(draws), abs=1e-12)
+    assert len(set(draws)) > 1   # the draws differ: the mean is not one of them repeated
+    with pytest.raises(ValueError, match='inner_draws'):
+        LearnedIlluminationClassifier(inner_draws=0).fit(tiny_data)
 
 
 def test_an_unknown_split_classifier_is_a_clear_error(tiny_data):

@@ -75,6 +75,7 @@ from .split_scoring import SCORERS
 OBJECTIVES = ('cv_ridge', 'fisher', 'cross_entropy')
 BUILTIN_STARTS = ('random', 'per_colour', 'snr_optimal', 'greedy', 'raking_sides')
 HEAD_NOISE_STREAM = 5   # the head's extra noise draws (`_head_features`)
+INNER_DRAW_STREAM = 7   # the seeds of the inner splits' further draws (`inner_seeds`)
 _LEVEL_F = np.array(LEVEL_QUANTILES, np.float32) / 100
 _GRAD_F = np.array(GRADIENT_QUANTILES, np.float32) / 100
 
@@ -400,6 +401,14 @@ def _logits_of(P: np.ndarray, margin: float = 0.05) -> np.ndarray:
     return np.log(q / (1 - q)).astype(np.float32)
 
 
+def inner_seeds(seed: int, draws: int) -> list[int]:
+    """The evaluator seeds of `draws` inner draws: ``seed`` itself (the splits and noise of a
+    single draw, as before draws existed), then seeds of a stream of their own."""
+    more = np.random.SeedSequence([int(seed), 26, INNER_DRAW_STREAM]).generate_state(
+        max(int(draws) - 1, 0))
+    return [int(seed)] + [int(s) for s in more]
+
+
 class LearnedIlluminationClassifier:
     """LED levels and a linear classifier over the k images (module docstring).
 
@@ -439,6 +448,10 @@ class LearnedIlluminationClassifier:
       draws of the training samples it is fitted on (default 6: the inner splits' draw and
       5 more; a head on one draw may learn its noise, round 8; 4 draws measured level with
       one without the cross-image statistics, round 5).
+    - inner_draws: independent sets of inner splits, each with its own noise draw
+      (`inner_seeds`; the first is the one seed gives), whose mean accuracy scores a
+      candidate: more draws, less of the ranking left to one draw (docs/LEARNED.md, round 9:
+      two raking starts tied on one draw of the 16-class mix; 1, the default).
     - site_positions_mm: (n_sites, 3) for the raking-sides start; None: the rig of the
       ModelSet fitted, or the paper's stage for a SearchData (which carries no rig).
     - ratio_stats: after the images' own statistics, the cross-image relief statistics of
@@ -467,7 +480,8 @@ class LearnedIlluminationClassifier:
                  eval_every=50, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.01,
                  class_power=1.0, fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
                  n_repeats=400, test_fraction=0.25, split_classifier='squared_hinge',
-                 final_C=1.0, head_renders=6, site_positions_mm=None, ratio_stats=True,
+                 final_C=1.0, head_renders=6, inner_draws=1, site_positions_mm=None,
+                 ratio_stats=True,
                  noise='sigma3',
                  dimmer=None, hog_config=None, seed=0, progress=False):
         self.n_images = n_images
@@ -492,6 +506,7 @@ class LearnedIlluminationClassifier:
         self.split_classifier = split_classifier
         self.final_C = final_C
         self.head_renders = head_renders
+        self.inner_draws = inner_draws
         self.site_positions_mm = site_positions_mm
         self.ratio_stats = ratio_stats
         self.noise = noise
@@ -503,7 +518,8 @@ class LearnedIlluminationClassifier:
     def _check(self):
         if int(self.n_images) < 1:
             raise ValueError(f'n_images must be >= 1, got {self.n_images}')
-        for name in ('batch_size', 'eval_every', 'n_repeats', 'n_folds', 'head_renders'):
+        for name in ('batch_size', 'eval_every', 'n_repeats', 'n_folds', 'head_renders',
+                     'inner_draws'):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f'{name} must be >= 1, got {getattr(self, name)}')
         if int(self.max_steps) < 0:
@@ -608,16 +624,21 @@ class LearnedIlluminationClassifier:
                              '(the inner splits hold poses out); capture more poses')
         k = int(self.n_images)
         rng = np.random.default_rng([int(self.seed), 26])
-        ev = CandidateEvaluator(data, mode='joint', n_repeats=int(self.n_repeats),
-                                test_fraction=float(self.test_fraction), seed=int(self.seed),
-                                inner_classifier=self.split_classifier, n_jobs=1)
+        evaluators = [CandidateEvaluator(data, mode='joint', n_repeats=int(self.n_repeats),
+                                         test_fraction=float(self.test_fraction), seed=s,
+                                         inner_classifier=self.split_classifier, n_jobs=1)
+                      for s in inner_seeds(self.seed, self.inner_draws)]
+        ev = evaluators[0]   # the head's first draw is the first inner draw's
         history = []
         with Parallel(n_jobs=1) as parallel:
             def inner(P):
+                # the mean split accuracy over the inner draws (each its splits and noise)
                 if self.ratio_stats:   # cross-image statistics: the whole stack's features
-                    return float(ev.score_features(self._features(data, ev.images(P))).mean())
-                ctx = ev.prepare_column(P[:, :k - 1] if k > 1 else None)
-                return float(ev.score(ctx, P[:, k - 1:], parallel).mean())
+                    return float(np.mean([e.score_features(self._features(data, e.images(P))).mean()
+                                          for e in evaluators]))
+                return float(np.mean([
+                    e.score(e.prepare_column(P[:, :k - 1] if k > 1 else None), P[:, k - 1:],
+                            parallel).mean() for e in evaluators]))
 
             # a perfect inner score cannot be beaten (a tie keeps the earlier candidate),
             # so nothing is made or descended after one
