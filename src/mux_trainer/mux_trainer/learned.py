@@ -634,8 +634,9 @@ class LearnedIlluminationClassifier:
             def inner(P):
                 # the mean split accuracy over the inner draws (each its splits and noise)
                 if self.ratio_stats:   # cross-image statistics: the whole stack's features
-                    return float(np.mean([e.score_features(self._features(data, e.images(P))).mean()
-                                          for e in evaluators]))
+                    return float(np.mean([
+                        e.score_features(self._features(data, e.images(P))).mean()
+                        for e in evaluators]))
                 return float(np.mean([
                     e.score(e.prepare_column(P[:, :k - 1] if k > 1 else None), P[:, k - 1:],
                             parallel).mean() for e in evaluators]))
