@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import zlib
 
 import numpy as np
 
@@ -26,7 +25,7 @@ from learned_vs_greedy import split_capture  # noqa: E402
 from lightstage_physics.rig import Rig  # noqa: E402
 from mux_trainer.evaluation import CandidateEvaluator  # noqa: E402
 from mux_trainer.learned import (LearnedIlluminationClassifier, low_side_splits,  # noqa: E402
-                                 raking_name, raking_sides_start)
+                                 raking_name, raking_rng, raking_sides_start)
 
 
 def main(argv=None) -> int:
@@ -40,12 +39,10 @@ def main(argv=None) -> int:
         for split_seed in (0, 1):
             train, _, _ = split_capture(args.capture, holdout, split_seed)
             estimator = LearnedIlluminationClassifier(n_images=args.exposures, seed=split_seed)
-            lights = {}
-            for split in range(len(low_side_splits(positions))):
-                # the estimator's own stream for this start (`_start_makers`)
-                rng = np.random.default_rng([split_seed, 26, zlib.crc32(b'raking_sides'), 1 + split])
-                lights[raking_name(split)] = raking_sides_start(
-                    positions, train.n_channels, args.exposures, rng, split).astype(np.float32)
+            lights = {raking_name(split): raking_sides_start(
+                          positions, train.n_channels, args.exposures,
+                          raking_rng(split_seed, split), split).astype(np.float32)
+                      for split in range(len(low_side_splits(positions)))}
             scores = {name: [] for name in lights}
             for seed in range(args.seeds):
                 ev = CandidateEvaluator(train, mode='joint', n_repeats=400, seed=seed,

@@ -277,6 +277,12 @@ def raking_name(split: int) -> str:
     return 'raking_sides' if split == 0 else f'raking_sides/{split}'
 
 
+def raking_rng(seed: int, split: int) -> np.random.Generator:
+    """The stream of the split-th raking start of a fit with `seed` (its later images'
+    random halves), one per split so that no start's draws change another's."""
+    return np.random.default_rng([int(seed), 26, zlib.crc32(b'raking_sides'), 1 + int(split)])
+
+
 def raking_sides_start(site_positions_mm, n_channels: int, k: int, rng,
                        split: int = 0) -> np.ndarray:
     """The raking-sides start (sites * channels, k), site-major, 0/1, for k >= 4: every
@@ -599,9 +605,8 @@ class LearnedIlluminationClassifier:
             # then 'raking_sides/1', ...), each with a stream of its own (its later images'
             # random halves): the others' draws stay
             for split in range(len(low_side_splits(positions))):
-                raking_rng = np.random.default_rng(
-                    [int(self.seed), 26, zlib.crc32(b'raking_sides'), 1 + split])
-                makers.append((raking_name(split), lambda rng=raking_rng, split=split: (
+                makers.append((raking_name(split), lambda rng=raking_rng(self.seed, split),
+                               split=split: (
                     raking_sides_start(positions, data.n_channels, k, rng, split))))
         for name, P in dict(self.start_patterns or {}).items():
             P = np.asarray(P, np.float32)

@@ -18,12 +18,14 @@ from lightstage_physics.rig import DEFAULT_DIMMER
 from .data import noise_dict, resolve_noise
 from .learned_schedule import DEFAULT_STEPS, check_steps
 
-def build_learned(n_images=8, *, binary=False, steps=DEFAULT_STEPS, noise='sigma3',
+def build_learned(n_images=8, *, binary=False, steps=None, noise='sigma3',
                   hog_config=None, seed=0, progress=False, **params):
     """The unfitted learned-illumination estimator: ``n_images`` exposures (one image per
-    learned pattern), graded or on/off (``binary``) LED levels, at most ``steps`` steps;
-    ``params``: more of its constructor's (batch_size, n_repeats, start_patterns, ...)."""
+    learned pattern), graded or on/off (``binary``) LED levels, ``steps`` gradient steps
+    (None: `DEFAULT_STEPS`); ``params``: more of its constructor's (batch_size, n_repeats,
+    start_patterns, ...)."""
     from .learned import LearnedIlluminationClassifier
+    steps = DEFAULT_STEPS if steps is None else steps
     check_steps(steps)
     if int(n_images) < 1:
         raise ValueError(f'n_images (exposures of the learned patterns) must be >= 1, got {n_images}')

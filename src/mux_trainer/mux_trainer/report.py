@@ -66,13 +66,13 @@ def _learned_result(train, test, noise, *, n_renders, seed, hog_config, quiet, p
     import contextlib
 
     from .learned_method import build_learned, learned_summary
-    from .learned_schedule import DEFAULT_STEPS, EVAL_EXPOSURES
+    from .learned_schedule import EVAL_EXPOSURES
     models = {}
     t0 = time.perf_counter()
     for k in exposures or EVAL_EXPOSURES:
         _log(f'[{noise}] learned: training {k} exposures on {train.n_samples} samples', quiet)
-        model = build_learned(k, binary=binary, steps=DEFAULT_STEPS if steps is None else steps,
-                              noise=noise, hog_config=hog_config, seed=seed, progress=progress)
+        model = build_learned(k, binary=binary, steps=steps, noise=noise,
+                              hog_config=hog_config, seed=seed, progress=progress)
         with contextlib.redirect_stdout(sys.stderr):  # stdout: only the results (--json)
             models[int(k)] = model.fit(train)
     return learned_summary(models, test, n_renders, seed, train_seconds=time.perf_counter() - t0)

@@ -234,9 +234,7 @@ def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8
     import sys
 
     from .learned_method import build_learned, learned_artifact, pattern_levels
-    from .learned_schedule import DEFAULT_STEPS
-    model = build_learned(max_images, binary=binary,
-                          steps=DEFAULT_STEPS if steps is None else steps, noise=noise,
+    model = build_learned(max_images, binary=binary, steps=steps, noise=noise,
                           hog_config=hog_config, seed=seed, progress=progress)
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(sys.stderr):  # stdout: only the result (--json)
