@@ -15,13 +15,20 @@ classified twice). ``service_introspection`` publishes the Classify calls on
 
 Concurrency: the stage lights one sequence at a time, so calls take turns in a FIFO
 (`stage_queue.StageQueue`) served by one worker thread; the service handler is a coroutine
-that submits its call and awaits the outcome without holding an executor thread. The
-driver's replies, the camera's parameter answers and the images are therefore always
-handled, at any number of concurrent calls (when every executor thread waited for the
-stage, four calls at once all failed). A call that cannot be served within its time limit
-is refused at once with the reason. Images (and lost-frame notices) have a mutually
-exclusive callback group of their own, so they are handled in arrival order
-(`StageClient`).
+that submits its call and awaits the outcome without holding the executor. The driver's
+replies, the camera's parameter answers and the images are therefore always handled, at
+any number of concurrent calls (when every executor thread waited for the stage, four calls
+at once all failed). A call that cannot be served within its time limit is refused at once
+with the reason. Observed sequences are classified on a worker thread of their own
+(`observe.SequenceObserver`).
+
+No callback blocks, so one executor thread serves them all, in arrival order. rclpy 7.1's
+MultiThreadedExecutor handed each image to its threads 10 to 25 times (the subscription
+stays ready until a thread has taken the message; every extra handler finds nothing): at a
+replay's 44 images/s that kept a core busy, the images waited behind the empty handlers
+longer than the reader's queue holds, and an observing classifier lost 1 to 12 of a demo
+replay's 30 sequences in about half the replays. With one thread: one handler per image,
+none lost (docs/NODES.md, "Observing mode").
 """
 from __future__ import annotations
 
@@ -45,7 +52,6 @@ from lightstage_interfaces.msg import ClassificationResult, IlluminationState
 from lightstage_interfaces.srv import Classify
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_services_default
 from rclpy.service_introspection import ServiceIntrospectionState
@@ -325,7 +331,7 @@ class ClassifierNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     init_node(sys.argv if argv is None else argv)
-    return spin_until_stopped(ClassifierNode(), MultiThreadedExecutor(num_threads=4))
+    return spin_until_stopped(ClassifierNode())
 
 
 if __name__ == '__main__':
