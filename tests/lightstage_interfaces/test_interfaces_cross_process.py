@@ -177,6 +177,19 @@ def test_train_action_streams_feedback_and_returns_a_result(graph, tiny_capture,
         assert not bad_result.success and "unknown feature extractor 'sift'" in bad_result.message
     finally:
         c.set_parameters('trainer', features='hog_grid')
+    # a learned goal's feedback: each start begun and scored (a cancel stops between them)
+    learned_feedback = []
+    learned = c.result(client.send_goal_async(
+        Train.Goal(capture_dir=str(tiny_capture), output_path=str(tmp_path / 'learned.npz'),
+                   method='learned', noise='sigma2', max_images=4),
+        feedback_callback=lambda f: learned_feedback.append(f.feedback)))
+    result = c.result(learned.get_result_async(), 180, 'the learned Train result').result
+    assert result.success, result.message
+    stages = [f.stage for f in learned_feedback]
+    assert stages[0] == 'loading models', stages
+    assert stages[1].startswith('learned: start 1 of ') and stages[1].endswith('(random): scoring'), stages
+    assert stages[2].startswith('learned: start 1 of ') and 'inner accuracy' in stages[2], stages
+    assert learned_feedback[-1].best_accuracy == pytest.approx(max(result.accuracy_by_images))
     client.destroy()
 
 

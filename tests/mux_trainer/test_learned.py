@@ -337,6 +337,39 @@ def test_a_perfect_inner_score_ends_the_fit(tiny_data, monkeypatch):
     assert model.chosen_ == 'random' and model.best_step_ == 0
 
 
+def test_the_callback_hears_every_start_column_and_step_and_can_stop_the_fit(tiny_data):
+    """Progress as greedy's `callback` gives it (the trainer node's feedback and cancel): each
+    start begun and scored in order, greedy's columns while its start is made, each
+    descent's snapshots; an exception from the callback ends the fit there."""
+    from mux_trainer.learned_method import progress_text
+    events = []
+    model = LearnedIlluminationClassifier(
+        n_images=4, starts=('random', 'greedy'), fine_tune='random', max_steps=4, eval_every=2,
+        batch_size=8, n_repeats=10, seed=0, callback=events.append).fit(tiny_data)
+    kinds = [(e['event'], e.get('start')) for e in events]
+    assert kinds == [('start', 'random'), ('start_scored', 'random'), ('start', 'greedy'),
+                     ('start_column', 'greedy'), ('start_column', 'greedy'),
+                     ('start_scored', 'greedy'), ('step', 'random'), ('step', 'random')]
+    scored = {e['start']: e['accuracy'] for e in events if e['event'] == 'start_scored'}
+    steps = {f"random+{e['step']}": e['accuracy'] for e in events if e['event'] == 'step'}
+    assert {**scored, **steps} == model.candidate_scores_
+    assert events[-1]['best_accuracy'] == max(model.candidate_scores_.values())
+    assert progress_text(events[1]) == f"learned: start 1 of 2 (random): inner accuracy {scored['random']:.3f}"
+    assert progress_text(events[3]) == 'learned: greedy start, column 1 of 1: searching'
+    assert progress_text(events[-1]).startswith('learned: random + 4 of 4 gradient steps: inner accuracy ')
+
+    class Stop(Exception):
+        pass
+
+    def stop_at_the_second_start(event):
+        if event['event'] == 'start' and event['index'] == 2:
+            raise Stop
+    with pytest.raises(Stop):   # greedy's search never ran
+        LearnedIlluminationClassifier(n_images=4, starts=('random', 'greedy'), fine_tune='none',
+                                      n_repeats=10, seed=0,
+                                      callback=stop_at_the_second_start).fit(tiny_data)
+
+
 def test_the_head_is_fitted_on_several_noise_draws(tiny_data, monkeypatch):
     """The final SVM sees head_renders noise draws of every training sample: the inner
     splits' draw first (the head of rounds 1-4), then draws that differ from it and from

@@ -467,6 +467,10 @@ class LearnedIlluminationClassifier:
       offset). Default True (docs/LEARNED.md rounds 8 and 9); False: the 9 statistics per
       image alone, as rounds 1-7 measured.
     - noise, dimmer, hog_config (the image size) when fitting a ModelSet; seed; progress.
+    - callback: called with a dict per step of the fit (as greedy's `callback`): a start
+      begun and scored, greedy's columns while its start is made, a descent's snapshot
+      (`learned_method.progress_text` words one). An exception it raises ends the fit
+      there: the trainer node's cancel.
 
     After fit: patterns_ (32, k) site-major levels, model_ (a numpy `LearnedModel`: the
     linear SVM as one layer), classifiers_ {k: model_}, best_n_patterns_ = k,
@@ -489,7 +493,7 @@ class LearnedIlluminationClassifier:
                  final_C=1.0, head_renders=6, inner_draws=1, site_positions_mm=None,
                  ratio_stats=True,
                  noise='sigma3',
-                 dimmer=None, hog_config=None, seed=0, progress=False):
+                 dimmer=None, hog_config=None, seed=0, progress=False, callback=None):
         self.n_images = n_images
         self.binary = binary
         self.starts = starts
@@ -520,6 +524,7 @@ class LearnedIlluminationClassifier:
         self.hog_config = hog_config
         self.seed = seed
         self.progress = progress
+        self.callback = callback
 
     def _check(self):
         if int(self.n_images) < 1:
@@ -596,7 +601,10 @@ class LearnedIlluminationClassifier:
             greedy = GreedyPatternSelector(
                 mode='per_colour', n_patterns=k // data.n_channels, seed=int(self.seed),
                 scoring=SplitScoring(n_repeats=int(self.n_repeats),
-                                     test_fraction=float(self.test_fraction)))
+                                     test_fraction=float(self.test_fraction)),
+                callback=None if self.callback is None else
+                lambda e: self._notify(event='start_column', start='greedy', column=e['column'],
+                                       of=e['of'], done=e['event'] == 'column_done'))
             makers.append(('greedy', lambda: site_to_led_patterns(
                 greedy.fit(data).patterns_, data.n_channels)))
         positions = self._site_positions_
@@ -653,14 +661,18 @@ class LearnedIlluminationClassifier:
             def perfect():
                 return bool(scores) and max(scores.values()) >= 1.0
 
-            for name, make in self._start_makers(data, k, rng):
+            makers = self._start_makers(data, k, rng)
+            for i, (name, make) in enumerate(makers):
                 if perfect():
                     break
+                self._notify(event='start', start=name, index=i + 1, of=len(makers))
                 P = np.asarray(make(), np.float32)
                 if self.binary:
                     P = (P >= 0.5).astype(np.float32)
                 if P.any():   # an all-dark start (e.g. greedy found nothing) is no start
                     candidates[name], scores[name] = P, inner(P)
+                    self._notify(event='start_scored', start=name, index=i + 1, of=len(makers),
+                                 accuracy=scores[name], best_accuracy=max(scores.values()))
             if not candidates:
                 raise ValueError('no start pattern lights anything: give starts or start_patterns')
             steps = dict.fromkeys(candidates, 0)
@@ -684,6 +696,9 @@ class LearnedIlluminationClassifier:
                         history.append({'start': name, 'step': step, 'loss': loss,
                                         'inner_accuracy': scores[tag]})
                         self._say(k, tag, {tag: scores[tag]}, loss)
+                        self._notify(event='step', start=name, step=step,
+                                     of=int(self.max_steps), accuracy=scores[tag],
+                                     best_accuracy=max(scores.values()))
                         if perfect():
                             break
             # the best inner score; a tie keeps the earlier candidate (a start before its tuning)
@@ -709,6 +724,13 @@ class LearnedIlluminationClassifier:
         family = [n for n in scores if n == name or (name == 'raking_sides'
                                                       and n.startswith('raking_sides/'))]
         return max(family, key=scores.get) if family else None
+
+    def _notify(self, **event) -> None:
+        """Progress for `callback` (a dict with 'event': 'start' / 'start_scored' / 'step' /
+        'start_column', greedy's columns while its start is made; `progress_text` words it).
+        An exception the callback raises ends the fit there: how a cancel stops it."""
+        if self.callback is not None:
+            self.callback(event)
 
     def _say(self, k, what, scores, loss=None):
         if self.progress:

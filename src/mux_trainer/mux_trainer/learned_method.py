@@ -47,6 +47,23 @@ def describe_choice(chosen: str, max_steps: int = 0) -> str:
     return f'{chosen}: the start the inner splits score best, kept as it is (no gradient steps)'
 
 
+def progress_text(event: dict) -> str:
+    """One `LearnedIlluminationClassifier` progress event (its `callback`) in words."""
+    kind, start = event['event'], event.get('start', '')
+    if kind == 'start':
+        return f'learned: start {event["index"]} of {event["of"]} ({start}): scoring'
+    if kind == 'start_scored':
+        return (f'learned: start {event["index"]} of {event["of"]} ({start}): inner accuracy '
+                f'{event["accuracy"]:.3f}')
+    if kind == 'start_column':
+        state = 'chosen' if event['done'] else 'searching'
+        return f'learned: greedy start, column {event["column"]} of {event["of"]}: {state}'
+    if kind == 'step':
+        return (f'learned: {start} + {event["step"]} of {event["of"]} gradient steps: inner '
+                f'accuracy {event["accuracy"]:.3f}')
+    return f'learned: {kind}'
+
+
 def pattern_levels(patterns) -> list:
     """LED levels as JSON (rounded to 1/1000: a graded board has 1/255 steps)."""
     return np.round(np.asarray(patterns, dtype=np.float64), 3).tolist()

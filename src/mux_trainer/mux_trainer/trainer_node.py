@@ -1,8 +1,10 @@
 """The trainer node: the Train action (`/lightstage/train`) around `training.train_from_capture`.
 
 One goal at a time (a second is rejected while one runs: the search uses every core it is
-given). Feedback is sent when each pattern column starts and when it is chosen; a cancel
-request stops the search at the next column boundary. Empty/zero goal fields take the
+given). Feedback is sent when each pattern column starts and when it is chosen (the learned
+method: when each of its starts is begun and scored, greedy's columns while its start is
+made, each gradient snapshot); a cancel request stops the search at the next of these.
+Empty/zero goal fields take the
 paper's defaults (greedy, per-colour, Sigma3, 8 columns, 400 splits). With the
 `dask_scheduler` parameter set, the candidates are evaluated on that Dask cluster; a
 scheduler that cannot be reached or is lost aborts the goal with the reason.
@@ -27,6 +29,7 @@ from rclpy.node import Node
 
 from .cluster import DEFAULT_TIMEOUT_S
 from .greedy import REFINE_TOP
+from .learned_method import progress_text
 from .learned_schedule import DEFAULT_STEPS, MAX_STEPS
 from .training import METHODS, train_from_capture
 
@@ -125,6 +128,11 @@ class TrainerNode(Node):
             def on_event(event: dict) -> None:
                 if goal_handle.is_cancel_requested:
                     raise _Cancelled()
+                if event['event'] not in ('column_start', 'column_done'):  # the learned method's
+                    best[0] = event.get('best_accuracy', best[0])
+                    goal_handle.publish_feedback(Train.Feedback(best_accuracy=best[0],
+                                                                stage=progress_text(event)))
+                    return
                 done = event['event'] == 'column_done'
                 if done:
                     best[0] = event['best_accuracy']
@@ -142,7 +150,8 @@ class TrainerNode(Node):
                                              callback=on_event, **options, **cluster)
             except _Cancelled:
                 goal_handle.canceled()
-                result.message = 'canceled at a column boundary; no artifact written'
+                result.message = ('canceled at a column boundary (learned: between starts or '
+                                  'gradient steps); no artifact written')
                 result.elapsed_s = time.perf_counter() - t0
                 return result
             except (ValueError, OSError) as exc:  # bad options, unreadable capture, unwritable

@@ -224,7 +224,7 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **o
 
 
 def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8, seed=0,
-                   hog_config=None, progress=False, binary=False, steps=None,
+                   hog_config=None, progress=False, binary=False, steps=None, callback=None,
                    **_search_options) -> dict:
     """`train_modelset` for method 'learned' (`learned_method`): ``max_images`` exposures,
     one learned pattern each, graded or on/off (``binary``), at most ``steps`` steps. The
@@ -235,7 +235,7 @@ def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8
 
     from .learned_method import build_learned, learned_artifact, pattern_levels
     model = build_learned(max_images, binary=binary, steps=steps, noise=noise,
-                          hog_config=hog_config, seed=seed, progress=progress)
+                          hog_config=hog_config, seed=seed, progress=progress, callback=callback)
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(sys.stderr):  # stdout: only the result (--json)
         model.fit(modelset)
