@@ -3,7 +3,7 @@ project's nodes (as in ros2/examples).
 
     def main(argv=None):
         init_node(sys.argv if argv is None else argv)
-        return spin_until_stopped(CameraNode(), MultiThreadedExecutor(num_threads=4))
+        return spin_until_stopped(AcquisitionNode(), MultiThreadedExecutor(num_threads=4))
 
 `init_node` is `rclpy.init` in the project's ROS environment, however the node was started
 (`ros2 run` from a shell that did not source the setup file included), and logs what that
