@@ -26,7 +26,7 @@ No callback blocks, so one executor thread serves them all, in arrival order. rc
 MultiThreadedExecutor handed each image to its threads 10 to 25 times (the subscription
 stays ready until a thread has taken the message; every extra handler finds nothing): at a
 replay's 44 images/s that kept a core busy, the images waited behind the empty handlers
-longer than the reader's queue holds, and an observing classifier lost 1 to 12 of a demo
+longer than the reader's queue holds, and an observing classifier lost 1 to 13 of a demo
 replay's 30 sequences in about half the replays. With one thread: one handler per image,
 none lost (docs/NODES.md, "Observing mode").
 """
