@@ -16,6 +16,9 @@ rcl's logging) down from its own thread at once, under whatever the node's callb
 threads are doing at that moment, which killed a driver node with SIGSEGV (1 CI run).
 Here a signal only asks the spin loop to end; callbacks in flight get `CALLBACK_GRACE_S`
 to finish, then the node is destroyed and rclpy shut down, in that order, in one thread.
+A node with long work of its own (the trainer's goal) defines `stop_work()`: called at the
+stop, it asks that work to end and returns a callable saying whether it has, which the
+grace waits for too.
 A second signal does not wait: it interrupts what runs (KeyboardInterrupt) and the node is
 destroyed at once.
 """
@@ -39,6 +42,8 @@ from .ros_env import apply_node_environment
 STOP_POLL_S = 0.25
 # how long callbacks in flight at a stop (a classify request, an image) may take to finish
 CALLBACK_GRACE_S = 5.0
+# spinning on after the work has ended, for the replies it scheduled
+SETTLE_S = 0.2
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
@@ -66,7 +71,7 @@ def spin_until_stopped(node: Node, executor: Executor | None = None) -> int:
     try:
         while not stop.is_set() and executor.context.ok():
             executor.spin_once(timeout_sec=STOP_POLL_S)
-        _finish_callbacks(executor, node, CALLBACK_GRACE_S)
+        _finish_work(executor, node, CALLBACK_GRACE_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:  # noqa: BLE001
@@ -112,16 +117,26 @@ def _restore_signals(previous: dict) -> None:
     previous.clear()
 
 
-def _finish_callbacks(executor: Executor, node: Node, timeout_s: float) -> None:
-    """Spin on until no callback is in flight (a coroutine awaiting a worker's result needs
-    the executor to resume it), for at most `timeout_s`."""
-    # rclpy 7.1's Executor.shutdown(timeout_sec) means to wait for this and does not (it tests
-    # the flag it has just set); its work tracker counts the callbacks in flight
+def _finish_work(executor: Executor, node: Node, timeout_s: float) -> None:
+    """Ask the node's own work to end (`stop_work`, if it has one) and spin on until it has
+    and no callback is in flight (a coroutine awaiting a worker's result needs the executor
+    to resume it), for at most `timeout_s`."""
+    stop_work = getattr(node, 'stop_work', None)
+    work_done = stop_work() if callable(stop_work) else (lambda: True)
+    # rclpy 7.1's Executor.shutdown(timeout_sec) means to wait for the callbacks and does not
+    # (it tests the flag it has just set); its work tracker counts them
     tracker = getattr(executor, '_work_tracker', None)
-    if tracker is None:
-        return
+
+    def idle() -> bool:
+        return (tracker is None or tracker.wait(0)) and work_done()
+
     deadline = time.monotonic() + timeout_s
-    while not tracker.wait(0) and time.monotonic() < deadline and executor.context.ok():
+    while not idle() and time.monotonic() < deadline and executor.context.ok():
         executor.spin_once(timeout_sec=0.05)
-    if not tracker.wait(0):
-        node.get_logger().warning(f'stopping with callbacks still running after {timeout_s:g} s')
+    if not idle():
+        node.get_logger().warning(f'stopping with work still running after {timeout_s:g} s')
+        return
+    # what the work's end scheduled (an action's result goes out in a task of its own)
+    settle = time.monotonic() + SETTLE_S
+    while time.monotonic() < settle and executor.context.ok():
+        executor.spin_once(timeout_sec=0.05)

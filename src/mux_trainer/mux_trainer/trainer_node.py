@@ -74,6 +74,10 @@ class _Cancelled(Exception):
     pass
 
 
+class _Stopping(Exception):
+    pass
+
+
 def goal_options(goal, n_jobs: int, refine_top: int = REFINE_TOP,
                  features: str = DEFAULT_EXTRACTOR) -> dict:
     """Train goal fields -> `train_from_capture` options, with the documented defaults."""
@@ -88,6 +92,8 @@ class TrainerNode(Node):
         super().__init__(node_name, **kwargs)
         self.p = declare_parameters(self, PARAMETERS)
         self._busy = threading.Lock()
+        self._stopping = threading.Event()
+        self._destroyed = False
         self._server = ActionServer(self, Train, TRAIN_ACTION, execute_callback=self._execute,
                                     goal_callback=self._on_goal, cancel_callback=self._on_cancel,
                                     callback_group=ReentrantCallbackGroup())
@@ -100,6 +106,17 @@ class TrainerNode(Node):
             self.get_logger().warning('Train goal rejected: a training run is in progress')
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
+
+    def destroy_node(self) -> None:
+        self._stopping.set()
+        self._destroyed = True
+        super().destroy_node()
+
+    def stop_work(self):
+        """At the node's stop (`spin_until_stopped`): a running goal ends at its next progress
+        event, aborted, no artifact written; returns whether no goal runs any more."""
+        self._stopping.set()
+        return lambda: not self._busy.locked()
 
     def _on_cancel(self, _goal_handle) -> CancelResponse:
         return CancelResponse.ACCEPT
@@ -126,6 +143,8 @@ class TrainerNode(Node):
             best = [0.0]
 
             def on_event(event: dict) -> None:
+                if self._stopping.is_set():
+                    raise _Stopping()
                 if goal_handle.is_cancel_requested:
                     raise _Cancelled()
                 if event['event'] not in ('column_start', 'column_done'):  # the learned method's
@@ -153,6 +172,13 @@ class TrainerNode(Node):
                 result.message = ('canceled at a column boundary (learned: between starts or '
                                   'gradient steps); no artifact written')
                 result.elapsed_s = time.perf_counter() - t0
+                return result
+            except _Stopping:
+                result.message = 'aborted: the trainer node is stopping; no artifact written'
+                result.elapsed_s = time.perf_counter() - t0
+                self.get_logger().warning(result.message)
+                if not self._destroyed:   # a goal longer than the stop's grace outlives its server
+                    goal_handle.abort()
                 return result
             except (ValueError, OSError) as exc:  # bad options, unreadable capture, unwritable
                 # output, a Dask scheduler unreachable or lost (cluster.ClusterUnavailable)
