@@ -149,9 +149,12 @@ def test_train_action_streams_feedback_and_returns_a_result(graph, tiny_capture,
     assert feedback[0].stage == 'loading models'
     columns = [f.column for f in feedback[1:]]
     assert columns == sorted(columns) and columns[0] == 1
-    done = [f for f in feedback if f.candidates_done]
+    done = [f for f in feedback if ': accuracy ' in f.stage]   # each column's end
     assert done and all(f.candidates_done == f.candidates_total == 254 for f in done)
     assert done[-1].best_accuracy == pytest.approx(max(result.accuracy_by_images))
+    # within a column, the candidates scored so far (the rounds a cancel can stop between)
+    rounds = [f.candidates_done for f in feedback if f.column == 1 and 'candidates scored' in f.stage]
+    assert rounds == list(range(0, 254, 32)), rounds
     # a goal the server refuses, and one it accepts but cannot carry out
     refused = c.result(client.send_goal_async(Train.Goal(max_images=0)))
     assert not refused.accepted

@@ -346,10 +346,14 @@ def test_the_callback_hears_every_start_column_and_step_and_can_stop_the_fit(tin
     model = LearnedIlluminationClassifier(
         n_images=4, starts=('random', 'greedy'), fine_tune='random', max_steps=4, eval_every=2,
         batch_size=8, n_repeats=10, seed=0, callback=events.append).fit(tiny_data)
-    kinds = [(e['event'], e.get('start')) for e in events]
+    kinds = [(e['event'], e.get('start')) for e in events if e['event'] != 'start_candidates']
     assert kinds == [('start', 'random'), ('start_scored', 'random'), ('start', 'greedy'),
                      ('start_column', 'greedy'), ('start_column', 'greedy'),
                      ('start_scored', 'greedy'), ('step', 'random'), ('step', 'random')]
+    rounds = [e['done'] for e in events if e['event'] == 'start_candidates']
+    assert rounds == list(range(0, 254, 32)), rounds   # greedy's 254 candidates, 32 per task
+    assert progress_text(next(e for e in events if e['event'] == 'start_candidates')) == \
+        'learned: greedy start, column 1: 0 of 254 candidates scored'
     scored = {e['start']: e['accuracy'] for e in events if e['event'] == 'start_scored'}
     steps = {f"random+{e['step']}": e['accuracy'] for e in events if e['event'] == 'step'}
     assert {**scored, **steps} == model.candidate_scores_

@@ -27,7 +27,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from joblib import Parallel, delayed
+from joblib import Parallel, delayed, effective_n_jobs
 from threadpoolctl import threadpool_limits
 
 from .cluster import ArraySized, active_cluster
@@ -216,12 +216,15 @@ class CandidateEvaluator:
 
     def score(self, ctx: ColumnContext, candidates: np.ndarray,
               parallel: Parallel | None = None, scorer=None,
-              chunk_size: int | None = None) -> np.ndarray:
+              chunk_size: int | None = None, on_progress=None) -> np.ndarray:
         """Split accuracies `(n_candidates, n_splits)` for candidate columns `(rows, c)`.
 
         scorer: another split scorer than the evaluator's (it must work from the kernel, as
         `ColumnContext` carries no earlier features for it); chunk_size: candidates per task
         instead of the evaluator's (fixed by the caller, so results do not depend on n_jobs).
+        on_progress(candidates scored so far): called before each round of tasks (one task
+        per worker, on a Dask cluster once); an exception it raises stops the scoring there
+        (a cancel). The tasks are the same either way, so the scores are too.
         """
         candidates = np.asarray(candidates, dtype=np.float32)
         if scorer is not None and scorer.needs_features and ctx.X_prev is None and ctx.column > 0:
@@ -231,13 +234,20 @@ class CandidateEvaluator:
         chunks = [candidates[:, b:b + size] for b in range(0, candidates.shape[1], size)]
         cluster = active_cluster()
         if cluster is not None:  # the same tasks on a Dask cluster (cluster.py); --jobs unused
+            if on_progress is not None:
+                on_progress(0)
             parts = cluster.map(score_chunk_with, {'search data': self.data, 'column context': ctx},
                                 chunks, scorer=scorer)
         else:
             if parallel is None:
                 parallel = Parallel(n_jobs=self.n_jobs)
-            parts = parallel(delayed(score_chunk_with)(self.data, ctx, chunk, scorer)
-                             for chunk in chunks)
+            per_round = len(chunks) if on_progress is None else effective_n_jobs(parallel.n_jobs)
+            parts = []
+            for r in range(0, len(chunks), per_round):
+                if on_progress is not None:
+                    on_progress(r * size)
+                parts += parallel(delayed(score_chunk_with)(self.data, ctx, chunk, scorer)
+                                  for chunk in chunks[r:r + per_round])
         return np.vstack(parts) if parts else np.empty((0, len(self.test_masks)))
 
     def score_features(self, X: np.ndarray) -> np.ndarray:

@@ -99,8 +99,11 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     execution : `search_params.Execution` (n_jobs, chunk_size, progress).
     callback : None, or a callable given one dict per event of the search, for progress
         reports (the trainer node's action feedback): {'event': 'column_start', 'column'
-        (1-based), 'of'} before a column is searched and {'event': 'column_done', 'column',
-        'of', 'candidates' (evaluated), 'accuracy', 'improved', 'best_accuracy'} after.
+        (1-based), 'of'} before a column is searched, {'event': 'candidates', 'column',
+        'done', 'of'} (candidates scored so far of this screen's) before each round of
+        scoring tasks, and {'event': 'column_done', 'column', 'of', 'candidates'
+        (evaluated), 'accuracy', 'improved', 'best_accuracy'} after. An exception it raises
+        stops the search there (the node's cancel: within one round, not one column).
 
     Fitted attributes
     -----------------
@@ -206,8 +209,16 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     def _search_site_column(self, ev, ctx, parallel, n_sites):
         t0 = time.perf_counter()
         cands = site_pattern_candidates(n_sites)
-        acc = ev.score(ctx, cands, parallel)
+        acc = ev.score(ctx, cands, parallel, on_progress=self._progress_of(ctx, cands.shape[1]))
         return self._choose(ev, ctx, parallel, cands, acc, time.perf_counter() - t0)
+
+    def _progress_of(self, ctx, total: int):
+        """`CandidateEvaluator.score`'s on_progress as 'candidates' events for `callback`
+        (None without one: the scoring then runs in one round)."""
+        if self.callback is None:
+            return None
+        return lambda done: self._notify(event='candidates', column=ctx.column + 1,
+                                         done=int(done), of=int(total))
 
     def _choose(self, ev, ctx, parallel, cands, acc, screen_seconds):
         """The column's record: the screen's best, or the linear SVM's best after refining."""
@@ -265,7 +276,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
             if not cands:
                 break
             cands = np.stack(cands, axis=1)
-            acc = ev.score(ctx, cands, parallel)
+            acc = ev.score(ctx, cands, parallel, on_progress=self._progress_of(ctx, cands.shape[1]))
             scores = acc.mean(axis=1)
             all_cands.append(cands)
             all_acc.append(acc)

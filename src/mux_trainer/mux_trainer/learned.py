@@ -602,9 +602,7 @@ class LearnedIlluminationClassifier:
                 mode='per_colour', n_patterns=k // data.n_channels, seed=int(self.seed),
                 scoring=SplitScoring(n_repeats=int(self.n_repeats),
                                      test_fraction=float(self.test_fraction)),
-                callback=None if self.callback is None else
-                lambda e: self._notify(event='start_column', start='greedy', column=e['column'],
-                                       of=e['of'], done=e['event'] == 'column_done'))
+                callback=None if self.callback is None else self._greedy_progress)
             makers.append(('greedy', lambda: site_to_led_patterns(
                 greedy.fit(data).patterns_, data.n_channels)))
         positions = self._site_positions_
@@ -725,9 +723,20 @@ class LearnedIlluminationClassifier:
                                                       and n.startswith('raking_sides/'))]
         return max(family, key=scores.get) if family else None
 
+    def _greedy_progress(self, event: dict) -> None:
+        """Greedy's events while its start is made: 'start_column' (a column begun or chosen)
+        and 'start_candidates' (candidates scored so far of the column's)."""
+        if event['event'] == 'candidates':
+            self._notify(event='start_candidates', start='greedy', column=event['column'],
+                         done=event['done'], of=event['of'])
+        else:
+            self._notify(event='start_column', start='greedy', column=event['column'],
+                         of=event['of'], done=event['event'] == 'column_done')
+
     def _notify(self, **event) -> None:
         """Progress for `callback` (a dict with 'event': 'start' / 'start_scored' / 'step' /
-        'start_column', greedy's columns while its start is made; `progress_text` words it).
+        'start_column' / 'start_candidates', greedy's progress while its start is made;
+        `progress_text` words it).
         An exception the callback raises ends the fit there: how a cancel stops it."""
         if self.callback is not None:
             self.callback(event)

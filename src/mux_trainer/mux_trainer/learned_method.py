@@ -58,6 +58,9 @@ def progress_text(event: dict) -> str:
     if kind == 'start_column':
         state = 'chosen' if event['done'] else 'searching'
         return f'learned: greedy start, column {event["column"]} of {event["of"]}: {state}'
+    if kind == 'start_candidates':
+        return (f'learned: greedy start, column {event["column"]}: {event["done"]} of '
+                f'{event["of"]} candidates scored')
     if kind == 'step':
         return (f'learned: {start} + {event["step"]} of {event["of"]} gradient steps: inner '
                 f'accuracy {event["accuracy"]:.3f}')

@@ -1,9 +1,10 @@
 """The trainer node: the Train action (`/lightstage/train`) around `training.train_from_capture`.
 
 One goal at a time (a second is rejected while one runs: the search uses every core it is
-given). Feedback is sent when each pattern column starts and when it is chosen (the learned
-method: when each of its starts is begun and scored, greedy's columns while its start is
-made, each gradient snapshot); a cancel request stops the search at the next of these.
+given). Feedback is sent when each pattern column starts, before each round of its
+candidates' scoring tasks (one per worker) and when it is chosen (the learned method: when
+each of its starts is begun and scored, greedy's progress while its start is made, each
+gradient snapshot); a cancel request stops the search at the next of these.
 Empty/zero goal fields take the
 paper's defaults (greedy, per-colour, Sigma3, 8 columns, 400 splits). With the
 `dask_scheduler` parameter set, the candidates are evaluated on that Dask cluster; a
@@ -147,6 +148,13 @@ class TrainerNode(Node):
                     raise _Stopping()
                 if goal_handle.is_cancel_requested:
                     raise _Cancelled()
+                if event['event'] == 'candidates':   # greedy, within a column
+                    goal_handle.publish_feedback(Train.Feedback(
+                        column=event['column'], candidates_done=event['done'],
+                        candidates_total=event['of'], best_accuracy=best[0],
+                        stage=(f'column {event["column"]}: {event["done"]} of {event["of"]} '
+                               'candidates scored')))
+                    return
                 if event['event'] not in ('column_start', 'column_done'):  # the learned method's
                     best[0] = event.get('best_accuracy', best[0])
                     goal_handle.publish_feedback(Train.Feedback(best_accuracy=best[0],
@@ -169,8 +177,8 @@ class TrainerNode(Node):
                                              callback=on_event, **options, **cluster)
             except _Cancelled:
                 goal_handle.canceled()
-                result.message = ('canceled at a column boundary (learned: between starts or '
-                                  'gradient steps); no artifact written')
+                result.message = ('canceled between rounds of candidates (learned: between '
+                                  'starts or gradient steps); no artifact written')
                 result.elapsed_s = time.perf_counter() - t0
                 return result
             except _Stopping:
