@@ -174,6 +174,17 @@ def stage_capture(tmp_path_factory):
 
 
 @pytest.fixture(scope='session')
+def tiny_capture(tmp_path_factory):
+    """2 classes (banana real/fake) x 4 poses at the classifier's 120 px: trains in seconds
+    (the trainer node's goals in the graph tests)."""
+    from lightstage_physics import synth
+    out = tmp_path_factory.mktemp('capture') / 'c'
+    synth.generate(out, image_size=120, n_samples_per_class=1, n_poses=4,
+                   object_types=('banana',), n_jobs=1)
+    return out
+
+
+@pytest.fixture(scope='session')
 def stage_modelset(stage_capture):
     from lightstage_physics.capture_format import load_capture
     return load_capture(stage_capture)

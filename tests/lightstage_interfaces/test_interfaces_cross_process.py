@@ -116,16 +116,6 @@ def test_bad_request_is_refused_with_a_message_and_publishes_nothing(graph):
     c.node.destroy_subscription(sub)
 
 
-@pytest.fixture(scope='module')
-def tiny_capture(tmp_path_factory):
-    """2 classes (banana real/fake) x 4 poses at the classifier's 120 px: trains in seconds."""
-    from lightstage_physics import synth
-    out = tmp_path_factory.mktemp('capture') / 'c'
-    synth.generate(out, image_size=120, n_samples_per_class=1, n_poses=4,
-                   object_types=('banana',), n_jobs=1)
-    return out
-
-
 def test_train_action_streams_feedback_and_returns_a_result(graph, tiny_capture, tmp_path):
     from lightstage_interfaces.action import Train
     from mux_classifier.artifact import TrainedArtifact

@@ -14,16 +14,6 @@ pytestmark = pytest.mark.ros
 TRAIN = '/lightstage/train'
 
 
-@pytest.fixture(scope='module')
-def tiny_capture(tmp_path_factory):
-    """2 classes (banana real/fake) x 4 poses at the classifier's 120 px: trains in seconds."""
-    from lightstage_physics import synth
-    out = tmp_path_factory.mktemp('capture') / 'c'
-    synth.generate(out, image_size=120, n_samples_per_class=1, n_poses=4,
-                   object_types=('banana',), n_jobs=1)
-    return out
-
-
 def test_a_stop_during_a_goal_aborts_it_with_the_reason_and_exits_0(tiny_capture, tmp_path):
     from action_msgs.msg import GoalStatus
     from lightstage_interfaces.action import Train
