@@ -126,7 +126,7 @@ def run_capture(path, args) -> dict:
                 lr_patterns=args.lr_patterns, objective=args.objective, fine_tune=fine_tune,
                 ridge=args.ridge, class_power=args.class_power,
                 split_classifier=args.split_classifier, ratio_stats=args.ratio_stats,
-                head_renders=args.head_renders, inner_draws=args.inner_draws,
+                head_renders=args.head_renders, head=args.head, inner_draws=args.inner_draws,
                 starts=builtin, start_patterns=starts,
                 n_repeats=args.n_repeats, progress=args.progress).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
@@ -177,6 +177,8 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
                         "whose mean scores a candidate")
     p.add_argument('--head-renders', type=int, default=defaults.head_renders,
                    help="learned: noise draws of the training samples the final SVM is fitted on")
+    p.add_argument('--head', default=defaults.head, choices=('by_type', 'flat'),
+                   help="learned: the final head, gated by object type or one flat linear SVM")
     p.add_argument('--fine-tune', default=','.join(defaults.fine_tune), type=lambda v: v.split(','),
                    help="learned: 'best', 'all', 'none' or the starts the steps run from")
     p.add_argument('--learned-starts', default=','.join(defaults.starts),

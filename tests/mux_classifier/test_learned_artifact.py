@@ -206,7 +206,7 @@ def test_a_model_with_cross_image_statistics_round_trips(toy_stacks, tmp_path):
     TrainedArtifact.from_learned(with_ratio, noise=SIGMA3).save(tmp_path / "r.npz")
     # format 5: a release that reads 4 refuses it by its version, not by a feature count
     with np.load(tmp_path / "r.npz", allow_pickle=False) as npz:
-        assert json.loads(npz["header"].tobytes().decode())["format_version"] == 5 == FORMAT_VERSION
+        assert json.loads(npz["header"].tobytes().decode())["format_version"] == 5 < FORMAT_VERSION
     loaded = TrainedArtifact.load(tmp_path / "r.npz")
     assert loaded.learned.ratio_offset == 8.0
     assert "intensity_stats + cross-image relief features" in loaded.describe()
@@ -221,3 +221,59 @@ def test_a_model_with_cross_image_statistics_round_trips(toy_stacks, tmp_path):
     with pytest.raises(ValueError, match="ratio_offset"):
         LearnedModel(base.patterns, base.feature_mean, base.feature_scale, base.layers, NAMES,
                      ratio_offset=-1.0)
+
+
+def test_a_head_gated_by_type_round_trips_and_its_scores_pick_its_class(toy_stacks, tmp_path):
+    stacks, _ = toy_stacks
+    base = learned_model(stacks=stacks)
+    groups = np.array([0, 0, 1, 1])   # apple_real, apple_fake | lime_real, lime_fake
+    rng = np.random.default_rng(6)
+    n_in = base.n_features
+    gated = LearnedModel(base.patterns, base.feature_mean, base.feature_scale,
+                         [(rng.normal(0, 1, (n_in, 2 + 4)), rng.normal(0, 0.1, 2 + 4))], NAMES,
+                         class_groups=groups)
+    assert gated.n_groups == 2 and gated.n_classes == 4
+    TrainedArtifact.from_learned(gated, noise=SIGMA3).save(tmp_path / "g.npz")
+    # format 6: a release that reads 5 refuses it by its version
+    with np.load(tmp_path / "g.npz", allow_pickle=False) as npz:
+        assert json.loads(npz["header"].tobytes().decode())["format_version"] == 6 == FORMAT_VERSION
+    loaded = TrainedArtifact.load(tmp_path / "g.npz")
+    np.testing.assert_array_equal(loaded.learned.class_groups, groups)
+    assert "gated by object type" in loaded.describe()
+    out = gated.logits_from_features(gated.features(stacks))
+    # the class is the best class of the best type
+    best_type = out[:, :2].argmax(axis=1)
+    within = out[:, 2:].reshape(-1, 2, 2)[np.arange(len(out)), best_type]
+    expected = 2 * best_type + within.argmax(axis=1)
+    assert len(set(expected)) > 1   # the toy stacks reach more than one class
+    scores = loaded.decision_function(stacks)
+    np.testing.assert_array_equal(scores.argmax(axis=1), expected)
+    np.testing.assert_array_equal(loaded.predict(stacks), np.asarray(NAMES)[expected])
+    # positive for the class picked, negative for every other
+    assert (scores[np.arange(len(scores)), expected] > 0).all()
+    assert (np.sort(scores, axis=1)[:, -2] < 0).all()
+    # a model without groups stores none
+    assert "class_groups" not in base.to_arrays()
+    assert LearnedModel.from_arrays(base.to_arrays()).class_groups is None
+
+
+@pytest.mark.parametrize("groups, message", [
+    (np.array([0, 0, 1]), "then the 3 classes: its last layer needs 5 outputs, got 6"),
+    (np.array([0, 0, 2, 2]), "numbers the types|number the types"),
+    (np.array([0.0, 0.0, 1.0, 1.0]), "integer"),
+    (np.array([0, 0, 1, 10 ** 15]), "number the types"),
+])
+def test_bad_class_groups_are_refused(toy_stacks, groups, message):
+    base = learned_model(stacks=toy_stacks[0])
+    rng = np.random.default_rng(6)
+    layers = [(rng.normal(0, 1, (base.n_features, 6)), np.zeros(6))]
+    with pytest.raises(ValueError, match=message):
+        LearnedModel(base.patterns, base.feature_mean, base.feature_scale, layers, NAMES,
+                     class_groups=groups)
+
+
+def test_a_gated_model_with_the_wrong_output_count_is_refused(toy_stacks):
+    base = learned_model(stacks=toy_stacks[0])
+    with pytest.raises(ValueError, match="needs 6 outputs, got 4"):
+        LearnedModel(base.patterns, base.feature_mean, base.feature_scale, base.layers, NAMES,
+                     class_groups=np.array([0, 0, 1, 1]))

@@ -390,7 +390,8 @@ def test_the_head_is_fitted_on_several_noise_draws(tiny_data, monkeypatch):
 
     def head_data(data, renders):
         LearnedIlluminationClassifier(n_images=4, starts=('per_colour',), fine_tune='none',
-                                      n_repeats=5, head_renders=renders, seed=0).fit(data)
+                                      n_repeats=5, head_renders=renders, head='flat',
+                                      seed=0).fit(data)
         return fitted_on[-1]
 
     n = tiny_data.n_samples
@@ -549,3 +550,57 @@ def test_bad_settings_and_inputs_are_refused(tiny_data, fitted):
         model.predict_features(np.zeros((3, 18)), 1)
     with pytest.raises(ValueError, match='stacks'):
         model.model_.predict(np.zeros((2, 3, 24, 24)))
+
+
+def typed_disk_data(n_poses=8, size=24, seed=0):
+    """Two object types (a bright and a dim disk anywhere on a dark floor), each in two
+    classes (the second reflects 30 % more NIR)."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:size, 0:size]
+    names = ['bright-matte', 'bright-nir', 'dim-matte', 'dim-nir']
+    models, labels, poses = [], [], []
+    for k in range(len(names)):
+        for p in range(n_poses):
+            cy, cx = rng.uniform(7, size - 7, 2)
+            disk = ((yy - cy) ** 2 + (xx - cx) ** 2 < 25).astype(np.float32)
+            refl = rng.uniform(0.95, 1.05, (4, 8)).astype(np.float32) * (1.0 if k < 2 else 0.5)
+            refl[3] *= 1.3 if k % 2 else 1.0
+            models.append(8.0 + 90.0 * refl[:, :, None, None] * disk)
+            labels.append(k)
+            poses.append(p)
+    return SearchData.from_models(np.stack(models), labels, poses, names, dimmer=1.0,
+                                  noise_a=0.7, noise_b=66.0, hog_config=TINY_HOG)
+
+
+def test_the_head_is_gated_by_object_type_unless_flat_is_asked():
+    """Round 10: by default one SVM tells the types apart and one per type its classes;
+    head='flat' is rounds 3-9's."""
+    data = typed_disk_data()
+    kwargs = dict(n_images=4, starts=('per_colour',), fine_tune='none', n_repeats=20,
+                  head_renders=2, seed=0)
+    gated = LearnedIlluminationClassifier(**kwargs).fit(data)
+    flat = LearnedIlluminationClassifier(head='flat', **kwargs).fit(data)
+    np.testing.assert_array_equal(gated.model_.class_groups, [0, 0, 1, 1])
+    assert gated.model_.layers[0][0].shape[1] == 2 + 4 and flat.model_.class_groups is None
+    assert flat.model_.layers[0][0].shape[1] == 4
+    # the same light (the head does not score candidates); both classify under it
+    np.testing.assert_array_equal(gated.patterns_, flat.patterns_)
+    images = clean_led_images(data, gated.patterns_)
+    for model in (gated, flat):
+        assert (model.predict_images(images) == data.labels).mean() > 0.9
+    # the gate: the best class of the best type
+    k, n, _ = images.shape
+    stacks = images.transpose(1, 0, 2).reshape(n, k, *data.image_shape)
+    out = gated.model_.logits_from_features(gated.model_.features(stacks))
+    best_type = out[:, :2].argmax(axis=1)
+    within = out[:, 2:].reshape(-1, 2, 2)[np.arange(n), best_type].argmax(axis=1)
+    np.testing.assert_array_equal(gated.predict_images(images), 2 * best_type + within)
+    # one class per type: nothing to gate, the flat head
+    names = [f'type{c}-only' for c in range(len(data.class_names))]
+    ungated = LearnedIlluminationClassifier(**kwargs).fit(replace(data, class_names=names))
+    assert ungated.model_.class_groups is None
+
+
+def test_an_unknown_head_is_a_clear_error(tiny_data):
+    with pytest.raises(ValueError, match="head must be one of by_type, flat, got 'mlp'"):
+        LearnedIlluminationClassifier(n_images=4, head='mlp').fit(tiny_data)

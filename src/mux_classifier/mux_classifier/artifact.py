@@ -310,7 +310,8 @@ class TrainedArtifact:
         mode = f"{self.mode} patterns"
         if self.learned is not None:
             levels = "on/off" if np.isin(self.led_patterns, (0, 1)).all() else "graded"
-            mode = f"learned {levels} patterns ({len(self.learned.layers)}-layer head)"
+            gated = ", gated by object type" if self.learned.class_groups is not None else ""
+            mode = f"learned {levels} patterns ({len(self.learned.layers)}-layer head{gated})"
         features = self.features + (" + cross-image relief"
                                     if self.learned is not None and self.learned.ratio_offset else "")
         return (f"{len(self.class_names)} classes, {mode}, {features} "

@@ -30,6 +30,9 @@ __all__ = ["ArtifactError", "FORMAT_NAME", "FORMAT_VERSION", "READABLE_VERSIONS"
            "read_artifact", "write_artifact", "written_version"]
 
 FORMAT_NAME = "lightstage.mux_classifier"
+# 6: a learned model whose head is gated by object type (its "learned_class_groups"): a
+# release that reads 5 would take the types' scores for classes' and refuse the file as
+# mis-sized, so such a file says 6.
 # 5: a learned model with the cross-image statistics (its "learned_ratio_offset"): a
 # release that reads 4 would take its features for the 9 per image and refuse or misread
 # it, so such a file says 5. Every other file is still written as 4, which those read.
@@ -39,13 +42,14 @@ FORMAT_NAME = "lightstage.mux_classifier"
 # 2: the header records the dimmer the training rendered with. 1: it did not; every
 # training that wrote version 1 rendered at the authors' dimmer, `UNRECORDED_DIMMER` (should
 # DEFAULT_DIMMER ever change, this must keep its old value).
-FORMAT_VERSION = 5   # the newest this release reads and writes
-READABLE_VERSIONS = (1, 2, 3, 4, 5)
+FORMAT_VERSION = 6   # the newest this release reads and writes
+READABLE_VERSIONS = (1, 2, 3, 4, 5, 6)
 UNRECORDED_DIMMER = DEFAULT_DIMMER
 LEARNED_MODE = "learned"
 MODES = ("per_colour", "joint", "naive", LEARNED_MODE)
 LEARNED_SINCE = 4  # the first format version with learned models
 RATIO_SINCE = 5    # ... and with learned models' cross-image statistics
+GROUPS_SINCE = 6   # ... and with learned models' heads gated by object type
 LEARNED_PREFIX = "learned_"
 MAX_IMAGES = 4096  # images of one classification: far beyond any search (16 in the paper)
 MAX_LEARNED_WIDTH = 4096  # hidden units of a learned model's layer (the trainer's: 0 .. 64)
@@ -57,10 +61,12 @@ class ArtifactError(ValueError):
 
 
 def written_version(artifact) -> int:
-    """The format version a file of `artifact` says: the lowest that holds it (`RATIO_SINCE`
-    for a learned model with cross-image statistics, else `LEARNED_SINCE`), so that an older
-    release refuses only what it would misread."""
+    """The format version a file of `artifact` says: the lowest that holds it (`GROUPS_SINCE`
+    for a learned model gated by type, `RATIO_SINCE` for one with cross-image statistics,
+    else `LEARNED_SINCE`), so that an older release refuses only what it would misread."""
     learned = artifact.learned
+    if learned is not None and learned.class_groups is not None:
+        return GROUPS_SINCE
     return RATIO_SINCE if learned is not None and learned.ratio_offset else LEARNED_SINCE
 
 

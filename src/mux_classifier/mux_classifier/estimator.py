@@ -196,7 +196,7 @@ class LearnedModelClassifier(ClassifierMixin, BaseEstimator):
     """A learned-illumination model (`learned_model.LearnedModel`: its own patterns, object
     statistics, z-scoring and dense head) as a fitted estimator with MuxClassifier's
     prediction interface on stacks, so that an artifact predicts through one path whatever
-    its method. Scores are the head's logits. Fitting is the trainer's
+    its method. Scores are the head's logits (for a head gated by type, its margins). Fitting is the trainer's
     (`mux_trainer.learned`, JAX); this side is numpy only.
 
     Fitted attributes (`from_model`): ``model_``, ``classes_``, ``n_images_``.
@@ -225,7 +225,7 @@ class LearnedModelClassifier(ClassifierMixin, BaseEstimator):
         check_is_fitted(self, "model_")
         config = HogConfig() if self.hog_config is None else self.hog_config
         arr = check_stacks(stacks, config, n_images=self.n_images_)
-        return self.model_.logits_from_features(self.model_.features(arr)).astype(np.float64)
+        return self.model_.scores_from_features(self.model_.features(arr)).astype(np.float64)
 
     def predict(self, stacks) -> np.ndarray:
         return self.classes_[np.argmax(self.decision_function(stacks), axis=1)]

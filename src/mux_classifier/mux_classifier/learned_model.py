@@ -6,7 +6,9 @@ images: per image the 9 pose-robust object statistics of `intensity_stats` (exac
 `intensity_stats_images_numpy`: the values the training differentiated through), the
 concatenated ``k * 9`` values z-scored with the training set's ``feature_mean`` and
 ``feature_scale``, then dense layers (ReLU between them; none after the last), whose
-argmax is the class. A model with a ``ratio_offset`` (gray levels, > 0) has the stack's
+argmax is the class; or, for a model with ``class_groups``, a head gated by object type
+(`gated_head`): its last layer scores the types, then each class within its type, and the
+class is the best of the best type's. A model with a ``ratio_offset`` (gray levels, > 0) has the stack's
 cross-image relief statistics after those (`ratio_stats`, that offset inside the log); one
 without has none (every model written before them). Everything is plain arrays, for an npz
 artifact without pickle.
@@ -17,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .gated_head import check_class_groups, gated_margins
 from .intensity_stats import N_STATS, intensity_stats_images_numpy
 from .ratio_stats import n_ratio_stats, ratio_stats
 
@@ -27,7 +30,9 @@ __all__ = ["LearnedModel"]
 class LearnedModel:
     """patterns (32, k); feature_mean, feature_scale (`n_features`,); layers: [(W, b), ...]
     with W (inputs, outputs), the last layer's outputs the classes' logits; class_names;
-    ratio_offset: 0 (no cross-image statistics) or the offset of `ratio_stats`."""
+    ratio_offset: 0 (no cross-image statistics) or the offset of `ratio_stats`;
+    class_groups: None (the last layer scores the classes) or each class's type 0 .. G - 1
+    (it scores the G types, then the classes within their types: `gated_head`)."""
 
     patterns: np.ndarray
     feature_mean: np.ndarray
@@ -35,6 +40,7 @@ class LearnedModel:
     layers: list
     class_names: list = field(default_factory=list)
     ratio_offset: float = 0.0
+    class_groups: np.ndarray | None = None
 
     def __post_init__(self):
         self.patterns = np.asarray(self.patterns, dtype=np.float32)
@@ -68,6 +74,17 @@ class LearnedModel:
                                  f"{W.shape} and {b.shape}")
             width = W.shape[1]
         self.class_names = list(self.class_names)
+        if self.class_groups is not None:
+            self.class_groups = check_class_groups(self.class_groups)
+            if width != self.n_groups + self.class_groups.size:
+                raise ValueError(f"a head gated by type scores the {self.n_groups} types, then "
+                                 f"the {self.class_groups.size} classes: its last layer needs "
+                                 f"{self.n_groups + self.class_groups.size} outputs, got {width}")
+
+    @property
+    def n_groups(self) -> int:
+        """Types the head is gated by (0: not gated)."""
+        return 0 if self.class_groups is None else int(self.class_groups.max()) + 1
 
     @property
     def n_images(self) -> int:
@@ -81,7 +98,7 @@ class LearnedModel:
 
     @property
     def n_classes(self) -> int:
-        return self.layers[-1][0].shape[1]
+        return self.layers[-1][0].shape[1] - self.n_groups
 
     def features(self, stacks) -> np.ndarray:
         """Stacks (n, k, H, W) gray levels -> float32 (n, `n_features`) raw statistics."""
@@ -96,7 +113,8 @@ class LearnedModel:
         return np.hstack([X, ratio_stats(arr, self.ratio_offset)])
 
     def logits_from_features(self, X) -> np.ndarray:
-        """Raw features (n, `n_features`) -> logits (n, classes), float32."""
+        """Raw features (n, `n_features`) -> the last layer's outputs, float32: (n, classes),
+        or with `class_groups` (n, types + classes)."""
         h = (np.asarray(X, np.float32) - self.feature_mean) / self.feature_scale
         for i, (W, b) in enumerate(self.layers):
             h = h @ W + b
@@ -104,8 +122,16 @@ class LearnedModel:
                 h = np.maximum(h, 0)
         return h
 
+    def scores_from_features(self, X) -> np.ndarray:
+        """Raw features (n, `n_features`) -> per-class scores (n, classes) whose argmax is the
+        class: the logits, or for a head gated by type its margins (`gated_margins`)."""
+        out = self.logits_from_features(X)
+        if self.class_groups is None:
+            return out
+        return gated_margins(out, self.class_groups).astype(np.float32)
+
     def predict_features(self, X) -> np.ndarray:
-        return np.argmax(self.logits_from_features(X), axis=1)
+        return np.argmax(self.scores_from_features(X), axis=1)
 
     def predict(self, stacks) -> np.ndarray:
         """Class indices of stacks (n, k, H, W) taken under `patterns`."""
@@ -118,6 +144,8 @@ class LearnedModel:
                "class_names": np.asarray(self.class_names, dtype=str)}
         if self.ratio_offset:   # absent: a model without them, readable by older releases too
             out["ratio_offset"] = np.float64(self.ratio_offset)
+        if self.class_groups is not None:   # absent: the last layer scores the classes
+            out["class_groups"] = self.class_groups
         for i, (W, b) in enumerate(self.layers):
             out[f"layer{i}_W"] = W
             out[f"layer{i}_b"] = b
@@ -135,5 +163,7 @@ class LearnedModel:
         offset = np.asarray(arrays.get("ratio_offset", 0.0), dtype=np.float64)
         if offset.size != 1:
             raise ValueError(f"ratio_offset must be one number, got shape {offset.shape}")
+        groups = arrays.get("class_groups")
         return cls(arrays["patterns"], arrays["feature_mean"], arrays["feature_scale"], layers,
-                   [str(c) for c in arrays.get("class_names", [])], float(offset.reshape(())))
+                   [str(c) for c in arrays.get("class_names", [])], float(offset.reshape(())),
+                   None if groups is None else np.asarray(groups))

@@ -108,3 +108,14 @@ def sample_object_types(data: SearchData) -> np.ndarray:
     """Object type of every sample of the data (e.g. "banana" for "banana-fake")."""
     types = np.array([object_type_of(c) for c in data.class_names])
     return types[data.labels]
+
+
+def class_type_groups(class_names) -> np.ndarray | None:
+    """Each class's object type as 0 .. G - 1, in order of first appearance (the head gated
+    by type, `mux_classifier.gated_head`), or None where gating would change nothing: one
+    type, or one class per type."""
+    types = [object_type_of(c) for c in class_names]
+    order = list(dict.fromkeys(types))
+    if len(order) < 2 or len(order) == len(types):
+        return None
+    return np.array([order.index(t) for t in types], np.int64)

@@ -52,6 +52,7 @@ from joblib import Parallel
 from lightstage_physics.render_jax import add_noise, relight
 from lightstage_physics.rig import CHANNELS, Rig, site_to_led_patterns
 from mux_classifier.estimator import fit_linear
+from mux_classifier.gated_head import NO_SAMPLES_SCORE, fit_gated_linear
 from mux_classifier.intensity_stats import GRADIENT_QUANTILES, LEVEL_QUANTILES, N_STATS
 from mux_classifier.learned_model import LearnedModel
 from mux_classifier.object_mask import image_masks
@@ -59,7 +60,7 @@ from mux_classifier.ratio_stats import (OFFSET_FRACTION, n_ratio_stats, object_m
                                         pair_ratio_stats, ratio_stats)
 
 from .baselines import SnrOptimalClassifier
-from .data import search_data
+from .data import class_type_groups, search_data
 from .evaluation import CandidateEvaluator
 from .greedy import GreedyPatternSelector
 from .holdout import test_images
@@ -73,6 +74,7 @@ from .split_scoring import SCORERS
 # ridge classifier's squared hinge (default), the shrunk Fisher criterion (round 2),
 # cross-entropy through a head trained alongside (round 1)
 OBJECTIVES = ('cv_ridge', 'fisher', 'cross_entropy')
+HEADS = ('by_type', 'flat')
 BUILTIN_STARTS = ('random', 'per_colour', 'snr_optimal', 'greedy', 'raking_sides')
 HEAD_NOISE_STREAM = 5   # the head's extra noise draws (`_head_features`)
 INNER_DRAW_STREAM = 7   # the seeds of the inner splits' further draws (`inner_seeds`)
@@ -454,6 +456,11 @@ class LearnedIlluminationClassifier:
       draws of the training samples it is fitted on (default 6: the inner splits' draw and
       5 more; a head on one draw may learn its noise, round 8; 4 draws measured level with
       one without the cross-image statistics, round 5).
+    - head: 'by_type' (default; docs/LEARNED.md round 10): a head gated by object type
+      (`mux_classifier.gated_head`, types from the class names' prefix,
+      `data.class_type_groups`): one linear SVM tells the types apart, one per type its
+      classes, each on its own samples and z-scoring; the flat head where gating changes
+      nothing (one type, or one class per type). 'flat': one one-vs-rest linear SVM over every class (rounds 3-9).
     - inner_draws: independent sets of inner splits, each with its own noise draw
       (`inner_seeds`; the first is the one seed gives), whose mean accuracy scores a
       candidate: more draws, less of the ranking left to one draw (docs/LEARNED.md, round 9:
@@ -473,7 +480,7 @@ class LearnedIlluminationClassifier:
       there: the trainer node's cancel.
 
     After fit: patterns_ (32, k) site-major levels, model_ (a numpy `LearnedModel`: the
-    linear SVM as one layer), classifiers_ {k: model_}, best_n_patterns_ = k,
+    head as one linear layer), classifiers_ {k: model_}, best_n_patterns_ = k,
     accuracy_by_images_ {k: the chosen candidate's inner split accuracy},
     candidate_scores_ {name: inner split accuracy}, chosen_ (its name), best_step_ (0: a
     start was kept), history_, train_seconds_.
@@ -490,8 +497,8 @@ class LearnedIlluminationClassifier:
                  eval_every=50, batch_size=256, lr_patterns=0.2, n_folds=5, ridge=0.01,
                  class_power=1.0, fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
                  n_repeats=400, test_fraction=0.25, split_classifier='squared_hinge',
-                 final_C=1.0, head_renders=6, inner_draws=1, site_positions_mm=None,
-                 ratio_stats=True,
+                 final_C=1.0, head_renders=6, head='by_type', inner_draws=1,
+                 site_positions_mm=None, ratio_stats=True,
                  noise='sigma3',
                  dimmer=None, hog_config=None, seed=0, progress=False, callback=None):
         self.n_images = n_images
@@ -516,6 +523,7 @@ class LearnedIlluminationClassifier:
         self.split_classifier = split_classifier
         self.final_C = final_C
         self.head_renders = head_renders
+        self.head = head
         self.inner_draws = inner_draws
         self.site_positions_mm = site_positions_mm
         self.ratio_stats = ratio_stats
@@ -550,6 +558,8 @@ class LearnedIlluminationClassifier:
             raise ValueError(f'ridge must be a positive number, got {self.ridge}')
         if not (np.isfinite(float(self.class_power)) and float(self.class_power) >= 1):
             raise ValueError(f'class_power must be a number >= 1, got {self.class_power}')
+        if self.head not in HEADS:
+            raise ValueError(f"head must be one of {', '.join(HEADS)}, got {self.head!r}")
         if self.split_classifier not in SCORERS:
             raise ValueError(f"split_classifier must be one of {', '.join(sorted(SCORERS))}, "
                              f"got {self.split_classifier!r}")
@@ -833,21 +843,29 @@ class LearnedIlluminationClassifier:
         return np.hstack([X, ratio_stats(stacks, offset)])
 
     def _svm_head(self, data: SearchData, ev, patterns) -> LearnedModel:
-        """The final classifier as greedy's: a linear SVM (`fit_linear`, as `MuxClassifier`
-        fits it: statistics z-scored over the training samples) on the training samples
-        rendered under the patterns (`_head_features`); stored as one linear layer on the raw
-        statistics."""
+        """The final classifier: linear SVMs (`fit_linear`, as `MuxClassifier` fits them:
+        statistics z-scored over the samples each is fitted on) on the training samples
+        rendered under the patterns (`_head_features`), flat or gated by object type
+        (`head`, `class_groups`); stored as one linear layer on the raw statistics."""
         X = self._head_features(data, ev, patterns)
-        coef, intercept, classes = fit_linear(
-            X, np.tile(data.labels, len(X) // data.n_samples), 'linear_svm',
-            C=float(self.final_C), random_state=int(self.seed))
+        y = np.tile(data.labels, len(X) // data.n_samples)
+        groups = class_type_groups(data.class_names) if self.head == 'by_type' else None
+        offset = self._ratio_offset(data)
+        if groups is not None:
+            coef, intercept = fit_gated_linear(X, y, groups, C=float(self.final_C),
+                                               random_state=int(self.seed))
+            return LearnedModel(patterns, np.zeros(X.shape[1]), np.ones(X.shape[1]),
+                                [(coef.T, intercept)], list(data.class_names),
+                                ratio_offset=offset, class_groups=groups)
+        coef, intercept, classes = fit_linear(X, y, 'linear_svm', C=float(self.final_C),
+                                              random_state=int(self.seed))
         n_classes, n_in = len(data.class_names), coef.shape[1]
         W = np.zeros((n_in, n_classes), np.float64)
-        b = np.full(n_classes, np.finfo(np.float32).min / 2)  # no training samples: never wins
+        b = np.full(n_classes, NO_SAMPLES_SCORE)
         W[:, classes] = coef.T
         b[classes] = intercept
         return LearnedModel(patterns, np.zeros(n_in), np.ones(n_in), [(W, b)],
-                            list(data.class_names), ratio_offset=self._ratio_offset(data))
+                            list(data.class_names), ratio_offset=offset)
 
     # --- prediction ----------------------------------------------------------------------
     def predict_images(self, images: np.ndarray) -> np.ndarray:

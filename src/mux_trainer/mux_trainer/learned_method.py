@@ -3,8 +3,8 @@ written to the same artifact, evaluated into the same Table 1 row.
 
 `build_learned` makes the `learned.LearnedIlluminationClassifier` of `lightstage train
 --method learned` (and the trainer node's `method: learned`), `learned_artifact` its
-trained artifact (format 4, or 5 with cross-image statistics: the numpy `LearnedModel`'s
-arrays, `artifact.TrainedArtifact.from_learned`), `learned_summary` its held-out result
+trained artifact (format 4, 5 with cross-image statistics, 6 with a head gated by object
+type: the numpy `LearnedModel`'s arrays, `artifact.TrainedArtifact.from_learned`), `learned_summary` its held-out result
 for `lightstage eval`, one model per exposure count. JAX is imported only when a model is
 built (`learned`), so importing this module costs nothing.
 """
@@ -80,6 +80,7 @@ def learned_artifact(model, provenance: dict | None = None):
     prov = {'method': 'learned', 'binary': bool(model.binary), 'seed': int(model.seed),
             'max_steps': int(model.max_steps), 'best_step': int(model.best_step_),
             'chosen': str(model.chosen_),
+            'head': 'flat' if model.model_.class_groups is None else 'by_type',
             'accuracy_by_patterns': {str(k): float(v)
                                      for k, v in model.accuracy_by_images_.items()},
             'best_n_patterns': int(model.best_n_patterns_)}
