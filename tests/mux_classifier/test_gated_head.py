@@ -85,3 +85,10 @@ def test_bad_class_groups_are_refused(groups, message):
 def test_fit_refuses_labels_outside_the_classes():
     with pytest.raises(ValueError, match="class indices 0 .. 1"):
         fit_gated_linear(np.zeros((3, 2)), np.array([0, 1, 2]), np.array([0, 1]))
+
+
+def test_scores_are_finite_even_for_a_type_and_class_alone():
+    scores = gated_margins(np.array([[1.0, 2.0, 3.0]]), np.array([0, 0]))   # one type
+    assert np.isfinite(scores).all() and scores.argmax() == 1
+    alone = gated_margins(np.array([[1.0, 5.0]]), np.array([0]))         # one class
+    assert np.isfinite(alone.astype(np.float32)).all()

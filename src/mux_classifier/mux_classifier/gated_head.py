@@ -81,7 +81,7 @@ def fit_gated_linear(X, y, class_groups, C: float = 1.0, random_state: int = 0,
 def gated_margins(outputs, class_groups) -> np.ndarray:
     """The head's outputs (n, G + K) -> per-class scores (n, K): for class c of type g, the
     smaller of g's lead over the best other type and c's lead over the best other class of g
-    (a type or a class alone leads by +inf). Positive for exactly the class the gate picks
+    (a type or a class alone leads by +inf; scores are clipped to finite float32). Positive for exactly the class the gate picks
     (the best class of the best type; ties: none positive, argmax takes the first), negative
     by how far the others fall short at their weaker stage."""
     groups = check_class_groups(class_groups)
@@ -90,7 +90,9 @@ def gated_margins(outputs, class_groups) -> np.ndarray:
     if out.ndim != 2 or out.shape[1] != G + K:
         raise ValueError(f"outputs must be (n, {G + K}): {G} type and {K} class scores, "
                          f"got shape {out.shape}")
-    return np.minimum(_lead(out[:, :G])[:, groups], _lead_within(out[:, G:], groups, G))
+    margins = np.minimum(_lead(out[:, :G])[:, groups], _lead_within(out[:, G:], groups, G))
+    top = float(np.finfo(np.float32).max)   # finite float32 scores, even for one class alone
+    return np.clip(margins, -top, top)
 
 
 def _lead(scores: np.ndarray) -> np.ndarray:
