@@ -18,6 +18,7 @@ def test_a_learned_artifact_classifies_on_the_stage(stage_capture, stage_learned
     artifact = TrainedArtifact.load(stage_learned_artifact_path)
     on_off = bool(np.isin(artifact.led_patterns, (0, 1)).all())
     assert artifact.mode == 'learned' and artifact.n_images == [4]
+    assert artifact.learned.class_groups is not None   # fruit types: the head gated by type
     domain_id = fresh_domain_id()
     params = write_params(tmp_path / 'params.yaml', stage_graph_params(
         stage_capture, 'orange-real/s1/p00', 3, stage_learned_artifact_path,
@@ -31,6 +32,9 @@ def test_a_learned_artifact_classifies_on_the_stage(stage_capture, stage_learned
     assert np.abs(lit - artifact.led_patterns.T).max() <= (0 if on_off else 0.5 / 255 + 1e-6)
     if not on_off:
         assert len(np.unique(lit)) > 2  # graded levels, not on/off
-    # the scores are the learned model's logits for the images the node saw: finite, varied
+    # the scores are the gated head's margins for the images the node saw: finite, varied,
+    # positive for the label only
     scores = np.array(answer['scores'])
     assert np.isfinite(scores).all() and scores.std() > 0
+    assert scores.argmax() == answer['class_names'].index(answer['label'])
+    assert (scores > 0).sum() <= 1
