@@ -22,12 +22,16 @@ def test_train_learned_writes_a_learned_artifact(capture, tmp_path, capsys):
     assert '[learned k=2] starts: inner' in captured.err  # round 2's progress: scored starts
     assert doc['method'] == 'learned' and doc['mode'] == 'learned' and not doc['binary']
     assert doc['features'] == 'intensity_stats' and doc['best_n_images'] == 2
+    # what the model classifies with beyond the per-image statistics, and its head
+    assert doc['cross_image_stats'] is True and doc['head'] == 'by_type'
     assert set(doc['accuracy_by_images']) == {'2'}
     art = TrainedArtifact.load(out)
     assert art.mode == 'learned' and art.n_images == [2] and art.hog_config.image_size == 24
     assert art.class_names == doc['class_names'] and art.noise['name'] == 'sigma3'
     np.testing.assert_allclose(art.led_patterns, np.array(doc['patterns']), atol=5e-4)
     assert art.provenance['method'] == 'learned' and art.provenance['max_steps'] == 3
+    assert art.provenance['chosen'] == doc['chosen'] and art.provenance['head'] == 'by_type'
+    assert art.learned.class_groups is not None
     # graded: levels in [0, 1], and a fine-tuned snapshot (not a 0/1 start) has levels between
     assert ((art.led_patterns >= 0) & (art.led_patterns <= 1)).all()
     if '+' in art.provenance['chosen']:  # e.g. 'per_colour+3': a start and 3 steps

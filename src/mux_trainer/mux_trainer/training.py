@@ -247,7 +247,12 @@ def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8
     summary = {
         'method': 'learned', 'mode': artifact.mode, 'binary': bool(binary),
         'noise': noise if isinstance(noise, str) else artifact.noise['name'],
-        'features': artifact.features, 'artifact': str(out),
+        'features': artifact.features,
+        # beside each image's statistics: the cross-image relief statistics (ratio_stats)
+        'cross_image_stats': bool(model.model_.ratio_offset),
+        'head': artifact.provenance['head'],
+        'chosen': str(model.chosen_),
+        'artifact': str(out),
         'class_names': list(artifact.class_names),
         'patterns': pattern_levels(model.patterns_),
         'images_per_pattern': 1,
