@@ -15,7 +15,7 @@ from helpers.trainer import TINY
 def test_train_learned_writes_a_learned_artifact(capture, tmp_path, capsys):
     out = tmp_path / 'learned.npz'
     rc = train_main([str(capture), '--out', str(out), '--method', 'learned', '--max-images', '2',
-                     '--steps', '3', '--json', *TINY])
+                     '--steps', '3', '--repeats', '30', '--json', *TINY])
     assert rc == 0
     captured = capsys.readouterr()
     doc = json.loads(captured.out)  # stdout is exactly one JSON document, progress on stderr
@@ -31,6 +31,7 @@ def test_train_learned_writes_a_learned_artifact(capture, tmp_path, capsys):
     np.testing.assert_allclose(art.led_patterns, np.array(doc['patterns']), atol=5e-4)
     assert art.provenance['method'] == 'learned' and art.provenance['max_steps'] == 3
     assert art.provenance['chosen'] == doc['chosen'] and art.provenance['head'] == 'by_type'
+    assert art.provenance['n_repeats'] == 30   # --repeats: its inner splits, as the search's
     assert art.learned.class_groups is not None
     # graded: levels in [0, 1], and a fine-tuned snapshot (not a 0/1 start) has levels between
     assert ((art.led_patterns >= 0) & (art.led_patterns <= 1)).all()

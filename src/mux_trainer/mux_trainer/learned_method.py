@@ -81,6 +81,7 @@ def learned_artifact(model, provenance: dict | None = None):
             'max_steps': int(model.max_steps), 'best_step': int(model.best_step_),
             'chosen': str(model.chosen_),
             'head': 'flat' if model.model_.class_groups is None else 'by_type',
+            'n_repeats': int(model.n_repeats),
             'accuracy_by_patterns': {str(k): float(v)
                                      for k, v in model.accuracy_by_images_.items()},
             'best_n_patterns': int(model.best_n_patterns_)}

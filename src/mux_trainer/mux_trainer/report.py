@@ -60,9 +60,10 @@ def _naive_bow_summary(naive, train_data, test_data, n_renders, seed, n_jobs):
 
 
 def _learned_result(train, test, noise, *, n_renders, seed, hog_config, quiet, progress,
-                    exposures=None, steps=None, binary=False) -> dict:
+                    n_repeats=400, exposures=None, steps=None, binary=False) -> dict:
     """Learned illumination: one model per exposure count (`learned_method`), trained on
-    `train` (chosen by greedy's inner pose splits within it), tested like every method."""
+    `train` (chosen by greedy's inner pose splits within it, n_repeats of them, as every
+    method's), tested like every method."""
     import contextlib
 
     from .learned_method import build_learned, learned_summary
@@ -72,7 +73,8 @@ def _learned_result(train, test, noise, *, n_renders, seed, hog_config, quiet, p
     for k in exposures or EVAL_EXPOSURES:
         _log(f'[{noise}] learned: training {k} exposures on {train.n_samples} samples', quiet)
         model = build_learned(k, binary=binary, steps=steps, noise=noise,
-                              hog_config=hog_config, seed=seed, progress=progress)
+                              hog_config=hog_config, seed=seed, progress=progress,
+                              n_repeats=n_repeats)
         with contextlib.redirect_stdout(sys.stderr):  # stdout: only the results (--json)
             models[int(k)] = model.fit(train)
     return learned_summary(models, test, n_renders, seed, train_seconds=time.perf_counter() - t0)
@@ -121,7 +123,7 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
         if name == 'learned':
             results[name] = learned or _learned_result(
                 train, test, noise, n_renders=n_renders, seed=seed, hog_config=hog_config,
-                quiet=quiet, progress=progress, **(learned_options or {}))
+                quiet=quiet, progress=progress, n_repeats=n_repeats, **(learned_options or {}))
             _log(f'[{noise}] learned: held-out accuracy {results[name]["accuracy"]:.4f} at '
                  f'{results[name]["n_images"]} image(s)', quiet)
             continue

@@ -224,18 +224,20 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **o
 
 
 def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8, seed=0,
-                   hog_config=None, progress=False, binary=False, steps=None, callback=None,
-                   **_search_options) -> dict:
+                   repeats=400, hog_config=None, progress=False, binary=False, steps=None,
+                   callback=None, **_search_options) -> dict:
     """`train_modelset` for method 'learned' (`learned_method`): ``max_images`` exposures,
-    one learned pattern each, graded or on/off (``binary``), at most ``steps`` steps. The
-    search's options (repeats, mode, features, n_jobs, ...) do not apply: a learned model
-    classifies with its own statistics (intensity_stats). Its progress goes to stderr."""
+    one learned pattern each, graded or on/off (``binary``), at most ``steps`` steps,
+    candidates scored on ``repeats`` inner pose splits (as the search's). The search's other
+    options (mode, features, n_jobs, ...) do not apply: a learned model classifies with its
+    own statistics (intensity_stats). Its progress goes to stderr."""
     import contextlib
     import sys
 
     from .learned_method import build_learned, learned_artifact, pattern_levels
     model = build_learned(max_images, binary=binary, steps=steps, noise=noise,
-                          hog_config=hog_config, seed=seed, progress=progress, callback=callback)
+                          hog_config=hog_config, seed=seed, progress=progress, callback=callback,
+                          n_repeats=int(repeats))
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(sys.stderr):  # stdout: only the result (--json)
         model.fit(modelset)
