@@ -58,6 +58,12 @@ def test_fitted_head_tells_types_and_their_classes_apart():
     Xt, yt = _two_types(np.random.default_rng(1))
     pred = gated_margins(Xt @ coef.T + intercept, groups).argmax(axis=1)
     assert (pred == yt).mean() > 0.95
+    # a class's row: its type's own SVM (z-scored on that type) plus the flat SVM's row
+    from mux_classifier.estimator import fit_linear
+    flat, flat_b, _ = fit_linear(X, y, 'linear_svm')
+    own, own_b, _ = fit_linear(X[y >= 2], y[y >= 2], 'linear_svm')
+    np.testing.assert_allclose(coef[2 + 2:], flat[2:] + own, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(intercept[2 + 2:], flat_b[2:] + own_b, rtol=1e-6, atol=1e-9)
 
 
 def test_a_type_with_one_class_and_classes_without_samples():
@@ -66,7 +72,11 @@ def test_a_type_with_one_class_and_classes_without_samples():
     keep = y != 3                     # class 3 (type 1) has no training samples
     coef, intercept = fit_gated_linear(X[keep], y[keep], np.array([0, 0, 1, 1]))
     assert intercept[2 + 3] == NO_SAMPLES_SCORE and not coef[2 + 3].any()
-    assert intercept[2 + 2] == 0 and not coef[2 + 2].any()   # alone in its type: scores 0
+    # alone in its type: the flat SVM's row only
+    from mux_classifier.estimator import fit_linear
+    flat_coef, flat_b, _ = fit_linear(X[keep], y[keep], 'linear_svm')
+    np.testing.assert_allclose(coef[2 + 2], flat_coef[2])
+    np.testing.assert_allclose(intercept[2 + 2], flat_b[2])
     only_type0 = y < 2
     coef, intercept = fit_gated_linear(X[only_type0], y[only_type0], np.array([0, 0, 1, 1]))
     assert intercept[0] == 0 and intercept[1] == NO_SAMPLES_SCORE   # one type: it is the answer

@@ -5,10 +5,13 @@ Where two classes of one type (a relief seal and a flat print of it) differ by a
 of one statistic that varies widely between types (fruit against card), that step is small
 in those units, and the SVM leans on whatever else separates the few training samples of
 the pair, which need not hold for a sample it has not seen (docs/LEARNED.md, round 10: the
-16-class mix's held-out seals). Here one linear SVM tells the types apart, and one per type
-tells its classes apart on that type's samples alone, z-scored over them.
+16-class mix's held-out seals). Here one linear SVM tells the types apart, and within a type
+a class's score is the sum of two linear SVMs' (an average of the two): one fitted on that
+type's samples alone, z-scored over them (it sees the small step), and the flat one-vs-rest
+SVM over every class (its direction is held by all the data: alone, the per-type SVM lost
+green apples of a held-out instance that the flat one classifies, round 10).
 
-Both are linear in the raw statistics, so the head is one linear layer with ``G + K``
+All are linear in the raw statistics, so the head is one linear layer with ``G + K``
 outputs: the G types' scores, then the K classes' scores within their type
 (``class_groups[c]`` is class c's type). The class is the best of the best type's classes
 (`gated_margins` gives per-class scores whose argmax is that class). Plain arrays, numpy
@@ -46,9 +49,10 @@ def fit_gated_linear(X, y, class_groups, C: float = 1.0, random_state: int = 0,
     """A type-gated linear head on raw features X (n, F), labels y (class indices 0 .. K-1).
     Returns coef (G + K, F) and intercept (G + K,) on the raw features: rows 0 .. G-1 score
     the types (a linear SVM over all samples, labels ``class_groups[y]``), rows G + c score
-    class c against the other classes of its type (a linear SVM on that type's samples, its
-    own z-scoring). A type or class without training samples scores `NO_SAMPLES_SCORE`; a
-    type with one class present scores it 0."""
+    class c within its type: a linear SVM of c against the other classes of its type (on
+    that type's samples, its own z-scoring; none for a type with one class present) plus the
+    flat one-vs-rest linear SVM's row for c (all samples). A type or class without training
+    samples scores `NO_SAMPLES_SCORE`."""
     X = np.asarray(X, dtype=np.float64)
     y = np.asarray(y)
     groups = check_class_groups(class_groups)
@@ -66,15 +70,18 @@ def fit_gated_linear(X, y, class_groups, C: float = 1.0, random_state: int = 0,
         c, b, types = fit_linear(X, groups[y], "linear_svm", C=C, max_iter=max_iter,
                                  random_state=random_state)
         coef[types], intercept[types] = c, b
+    c, b, classes = fit_linear(X, y, "linear_svm", C=C, max_iter=max_iter,
+                               random_state=random_state)
+    coef[G + classes], intercept[G + classes] = c, b
     for g in present:
         in_type = groups[y] == g
         classes = np.unique(y[in_type])
         if classes.size == 1:
-            intercept[G + classes[0]] = 0.0
             continue
         c, b, _ = fit_linear(X[in_type], y[in_type], "linear_svm", C=C, max_iter=max_iter,
                              random_state=random_state)
-        coef[G + classes], intercept[G + classes] = c, b
+        coef[G + classes] += c
+        intercept[G + classes] += b
     return coef, intercept
 
 
