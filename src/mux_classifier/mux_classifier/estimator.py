@@ -196,8 +196,8 @@ class LearnedModelClassifier(ClassifierMixin, BaseEstimator):
     """A learned-illumination model (`learned_model.LearnedModel`: its own patterns, object
     statistics, z-scoring and dense head) as a fitted estimator with MuxClassifier's
     prediction interface on stacks, so that an artifact predicts through one path whatever
-    its method. Scores are the head's logits (for a head gated by type, its margins). Fitting is the trainer's
-    (`mux_trainer.learned`, JAX); this side is numpy only.
+    its method. Scores are the head's logits (for a head gated by type, its margins).
+    Fitting is the trainer's (`mux_trainer.learned`, JAX); this side is numpy only.
 
     Fitted attributes (`from_model`): ``model_``, ``classes_``, ``n_images_``.
     """

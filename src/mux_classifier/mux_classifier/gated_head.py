@@ -29,15 +29,12 @@ __all__ = ["check_class_groups", "fit_gated_linear", "gated_margins", "NO_SAMPLE
 NO_SAMPLES_SCORE = float(np.finfo(np.float32).min / 2)
 
 
-def check_class_groups(class_groups, n_classes: int | None = None) -> np.ndarray:
+def check_class_groups(class_groups) -> np.ndarray:
     """class_groups as an int64 array (K,) of types 0 .. G - 1, each used; raises ValueError."""
     groups = np.asarray(class_groups)
     if groups.ndim != 1 or groups.size == 0 or not np.issubdtype(groups.dtype, np.integer):
         raise ValueError(f"class_groups must be a non-empty 1-D integer array (each class's "
                          f"type), got dtype {groups.dtype} shape {groups.shape}")
-    if n_classes is not None and groups.size != n_classes:
-        raise ValueError(f"class_groups must give the type of each of the {n_classes} "
-                         f"classes, got {groups.size}")
     if (groups.min() < 0 or groups.max() >= groups.size
             or not np.array_equal(np.unique(groups), np.arange(groups.max() + 1))):
         raise ValueError("class_groups must number the types 0 .. G - 1, each type used")
@@ -88,9 +85,10 @@ def fit_gated_linear(X, y, class_groups, C: float = 1.0, random_state: int = 0,
 def gated_margins(outputs, class_groups) -> np.ndarray:
     """The head's outputs (n, G + K) -> per-class scores (n, K): for class c of type g, the
     smaller of g's lead over the best other type and c's lead over the best other class of g
-    (a type or a class alone leads by +inf; scores are clipped to finite float32). Positive for exactly the class the gate picks
-    (the best class of the best type; ties: none positive, argmax takes the first), negative
-    by how far the others fall short at their weaker stage."""
+    (a type or a class alone leads by +inf; the scores are clipped to finite float32).
+    Positive for exactly the class the gate picks (the best class of the best type; on a tie
+    none is, and argmax takes the first), negative by how far the others fall short at their
+    weaker stage."""
     groups = check_class_groups(class_groups)
     out = np.asarray(outputs, dtype=np.float64)
     G, K = int(groups.max()) + 1, groups.size

@@ -8,8 +8,8 @@ concatenated ``k * 9`` values z-scored with the training set's ``feature_mean`` 
 ``feature_scale``, then dense layers (ReLU between them; none after the last), whose
 argmax is the class; or, for a model with ``class_groups``, a head gated by object type
 (`gated_head`): its last layer scores the types, then each class within its type, and the
-class is the best of the best type's. A model with a ``ratio_offset`` (gray levels, > 0) has the stack's
-cross-image relief statistics after those (`ratio_stats`, that offset inside the log); one
+class is the best of the best type's. A model with a ``ratio_offset`` (gray levels, > 0)
+has the stack's cross-image relief statistics after those (`ratio_stats`, that offset inside the log); one
 without has none (every model written before them). Everything is plain arrays, for an npz
 artifact without pickle.
 """

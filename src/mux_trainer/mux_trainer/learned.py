@@ -458,9 +458,10 @@ class LearnedIlluminationClassifier:
       one without the cross-image statistics, round 5).
     - head: 'by_type' (default; docs/LEARNED.md round 10): a head gated by object type
       (`mux_classifier.gated_head`, types from the class names' prefix,
-      `data.class_type_groups`): one linear SVM tells the types apart, one per type its
-      classes, each on its own samples and z-scoring; the flat head where gating changes
-      nothing (one type, or one class per type). 'flat': one one-vs-rest linear SVM over every class (rounds 3-9).
+      `data.class_type_groups`): one linear SVM tells the types apart; within a type a
+      class scores by its type's own SVM (that type's samples and z-scoring) plus the flat
+      SVM; the flat head where gating changes nothing (one type, or one class per type).
+      'flat': one one-vs-rest linear SVM over every class (rounds 3-9).
     - inner_draws: independent sets of inner splits, each with its own noise draw
       (`inner_seeds`; the first is the one seed gives), whose mean accuracy scores a
       candidate: more draws, less of the ranking left to one draw (docs/LEARNED.md, round 9:
