@@ -78,6 +78,7 @@ def test_eval_has_a_learned_row(capture, tmp_path, capsys):
     assert m['accuracy'] == m['accuracy_by_images'][str(m['n_images'])]
     assert set(m['accuracy_by_type']) == {'fruit0', 'fruit1'}
     assert np.array(m['patterns']).shape == (32, m['n_images']) and m['mode'] == 'learned'
+    assert m['head'] == 'by_type'   # fruit0- and fruit1- classes: gated by type
     assert m['train_seconds'] > 0 and m['infer_ms_per_sample'] > 0
     table = (out_dir / 'table1.csv').read_text()
     assert '\nsigma3,learned,' in table

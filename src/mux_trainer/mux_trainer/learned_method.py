@@ -67,6 +67,11 @@ def progress_text(event: dict) -> str:
     return f'learned: {kind}'
 
 
+def head_name(model) -> str:
+    """The fitted model's head: 'by_type' (gated by object type) or 'flat'."""
+    return 'flat' if model.model_.class_groups is None else 'by_type'
+
+
 def pattern_levels(patterns) -> list:
     """LED levels as JSON (rounded to 1/1000: a graded board has 1/255 steps)."""
     return np.round(np.asarray(patterns, dtype=np.float64), 3).tolist()
@@ -80,7 +85,7 @@ def learned_artifact(model, provenance: dict | None = None):
     prov = {'method': 'learned', 'binary': bool(model.binary), 'seed': int(model.seed),
             'max_steps': int(model.max_steps), 'best_step': int(model.best_step_),
             'chosen': str(model.chosen_),
-            'head': 'flat' if model.model_.class_groups is None else 'by_type',
+            'head': head_name(model),
             'n_repeats': int(model.n_repeats),
             'accuracy_by_patterns': {str(k): float(v)
                                      for k, v in model.accuracy_by_images_.items()},
@@ -116,7 +121,7 @@ def learned_summary(models: dict, test_data, n_renders: int = 4, seed: int = 0,
         'accuracy_by_type': accuracy_by_type(test_data, results[best]['correct']),
         'accuracy_by_images': {str(k): r['accuracy'] for k, r in results.items()},
         'search_accuracy_by_images': {str(k): a for k, a in sorted(search.items())},
-        'mode': 'learned', 'binary': bool(chosen.binary),
+        'mode': 'learned', 'binary': bool(chosen.binary), 'head': head_name(chosen),
         'patterns': pattern_levels(chosen.patterns_),
         'infer_ms_per_sample': float(infer_ms),
         'best_step_by_images': {str(k): int(m.best_step_) for k, m in sorted(models.items())},
