@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests')]  # the tests' helpers package
-from helpers.acquisition import GraphClient  # noqa: E402  (the tests' ROS client and node start-up)
+from helpers.acquisition import StageGraph  # noqa: E402  (the tests' ROS client and node start-up)
 from helpers.suite import fresh_domain_id, write_params  # noqa: E402
 
 
@@ -89,7 +89,7 @@ def main(argv=None) -> int:
                'capture': [], 'calibration': []}
     frame_s = args.exposure_us / 1e6
 
-    client = GraphClient(domain_id)
+    client = StageGraph(domain_id)
     with Supervisor(sigint_timeout_s=5.0, stdout=open(work / 'nodes.log', 'w'),
                     stderr=open(work / 'nodes.err', 'w')) as supervisor:
         client.start(supervisor, ['driver', 'camera', 'acquisition'], params)

@@ -9,9 +9,10 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / 'src'
 # modules that are ROS by design besides the nodes: the graph contract's rclpy parts (QoS
-# profiles, the node main, the stage client) and the recorder's rclpy glue
-ROS_MODULES = {'lightstage_graph.qos', 'lightstage_graph.spin', 'lightstage_graph.stage_client',
-               'lightstage_recording.bag_ros'}
+# profiles, the node main, a worker thread's result awaited in the executor, the stage
+# client) and the recorder's rclpy glue
+ROS_MODULES = {'lightstage_graph.qos', 'lightstage_graph.spin', 'lightstage_graph.awaitable',
+               'lightstage_graph.stage_client', 'lightstage_recording.bag_ros'}
 
 # package -> the project packages it may import (lightstage_interfaces aside): a tree, no cycles.
 # The learning packages take the stage's physics from lightstage_physics and never import

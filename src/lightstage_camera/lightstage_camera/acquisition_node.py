@@ -9,9 +9,11 @@ Both light patterns through the driver's ``/lightstage/apply_patterns`` (``trigg
 one camera trigger per pattern) and collect the ``camera/image_raw`` frames whose header stamps
 equal the returned trigger stamps (`lightstage_graph.stage_client`, as the classifier
 does), in requests of at most ``frames_per_request`` frames. One goal at a time (they share the
-stage): a goal that arrives while another runs is rejected. The handlers block while they
-wait for the driver and the images, so the node spins a MultiThreadedExecutor with one
-ReentrantCallbackGroup.
+stage): a goal that arrives while another runs is rejected. A goal's work waits for the
+driver and the images, so it runs on a worker thread of its own and the goal's handler, a
+coroutine, awaits it (`lightstage_graph.awaitable`): no callback blocks, and the node spins
+one executor thread, which takes each image once (on a MultiThreadedExecutor every free
+thread re-dispatched a ready image until one took it: docs/NODES.md).
 """
 from __future__ import annotations
 
@@ -19,8 +21,10 @@ import math
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime, timezone
 
+from lightstage_graph.awaitable import executor_future
 from lightstage_graph.errors import StageError
 from lightstage_graph.limits import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
 from lightstage_graph.names import ACQUISITION_NODE, CALIBRATE_ACTION, CAPTURE_ACTION
@@ -30,7 +34,7 @@ from lightstage_graph.stage_client import StageClient
 from lightstage_interfaces.action import CalibrateNoise, CaptureModel
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from lightstage_physics.rig import MAX_FRAMES_AVERAGED, N_SITES, Rig
@@ -93,6 +97,9 @@ class AcquisitionNode(Node):
         super().__init__(node_name, **kwargs)
         self.p = declare_parameters(self, PARAMETERS)
         self._busy = threading.Lock()  # one goal at a time: the stage is shared
+        # a goal's work: off the executor thread (it waits for the driver and the images)
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix='acquisition')
+        self._stopping = threading.Event()
         group = ReentrantCallbackGroup()
         self.stage = StageClient(self, image_buffer=self.p('image_buffer'), callback_group=group,
                                  start_hint=START_HINT)
@@ -126,24 +133,54 @@ class AcquisitionNode(Node):
     def _on_cancel(self, _goal_handle) -> CancelResponse:
         return CancelResponse.ACCEPT
 
-    def _on_stage(self, goal_handle, result, cancelled: str, failed: str, work):
-        """End the goal with `work(start)`, run with the stage to itself (one goal at a time):
-        it fills `result` and returns the message of success. A cancellation ends the goal as
-        cancelled (`cancelled: why`), an acquisition error, bad value or I/O error as aborted
-        (`failed: why`)."""
+    def stop_work(self):
+        """At the node's stop (`spin_until_stopped`): a running goal ends at its next
+        cancellation check, aborted; returns whether no goal runs any more."""
+        self._stopping.set()
+        return lambda: not self._busy.locked()
+
+    def destroy_node(self) -> None:
+        self._stopping.set()
+        self._worker.shutdown(wait=False, cancel_futures=True)
+        super().destroy_node()
+
+    def _cancelled(self, goal_handle) -> bool:
+        """Whether the goal's work should end: a cancel request, or the node stopping."""
+        return goal_handle.is_cancel_requested or self._stopping.is_set()
+
+    async def _on_stage(self, goal_handle, result, cancelled: str, failed: str, work):
+        """End the goal with `work(start)`, run on the worker thread with the stage to itself
+        (one goal at a time) while this handler awaits it: it fills `result` and returns the
+        message of success. A cancellation ends the goal as cancelled (`cancelled: why`), an
+        acquisition error, bad value or I/O error as aborted (`failed: why`)."""
         start = time.perf_counter()
         if not self._busy.acquire(blocking=False):
             return self._finish(goal_handle, result, 'abort', 'another capture or calibration '
                                 'is running on the stage; try again when it is done', start)
+
+        def run() -> tuple[str, str]:
+            try:
+                return 'succeed', work(start)
+            except CaptureCancelled as exc:
+                if self._stopping.is_set():
+                    return 'abort', f'{failed}: the acquisition node is stopping'
+                return 'cancel', f'{cancelled}: {exc}'
+            except (StageError, ValueError, OSError) as exc:  # AcquisitionError: a StageError
+                return 'abort', f'{failed}: {exc}'
+            finally:
+                self._busy.release()
+
         try:
-            message = work(start)
-        except CaptureCancelled as exc:
-            return self._finish(goal_handle, result, 'cancel', f'{cancelled}: {exc}', start)
-        except (StageError, ValueError, OSError) as exc:  # AcquisitionError is a StageError
-            return self._finish(goal_handle, result, 'abort', f'{failed}: {exc}', start)
-        finally:
+            queued = self._worker.submit(run)
+        except RuntimeError:   # the node is being destroyed: the worker takes no more work
+            queued = None
+        finished = None if queued is None else await executor_future(self, queued)
+        if finished is None or finished.cancelled():   # `run` never ran
             self._busy.release()
-        return self._finish(goal_handle, result, 'succeed', message, start)
+            return self._finish(goal_handle, result, 'abort', f'{failed}: the acquisition '
+                                'node is stopping', start)
+        verdict, message = finished.result()
+        return self._finish(goal_handle, result, verdict, message, start)
 
     def _finish(self, goal_handle, result, outcome: str, message: str, start: float):
         result.message = message
@@ -180,7 +217,7 @@ class AcquisitionNode(Node):
             raise DestinationError(f'rig_file {path} does not load ({exc}); fix it or set '
                                    'rig_file to \'\' (the paper\'s stage)') from None
 
-    def _execute_capture(self, goal_handle):
+    async def _execute_capture(self, goal_handle):
         goal = goal_handle.request
         result = CaptureModel.Result()
         name = f'{goal.label}/{goal.sample}/{goal.pose}'
@@ -199,7 +236,7 @@ class AcquisitionNode(Node):
                 self._grabber(settings.exposure_us, settings.gain_db), settings,
                 goal.output_dir, goal.label, goal.sample, goal.pose, base_rig=self._base_rig(),
                 overwrite=goal.overwrite, preview=bool(self.p('preview')),
-                cancelled=lambda: goal_handle.is_cancel_requested,
+                cancelled=lambda: self._cancelled(goal_handle),
                 before_capture=self._wait_for_stage,
                 on_progress=progress)
             result.model_dir = str(pose_dir)
@@ -213,7 +250,8 @@ class AcquisitionNode(Node):
                 self.get_logger().warning(warning)
             return message
 
-        return self._on_stage(goal_handle, result, name, f'capture of {name} failed', capture)
+        return await self._on_stage(goal_handle, result, name, f'capture of {name} failed',
+                                    capture)
 
     # ------------------------------------------------------------------ CalibrateNoise
     def _calibration_settings(self, goal) -> CalibrationSettings:
@@ -226,7 +264,7 @@ class AcquisitionNode(Node):
             bit_depth=int(self.p('camera_bit_depth')), n_sites=N_SITES,
             frames_per_request=int(self.p('frames_per_request')))
 
-    def _execute_calibration(self, goal_handle):
+    async def _execute_calibration(self, goal_handle):
         goal = goal_handle.request
         result = CalibrateNoise.Result()
 
@@ -250,7 +288,7 @@ class AcquisitionNode(Node):
                 f'frames at {settings.exposure_us} us, {settings.gain_db:g} dB')
             calibration = calibrate_noise(grab, settings, on_frames=feedback,
                                           on_fitting=lambda: stage('fitting'),
-                                          cancelled=lambda: goal_handle.is_cancel_requested)
+                                          cancelled=lambda: self._cancelled(goal_handle))
             # the fit goes into the result first: a failed write still returns it
             fit = calibration.model
             result.sigma_p2, result.sigma_r2 = float(fit.sigma_p2), float(fit.sigma_r2)
@@ -269,13 +307,13 @@ class AcquisitionNode(Node):
                 message += f'; WARNING: {warning}'
             return message
 
-        return self._on_stage(goal_handle, result, 'noise calibration', 'noise calibration failed',
-                              calibrate)
+        return await self._on_stage(goal_handle, result, 'noise calibration',
+                                    'noise calibration failed', calibrate)
 
 
 def main(argv: list[str] | None = None) -> int:
     init_node(sys.argv if argv is None else argv)
-    return spin_until_stopped(AcquisitionNode(), MultiThreadedExecutor(num_threads=4))
+    return spin_until_stopped(AcquisitionNode(), SingleThreadedExecutor())
 
 
 if __name__ == '__main__':

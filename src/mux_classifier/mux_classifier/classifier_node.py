@@ -36,9 +36,9 @@ import sys
 import threading
 import time
 import traceback
-from concurrent.futures import Future as ThreadFuture
 
 import numpy as np
+from lightstage_graph.awaitable import executor_future
 from lightstage_graph.errors import StageError
 from lightstage_graph.links import ReaderMatch
 from lightstage_graph.names import (CAMERA_NODE, CLASSIFIER_NODE, CLASSIFY_SERVICE,
@@ -55,7 +55,6 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.node import Node
 from rclpy.qos import qos_profile_services_default
 from rclpy.service_introspection import ServiceIntrospectionState
-from rclpy.task import Future
 
 from .classify_request import TIMEOUT_MAX_S, TIMEOUT_MIN_S, request_timeout_s
 from .inference import AcquisitionPlan, InferenceError, classify_on_stage
@@ -230,26 +229,13 @@ class ClassifierNode(Node):
                                             timeout_s)
             except StageBusy as exc:
                 return self._failed(response, str(exc))
-            answer = await self._awaitable(outcome)
+            answer = await executor_future(self, outcome)
             try:
                 return answer.result()
             except StageBusy as exc:  # its turn came too late
                 return self._failed(response, str(exc))
         except Exception as exc:  # noqa: BLE001 - last resort: the service answers every request
             return self._unexpected(exc)
-
-    def _awaitable(self, outcome: ThreadFuture) -> Future:
-        """An rclpy Future done when the worker's `outcome` is, waking the executor then (a
-        result set from another thread does not wake it by itself: ros2/rclpy#1467)."""
-        done = Future()
-
-        def resolve(_outcome):
-            done.set_result(_outcome)
-            executor = self.executor
-            if executor is not None:
-                executor.wake()
-        outcome.add_done_callback(resolve)
-        return done
 
     def _unexpected(self, exc: BaseException) -> Classify.Response:
         self.get_logger().error('classify failed unexpectedly: '
