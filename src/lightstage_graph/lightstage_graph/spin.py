@@ -3,7 +3,7 @@ project's nodes (as in ros2/examples).
 
     def main(argv=None):
         init_node(sys.argv if argv is None else argv)
-        return spin_until_stopped(AcquisitionNode(), MultiThreadedExecutor(num_threads=4))
+        return spin_until_stopped(TrainerNode(), MultiThreadedExecutor(num_threads=2))
 
 `init_node` is `rclpy.init` in the project's ROS environment, however the node was started
 (`ros2 run` from a shell that did not source the setup file included), and logs what that
@@ -16,9 +16,9 @@ rcl's logging) down from its own thread at once, under whatever the node's callb
 threads are doing at that moment, which killed a driver node with SIGSEGV (1 CI run).
 Here a signal only asks the spin loop to end; callbacks in flight get `CALLBACK_GRACE_S`
 to finish, then the node is destroyed and rclpy shut down, in that order, in one thread.
-A node with long work of its own (the trainer's goal) defines `stop_work()`: called at the
-stop, it asks that work to end and returns a callable saying whether it has, which the
-grace waits for too.
+A node with long work of its own (the trainer's and the acquisition's goals) defines
+`stop_work()`: called at the stop, it asks that work to end and returns a callable saying
+whether it has, which the grace waits for too.
 A second signal does not wait: it interrupts what runs (KeyboardInterrupt) and the node is
 destroyed at once.
 """

@@ -5,8 +5,9 @@ written to the same artifact, evaluated into the same Table 1 row.
 --method learned` (and the trainer node's `method: learned`), `learned_artifact` its
 trained artifact (format 4, 5 with cross-image statistics, 6 with a head gated by object
 type: the numpy `LearnedModel`'s arrays, `artifact.TrainedArtifact.from_learned`),
-`learned_summary` its held-out result for `lightstage eval`, one model per exposure count. JAX is imported only when a model is
-built (`learned`), so importing this module costs nothing.
+`learned_summary` its held-out result for `lightstage eval`, one model per exposure count.
+JAX is imported only when a model is built (`learned`), so importing this module costs
+nothing.
 """
 from __future__ import annotations
 
