@@ -125,3 +125,36 @@ def test_closing_refuses_the_waiting_calls_and_lets_the_running_one_finish():
         waiting.result(timeout=1.0)
     with pytest.raises(StageBusy, match='shutting down'):
         queue.submit(lambda _r: None, timeout_s=1.0)
+
+
+def test_a_waiting_call_starts_only_with_a_call_s_usual_time_and_spread_left():
+    """A call whose turn comes with just over the mean time per call left would run over
+    about half the time (it failed with its last image missing); it needs the mean plus four
+    recent spreads (RFC 6298's retransmission timeout)."""
+    now = [100.0]
+    queue = StageQueue(clock=lambda: now[0])
+    release, blocking = threading.Event(), threading.Event()
+    try:
+        for took in (1.0, 1.2, 0.8, 1.0):   # calls of about 1 s, spread about 0.2 s
+            def call(_remaining_s, took=took):
+                now[0] += took
+            queue.submit(call, timeout_s=10.0).result(timeout=10.0)
+        mean, spread = queue.seconds_per_call, queue.seconds_per_call_spread
+        assert 0.9 < mean < 1.1 and 0.05 < spread < 0.5
+
+        def blocker_call(_remaining_s):
+            blocking.set()
+            release.wait(10.0)
+        blocker = queue.submit(blocker_call, timeout_s=60.0)
+        just_over_mean = queue.submit(lambda _r: 'ran', timeout_s=10.0)
+        enough = queue.submit(lambda _r: 'ran', timeout_s=60.0)
+        assert blocking.wait(10.0)
+        now[0] += 10.0 - (mean + 0.01)   # its turn comes with the mean + 0.01 s left
+        release.set()
+        blocker.result(timeout=10.0)
+        with pytest.raises(StageBusy, match=r'less than a call takes \(about [\d.]+ s, up to '):
+            just_over_mean.result(timeout=10.0)
+        assert enough.result(timeout=10.0) == 'ran'
+    finally:
+        release.set()
+        queue.close()
