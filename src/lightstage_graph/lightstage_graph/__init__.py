@@ -7,13 +7,23 @@ Pure (no rclpy; usable anywhere):
     errors        StageError, MissingImagesError
     frames        mono16 decoding and ImageMatcher (images matched to trigger stamps)
     diagnostics   a DiagnosticArray publisher handed a node (as diagnostic_updater)
+    links         a writer's wait for the readers the graph already shows (handed a node)
+    leds          the LED layout Pattern.msg fixes (site-major, 8 sites x R/G/B/NIR)
     exits         how a process ended, in words
     limits        the ranges of gain, exposure and dimmer every package checks against
     output        printing to a pipe whose reader may go away (`| head -1`)
     ros_env       the project's ROS environment (`python -m lightstage_graph.ros_env`)
 ROS (rclpy):
-    qos           the image and illumination QoS profiles
+    qos           the image, illumination and queued-service QoS profiles
     spin          init_node / spin_until_stopped: every node's main()
+    awaitable     a node's executor awaiting work that runs on a thread of its own
     stage_client  light patterns through the driver and collect the frames of their triggers
     graph_client  a private-context client for the CLI verbs, the demo and the tests
+                  (rclpy loaded on first use)
+
+Importing the package imports none of them: `from lightstage_graph.names import ...`.
 """
+
+__all__ = ['names', 'params', 'stamps', 'errors', 'frames', 'diagnostics', 'links', 'leds',
+           'exits', 'limits', 'output', 'ros_env', 'qos', 'spin', 'awaitable', 'stage_client',
+           'graph_client']
