@@ -5,7 +5,10 @@ Files with an intact summary are summarised from it; the messages are read by wa
 file record by record (`scan.FileScan`), so a bag whose writer was killed (no summary, no
 footer, no metadata.yaml) or whose file is damaged still yields every intact message; what was
 wrong is in ``BagInfo.problems`` / ``BagReader.problems``. Files that cannot be read at all
-raise `BagError`, whose message says what was wrong and what to do.
+raise `BagError`, whose message says what was wrong and what to do -- among them files that
+would make the reader hold more than ``max_chunk_bytes`` in memory (`scan.MAX_CHUNK_BYTES`) and
+a metadata.yaml naming anything but the regular files of the bag directory, each once
+(`layout.resolve_files`).
 """
 from __future__ import annotations
 
@@ -18,18 +21,18 @@ import yaml
 
 from .layout import resolve_files
 from .qos import parse_qos_profiles
-from .scan import FileScan
+from .scan import MAX_CHUNK_BYTES, FileScan
 from .summary import BagInfo, BagMessage, TopicInfo
 
 
 class BagReader:
     """Read a bag directory or a lone .mcap file; see the module docstring."""
 
-    def __init__(self, path):
+    def __init__(self, path, max_chunk_bytes: int = MAX_CHUNK_BYTES):
         self.path = Path(path)
         self.files, self.metadata_yaml, problems = resolve_files(self.path)
         self.problems: list[str] = list(problems)
-        self._scans = [FileScan(f) for f in self.files]
+        self._scans = [FileScan(f, max_chunk_bytes) for f in self.files]
         self._info: BagInfo | None = None
 
     # -- topics
