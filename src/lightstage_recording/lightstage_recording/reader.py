@@ -20,6 +20,7 @@ from typing import Iterable, Iterator
 import yaml
 
 from .layout import resolve_files
+from .losses import LossCounter
 from .qos import parse_qos_profiles
 from .scan import MAX_CHUNK_BYTES, FileScan
 from .summary import BagInfo, BagMessage, TopicInfo
@@ -85,6 +86,7 @@ class BagReader:
         distro = ''
         library = ''
         walked = True  # every file read through, not summarised from its summary
+        losses = LossCounter()
         for scan in self._scans:
             library = library or scan.library
             if scan.summary is not None and not verify:
@@ -110,6 +112,8 @@ class BagReader:
                             continue
                         t.count += 1
                         count += 1
+                        losses.add_topic(t.name, t.type, len(t.offered_qos))
+                        losses.message(t.name, m.sequence, m.data)
                         start = m.log_time if start is None else min(start, m.log_time)
                         end = m.log_time if end is None else max(end, m.log_time)
                 for cid in scan.channels:
@@ -131,7 +135,8 @@ class BagReader:
             custom_data={str(k): str(v) for k, v in
                          ((self.metadata_yaml or {}).get('custom_data') or {}).items()},
             verified=walked, chunks=sum(s.chunks for s in self._scans) if walked else 0,
-            chunks_without_crc=sum(s.chunks_without_crc for s in self._scans) if walked else 0)
+            chunks_without_crc=sum(s.chunks_without_crc for s in self._scans) if walked else 0,
+            losses=losses if walked else None)
         return self._info
 
     def _merge_topic(self, topics: dict, scan: FileScan, channel_id: int) -> TopicInfo | None:
