@@ -34,13 +34,17 @@ def test_gaps_are_counted_on_one_publisher_topics_only():
     c = LossCounter()
     c.add_topic('/illumination', 'lightstage_interfaces/msg/IlluminationState', 1)
     c.add_topic('/rosout', 'rcl_interfaces/msg/Log', 3)
-    for seq in [5, 6, 9, 10, 2, 3, 7]:  # from 5 (joined late: no loss), 7 and 8 lost, a
-        c.message('/illumination', seq)  # restart at 2 (counted from there), 4..6 lost
+    c.add_topic('/parameter_events', 'rcl_interfaces/msg/ParameterEvent', 1)
+    for seq in [5, 6, 9, 10, 12]:  # from 5 (joined late: no loss), 7, 8 and 11 lost
+        c.message('/illumination', seq)
     for seq in [1, 1, 2, 9, 3]:
         c.message('/rosout', seq)
-    assert c.gaps == {'/illumination': (5, 7)}
-    assert c.uncounted == ['/rosout']
-    assert c.lines() == ['/illumination: 5 of 12 messages missing (publisher sequence numbers '
+    # one publisher when it was found, a second one later: its jumps are no losses
+    for seq in [1, 2, 7, 3, 8]:
+        c.message('/parameter_events', seq)
+    assert c.gaps == {'/illumination': (3, 5)}
+    assert c.uncounted == ['/parameter_events', '/rosout']
+    assert c.lines() == ['/illumination: 3 of 8 messages missing (publisher sequence numbers '
                          'skipped: sent, never recorded)']
 
 

@@ -7,9 +7,10 @@ bag info` count it the same way (`LossCounter`).
   /lightstage/result, the service event topics -- a jump from n to n + k means k - 1 messages
   the publisher sent never reached the bag (a recorder that was stopped or too slow: the
   publisher's keep-last history dropped them). Topics with several publishers (/rosout,
-  /diagnostics, /parameter_events) interleave several counters and are not counted; a
-  number going backwards is a publisher that started again (counted from there); sequence 0
-  means the writer stored none (not counted).
+  /diagnostics, /parameter_events) interleave several counters and are not counted: those
+  that had several when the recorder found them, and any whose numbers go backwards (a second
+  publisher came, or the one started again) -- from then on the topic is not counted at all,
+  since its jumps are no longer losses; sequence 0 means the writer stored none (not counted).
 - **Unmatched service events.** A service with introspection on publishes one event when its
   server receives a request and one when it sends the response (`REQUEST_RECEIVED`,
   `RESPONSE_SENT`; a client with introspection: `REQUEST_SENT`, `RESPONSE_RECEIVED`), both
@@ -95,9 +96,12 @@ class LossCounter:
             return
         t.received += 1
         if t.counted and sequence:
-            if t.last is not None and sequence > t.last + 1:
-                t.missing += sequence - t.last - 1
-            t.last = sequence
+            if t.last is not None and sequence <= t.last:
+                t.counted, t.missing = False, 0  # several publishers, or a restart
+            else:
+                if t.last is not None and sequence > t.last + 1:
+                    t.missing += sequence - t.last - 1
+                t.last = sequence
         s = self._services.get(topic)
         if s is not None:
             self._service_event(s, data)
@@ -130,7 +134,7 @@ class LossCounter:
 
     @property
     def uncounted(self) -> list[str]:
-        """Topics whose gaps are not counted (several publishers)."""
+        """Topics whose gaps are not counted (several publishers, or one that restarted)."""
         return sorted(name for name, t in self._topics.items() if not t.counted)
 
     @property
