@@ -82,7 +82,9 @@ def format_info(info: BagInfo, verbose: bool = False) -> str:
     stopped = info.custom_data.get('recovery_stopped')
     if stopped:
         lines.append('')
-        lines.append(f'PARTIAL COPY of {info.custom_data.get("recovered_from") or info.custom_data.get("exported_from", "another bag")}: '
+        source = (info.custom_data.get('recovered_from') or info.custom_data.get('exported_from')
+                  or 'another bag')
+        lines.append(f'PARTIAL COPY of {source}: '
                      f'the recovery stopped ({stopped}); this bag holds only what was copied '
                      'before that')
     if not info.complete:
