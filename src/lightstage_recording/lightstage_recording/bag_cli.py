@@ -51,8 +51,8 @@ def record_parser() -> argparse.ArgumentParser:
                     'layout (for `ros2 bag`, `lightstage bag` and `lightstage play`; rosbags\' '
                     'Reader opens it). rosbags\' AnyReader and rosbags-convert, and mcap_ros2, '
                     'cannot take the type names of service events (nor in rosbag2\'s own bags): '
-                    '`lightstage bag export BAG` writes a copy they read, or record with '
-                    '--no-services. Stops on Ctrl-C / SIGTERM or after --max-duration-s and '
+                    '`lightstage bag export BAG` writes a copy they read. Stops on Ctrl-C / '
+                    'SIGTERM or after --max-duration-s and '
                     'prints what it recorded, and what it lost (messages the publishers sent '
                     'that never arrived, service calls with one event missing).')
     p.add_argument('topics', nargs='*', metavar='TOPIC',
