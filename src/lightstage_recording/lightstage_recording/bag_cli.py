@@ -48,8 +48,8 @@ def record_parser() -> argparse.ArgumentParser:
         prog='lightstage record',
         description='Record topics of the running graph (by default all of them, with the calls '
                     'of services that have introspection on) into a bag in rosbag2\'s MCAP '
-                    'layout (for `ros2 bag`, `lightstage bag` and `lightstage play`; rosbags\' '
-                    'Reader opens it). rosbags\' AnyReader and rosbags-convert, and mcap_ros2, '
+                    'layout, which `lightstage bag`, `lightstage play` and rosbags\' Reader '
+                    'read. rosbags\' AnyReader and rosbags-convert, and mcap_ros2, '
                     'cannot take the type names of service events (nor in rosbag2\'s own bags): '
                     '`lightstage bag export BAG` writes a copy they read. Stops on Ctrl-C / '
                     'SIGTERM or after --max-duration-s and '
