@@ -1,4 +1,4 @@
-"""Issue 12, "Also seen": rosbags' AnyReader cannot open our bags (nor rosbag2's own) when they
+"""rosbags' AnyReader cannot open our bags (nor rosbag2's own) when they
 hold service events; docs/RECORDING.md gives recipes for rosbags and mcap_ros2 users. This runs
 those recipes exactly as the document writes them, on bags/sim_session and on a split bag, and
 compares every decoded message with rclpy's decoding. No ROS graph."""

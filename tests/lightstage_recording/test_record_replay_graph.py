@@ -161,3 +161,103 @@ def test_replay_into_an_observing_classifier_reproduces_the_labels(session, stag
     assert f'played {n_played} messages on 2 topics' in p.stdout, p.stdout
     for r, again in assert_replayed_results_match(recorded, replayed, rtol=1e-5, atol=1e-6):
         assert again.header.stamp == r.header.stamp
+
+
+def test_the_recording_exported_opens_in_rosbags_and_mcap_ros2(session, tmp_path):
+    """A bag `lightstage record` wrote with its defaults, exported: rosbags' AnyReader and
+    mcap_ros2 decode every message (service events included) as rclpy does, rosbags-convert
+    converts it."""
+    import sys
+    from pathlib import Path
+
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.highlevel import AnyReader
+    from test_reader_recipes import _check
+    bag, dst = session['bag'], tmp_path / 'export'
+    p = subprocess.run(lightstage_command('bag', 'export', str(bag), '-o', str(dst)),
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stdout + p.stderr
+    info = BagReader(bag).info()
+    events = sum(t.count for t in info.topics.values() if t.is_service_event)
+    assert events >= 4 * len(SAMPLES)
+    with AnyReader([dst]) as reader:
+        decoded = [(c.topic, t, reader.deserialize(raw, c.msgtype)) for c, t, raw in reader.messages()]
+    assert len(decoded) == info.message_count and _check(decoded, bag) == events
+    decoded = []
+    for path in BagReader(dst).files:
+        with open(path, 'rb') as f:
+            decoded += [(c.topic, m.log_time, msg) for _, c, m, msg in make_reader(
+                f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+    assert len(decoded) == info.message_count and _check(decoded, bag) == events
+    convert = Path(sys.executable).with_name('rosbags-convert')
+    p = subprocess.run([str(convert), '--src', str(dst), '--dst', str(tmp_path / 'x.bag')],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout + p.stderr
+
+
+def test_a_recorder_stopped_mid_session_reports_what_it_lost(stage_capture, stage_artifact_path,
+                                                            tmp_path):
+    """The probe: the recorder stopped (SIGSTOP) while 12 calls of 8 images run (more than the
+    camera publisher's keep-last 32 and what the transport buffers), then continued:
+    the images, triggers and service events it never got are named, with counts, in its report
+    and by `bag info`, and the counts are the bag's own (what the calls used minus what it
+    holds)."""
+    import json
+    from lightstage_interfaces.srv import Classify
+    bag = tmp_path / 'paused'
+    domain_id = fresh_domain_id()
+    params = write_params(tmp_path / 'params.yaml', stage_graph_params(
+        stage_capture, SAMPLES[0], 3, artifact=stage_artifact_path))
+    client = GraphClient(domain_id)
+    out = io.StringIO()
+    answers = []
+    try:
+        with Supervisor(stdout=out, stderr=out, sigint_timeout_s=5.0) as supervisor:
+            start_nodes(supervisor, client, ['driver', 'camera', 'classifier'], domain_id, params)
+            recorder = subprocess.Popen(lightstage_command('record', '-o', str(bag), '--domain-id',
+                                                           str(domain_id)),
+                                        env=ros_environment(domain_id), stdout=subprocess.PIPE,
+                                        stderr=subprocess.STDOUT, text=True)
+            try:
+                client.spin_until(lambda: all(client.subscribed_by(t, 'recorder') for t in RECORDED),
+                                  30.0, f'the recorder to subscribe to {RECORDED}')
+                warm_up = client.call(Classify, '/lightstage/classify', Classify.Request(max_images=4))
+                assert warm_up.success, warm_up.message
+                recorder.send_signal(signal.SIGSTOP)
+                try:
+                    for _ in range(12):
+                        r = client.call(Classify, '/lightstage/classify',
+                                        Classify.Request(max_images=8, timeout_s=10.0))
+                        assert r.success, r.message
+                        answers.append(r)
+                finally:
+                    recorder.send_signal(signal.SIGCONT)
+                # one call with the recorder running again: what it lost lies between
+                # messages it holds, where the sequence numbers show it
+                r = client.call(Classify, '/lightstage/classify', Classify.Request(max_images=4))
+                assert r.success, r.message
+                answers.append(r)
+            finally:
+                recorder.send_signal(signal.SIGTERM)
+                report, _ = recorder.communicate(timeout=60)
+    finally:
+        client.close()
+    assert recorder.returncode == 0, report + out.getvalue()
+    assert '/rosout' not in report.split('LOST WHILE RECORDING')[-1], report  # several publishers
+    info = BagReader(bag).info(verify=True)
+    used = 4 + sum(a.images_used for a in answers)
+    images = info.topics['/camera/image_raw'].count
+    lost = info.losses.gaps.get('/camera/image_raw', (0, 0))[0]
+    assert lost > 0, f'the stopped recorder lost no image ({images} of {used}): {report}'
+    # the first and last images of the session may be missing without a gap showing (the
+    # warm-up's before the camera matched the recorder, the last call's after it closed)
+    assert images + lost <= used, (images, lost, used)
+    assert f'/camera/image_raw: {lost} of {images + lost} messages missing' in report, report
+    p = subprocess.run(lightstage_command('bag', 'info', str(bag)), capture_output=True, text=True,
+                       timeout=120)
+    assert 'LOST WHILE RECORDING' in p.stdout, p.stdout
+    assert f'/camera/image_raw: {lost} of {images + lost} messages missing' in p.stdout, p.stdout
+    doc = json.loads(subprocess.run(lightstage_command('bag', 'info', '--json', str(bag)),
+                                    capture_output=True, text=True, timeout=120).stdout)
+    assert doc['lost_while_recording']['sequence_gaps']['/camera/image_raw']['missing'] == lost

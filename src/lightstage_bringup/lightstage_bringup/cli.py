@@ -28,7 +28,8 @@ VERBS: dict[str, tuple[str, str, str]] = {
     'play': ('lightstage_recording.bag_cli', 'play_main',
              'play a bag into the graph with its recorded QoS and timing'),
     'bag': ('lightstage_recording.bag_cli', 'bag_main',
-            'bag info (summary like `ros2 bag info`) / bag recover (complete copy of a damaged bag)'),
+            'bag info (summary like `ros2 bag info`) / bag recover (complete copy of a damaged bag) / '
+            'bag export (a copy rosbags and mcap_ros2 read)'),
     'synth': ('lightstage_physics.synth', 'main',
               'write the synthetic light-stage dataset (a capture folder)'),
     'capture': ('lightstage_bringup.acquisition_cli', 'capture_main',

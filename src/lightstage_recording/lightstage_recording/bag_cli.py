@@ -1,4 +1,4 @@
-"""`lightstage record`, `lightstage play` and `lightstage bag info|recover`.
+"""`lightstage record`, `lightstage play` and `lightstage bag info|recover|export`.
 
 ``record`` and ``play`` run the recorder / player node in this process with the project's
 ROS environment (LOCALHOST discovery, `ros_env`); ``bag`` reads bags without ROS.
@@ -6,7 +6,7 @@ ROS environment (LOCALHOST discovery, `ros_env`); ``bag`` reads bags without ROS
 Exit codes: 0 done; 1 a failure while running (record: a write error, e.g. disk full, stopped
 the recording -- the bag is closed with what it holds; play: no subscriber matched in time;
 bag info: the bag is incomplete or damaged -- its intact part is still summarised; bag
-recover: nothing could be recovered, or the copy stopped midway); 2 bad arguments or a bag
+recover / export: nothing could be copied, or the copy stopped midway); 2 bad arguments or a bag
 that cannot be read at all.
 """
 from __future__ import annotations
@@ -47,9 +47,14 @@ def record_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog='lightstage record',
         description='Record topics of the running graph (by default all of them, with the calls '
-                    'of services that have introspection on) into an MCAP bag that `ros2 bag` '
-                    'and rosbags read. Stops on Ctrl-C / SIGTERM or after --max-duration-s and '
-                    'prints what it recorded.')
+                    'of services that have introspection on) into a bag in rosbag2\'s MCAP '
+                    'layout, which `lightstage bag`, `lightstage play` and rosbags\' Reader '
+                    'read. rosbags\' AnyReader and rosbags-convert, and mcap_ros2, '
+                    'cannot take the type names of service events (nor in rosbag2\'s own bags): '
+                    '`lightstage bag export BAG` writes a copy they read. Stops on Ctrl-C / '
+                    'SIGTERM or after --max-duration-s and '
+                    'prints what it recorded, and what it lost (messages the publishers sent '
+                    'that never arrived, service calls with one event missing).')
     p.add_argument('topics', nargs='*', metavar='TOPIC',
                    help='record only these topics (default: every topic)')
     p.add_argument('-o', '--output', default='', metavar='DIR',
@@ -227,6 +232,20 @@ def bag_parser() -> argparse.ArgumentParser:
     recover.add_argument('-o', '--output', default=None, metavar='DIR',
                          help='new bag directory (default: BAG_recovered); it must not exist, or '
                               'be an empty directory')
+    export = sub.add_parser(
+        'export', help='copy a bag for rosbags (AnyReader, rosbags-convert) and mcap_ros2',
+        description='Copy BAG into a new bag that rosbags (Reader, AnyReader, rosbags-convert) '
+                    'and mcap_ros2 (iter_decoded_messages) open and decode, service events '
+                    'included: service and action types (pkg/srv/Classify_Event, ...) are '
+                    'renamed to message types (pkg/msg/ClassifyEvent, ...) without a type hash; '
+                    'every message, time, QoS and the other types are copied as they are. Those '
+                    'readers cannot take the type names rosbag2 gives service events (nor can '
+                    'they read rosbag2\'s own bags with service events); play the original. '
+                    'Exit codes as bag recover.')
+    export.add_argument('bag', metavar='BAG')
+    export.add_argument('-o', '--output', default=None, metavar='DIR',
+                        help='new bag directory (default: BAG_export); it must not exist, or be '
+                             'an empty directory')
     return p
 
 
@@ -266,6 +285,30 @@ def format_recovery(result) -> str:
     return '\n'.join(lines)
 
 
+def format_export(result, renamed: dict) -> str:
+    """What `lightstage bag export` did: the source's problems, what the export holds, the
+    renamed types."""
+    from .formatting import format_size
+    lines = [f'{result.src} is damaged or incomplete (its intact messages are exported):']
+    lines.extend(f'  - {p}' for p in result.source_problems)
+    lines = lines if result.source_problems else []
+    if result.error:
+        lines.append(f'EXPORT STOPPED: {result.error}')
+    info = result.info
+    if info is None:
+        lines.append(f'nothing exported: {result.src} holds no intact message; no bag was '
+                     f'written to {result.dst}')
+        return '\n'.join(lines)
+    lines.append(f'exported {info.message_count} messages on {len(info.topics)} topics into '
+                 f'{result.dst} ({format_size(info.size_bytes)})'
+                 + (' -- partly, see EXPORT STOPPED' if result.error else ''))
+    for old, new in sorted(renamed.items()):
+        lines.append(f'  renamed {old} -> {new} (no type hash)')
+    lines.append(f'  rosbags (Reader, AnyReader, rosbags-convert) and mcap_ros2 read {result.dst}; '
+                 f'play {result.src}')
+    return '\n'.join(lines)
+
+
 def bag_main(argv: list[str] | None = None) -> int:
     args = bag_parser().parse_args(sys.argv[1:] if argv is None else argv)
     from .exceptions import BagError
@@ -280,8 +323,19 @@ def bag_main(argv: list[str] | None = None) -> int:
                       else format_info(info, args.verbose))
             return EXIT_OK if info.complete else EXIT_FAILED
         src = Path(args.bag)
+        suffix = '_recovered' if args.command == 'recover' else '_export'
         dst = Path(args.output) if args.output else src.with_name(src.name.removesuffix('.mcap')
-                                                                  + '_recovered')
+                                                                  + suffix)
+        if args.command == 'export':
+            from .export import export_bag
+            result, renamed = export_bag(src, dst)
+            print_out(format_export(result, renamed))
+            if result.error or result.info is None:
+                print(f'{prog}: ' + (f'the copy stopped midway; what it copied is in {dst}'
+                                     if result.error else f'nothing to export from {src}'),
+                      file=sys.stderr)
+                return EXIT_FAILED
+            return EXIT_OK
         result = recover_bag(src, dst)
         print_out(format_recovery(result))
         if result.error:

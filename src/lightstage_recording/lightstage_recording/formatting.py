@@ -68,6 +68,13 @@ def format_info(info: BagInfo, verbose: bool = False) -> str:
         head = 'Service information: ' if i == 0 else ' ' * 21
         lines.append(f'{head}Service: {s.service_name:<{swidth}} | Type: {s.service_type} | '
                      f'Event Count: {s.count} | Serialization Format: {s.serialization_format}')
+    if info.losses is None:
+        lines.append('Lost:              not counted (--no-verify reads no message; without it the '
+                     'publishers\' sequence gaps and unmatched service events are counted)')
+    elif info.losses.lost_any:
+        lines.append('')
+        lines.append('LOST WHILE RECORDING (sent by the graph, never in the bag):')
+        lines.extend(f'  {text}' for text in info.losses.lines())
     deleted = info.custom_data.get('deleted_files')
     if deleted:
         lines.append('')
@@ -75,7 +82,9 @@ def format_info(info: BagInfo, verbose: bool = False) -> str:
     stopped = info.custom_data.get('recovery_stopped')
     if stopped:
         lines.append('')
-        lines.append(f'PARTIAL COPY of {info.custom_data.get("recovered_from", "another bag")}: '
+        source = (info.custom_data.get('recovered_from') or info.custom_data.get('exported_from')
+                  or 'another bag')
+        lines.append(f'PARTIAL COPY of {source}: '
                      f'the recovery stopped ({stopped}); this bag holds only what was copied '
                      'before that')
     if not info.complete:

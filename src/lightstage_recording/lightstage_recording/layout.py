@@ -5,7 +5,9 @@ rule, and which files a bag path holds."""
 from __future__ import annotations
 
 import datetime as _dt
+import os
 import re
+import stat
 from pathlib import Path
 
 import yaml
@@ -54,6 +56,9 @@ def resolve_files(path: Path) -> tuple[list[Path], dict | None, list[str]]:
         if path.name == METADATA_FILE:
             return resolve_files(path.parent)
         return [path], None, problems
+    if not path.is_dir():
+        raise BagError(f'{path} is not a regular file nor a directory '
+                       f'({_kind(path.stat().st_mode)}); give a bag directory or a .mcap file')
     meta_path = path / METADATA_FILE
     metadata = None
     if meta_path.is_file():
@@ -75,21 +80,76 @@ def resolve_files(path: Path) -> tuple[list[Path], dict | None, list[str]]:
             raise BagError(f'{path} uses rosbag2 {metadata.get("compression_mode")} compression '
                            f'({metadata.get("compression_format")}); decompress it first with '
                            '`ros2 bag convert`')
-        names = metadata.get('relative_file_paths') or [f.get('path') for f in metadata.get('files', [])]
-        files = [path / n for n in names if n]
-        missing = [f.name for f in files if not f.is_file()]
-        if missing:
-            raise BagError(f'{meta_path} lists {", ".join(missing)} but {path} does not hold '
-                           f'{"it" if len(missing) == 1 else "them"}; copy the whole bag directory')
-        return files, metadata, problems
+        return listed_files(path, meta_path, metadata), metadata, problems
     files = sorted(path.glob('*.mcap'), key=lambda p: [int(t) if t.isdigit() else t
                                                       for t in re.split(r'(\d+)', p.name)])
     if not files:
         raise BagError(f'{path} holds no metadata.yaml and no .mcap file; give a bag directory '
                        'written by `lightstage record` or `ros2 bag record -s mcap`')
+    for f in files:
+        check_regular_file(f, path)
     if not meta_path.exists():
         problems.append(f'{path} has no {METADATA_FILE} (the recorder did not close the bag); '
                         'reading its .mcap files directly')
     return files, None, problems
 
 
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISFIFO, 'a FIFO'), (stat.S_ISSOCK, 'a socket'),
+                       (stat.S_ISCHR, 'a character device'), (stat.S_ISBLK, 'a block device'),
+                       (stat.S_ISDIR, 'a directory'), (stat.S_ISLNK, 'a symbolic link')):
+        if test(mode):
+            return name
+    return 'not a regular file'
+
+
+def check_regular_file(file: Path, bag: Path) -> None:
+    """BagError unless ``file`` is a regular file in the bag directory ``bag`` itself (a
+    symbolic link is followed and must end there too). Nothing is opened: a FIFO or device
+    named as a bag file would block or never end."""
+    try:
+        mode = os.stat(file).st_mode
+    except OSError as exc:
+        raise BagError(f'cannot read {file}: {exc.strerror}; copy the whole bag directory') from None
+    if not stat.S_ISREG(mode):
+        raise BagError(f'{file} is {_kind(mode)}, not a regular file; a bag\'s files are regular '
+                       'files; refused, nothing read')
+    if file.resolve().parent != bag.resolve():
+        raise BagError(f'{file} resolves to {file.resolve()}, outside the bag directory {bag}; a '
+                       'bag\'s files are in its directory; refused, nothing read')
+
+
+def listed_files(bag: Path, meta_path: Path, metadata: dict) -> list[Path]:
+    """The files metadata.yaml lists, checked before any is opened: each a plain file name (no
+    directory part, never ``..``) of a regular file in the bag directory, each once. BagError
+    naming metadata.yaml and the entry otherwise: a metadata.yaml may come from anywhere, and
+    one naming /etc/passwd, a FIFO or one file 20,000 times must not make a reader read it."""
+    names = metadata.get('relative_file_paths') or [f.get('path') for f in metadata.get('files') or []
+                                                    if isinstance(f, dict)]
+    if not isinstance(names, list):
+        raise BagError(f'{meta_path}: relative_file_paths is not a list; give a metadata.yaml '
+                       'written by `lightstage record` or `ros2 bag record`')
+    files, seen = [], set()
+    for name in names:
+        if not name:
+            continue
+        if not isinstance(name, str) or name in ('.', '..') or '/' in name or '\\' in name \
+                or '\0' in name:
+            raise BagError(f'{meta_path} lists {name!r}, which is not a file name in the bag '
+                           f'directory {bag}; a bag lists only its own files; refused, nothing '
+                           'read')
+        if name in seen:
+            raise BagError(f'{meta_path} lists {name} more than once '
+                           f'({names.count(name)} times); a bag lists each of its files once; '
+                           'refused, nothing read')
+        seen.add(name)
+        files.append(bag / name)
+    missing = [f.name for f in files if not os.path.lexists(f)]
+    if missing:
+        raise BagError(f'{meta_path} lists {", ".join(missing)} but {bag} does not hold '
+                       f'{"it" if len(missing) == 1 else "them"}; copy the whole bag directory')
+    for f in files:
+        check_regular_file(f, bag)
+    return files

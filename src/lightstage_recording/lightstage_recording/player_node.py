@@ -187,8 +187,13 @@ class PlayerNode(Node):
         rate = float(self.p('rate'))
         t0 = None
         count = 0
-        for m in self.reader.messages(self.topics, start_ns=start_ns):
-            if self.stop.is_set():
+        messages = self.reader.messages(self.topics, start_ns=start_ns)
+        while True:
+            try:
+                m = next(messages, None)
+            except BagError as exc:  # a chunk beyond the memory limit, found while playing
+                raise PlayerError(f'stopped after {self.played + count} messages: {exc}') from None
+            if m is None or self.stop.is_set():
                 break
             if t0 is None:
                 t0 = time.monotonic()

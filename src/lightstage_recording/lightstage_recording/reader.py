@@ -5,7 +5,10 @@ Files with an intact summary are summarised from it; the messages are read by wa
 file record by record (`scan.FileScan`), so a bag whose writer was killed (no summary, no
 footer, no metadata.yaml) or whose file is damaged still yields every intact message; what was
 wrong is in ``BagInfo.problems`` / ``BagReader.problems``. Files that cannot be read at all
-raise `BagError`, whose message says what was wrong and what to do.
+raise `BagError`, whose message says what was wrong and what to do -- among them files that
+would make the reader hold more than ``max_chunk_bytes`` in memory (`scan.MAX_CHUNK_BYTES`) and
+a metadata.yaml naming anything but the regular files of the bag directory, each once
+(`layout.resolve_files`).
 """
 from __future__ import annotations
 
@@ -17,19 +20,20 @@ from typing import Iterable, Iterator
 import yaml
 
 from .layout import resolve_files
+from .losses import LossCounter
 from .qos import parse_qos_profiles
-from .scan import FileScan
+from .scan import MAX_CHUNK_BYTES, FileScan
 from .summary import BagInfo, BagMessage, TopicInfo
 
 
 class BagReader:
     """Read a bag directory or a lone .mcap file; see the module docstring."""
 
-    def __init__(self, path):
+    def __init__(self, path, max_chunk_bytes: int = MAX_CHUNK_BYTES):
         self.path = Path(path)
         self.files, self.metadata_yaml, problems = resolve_files(self.path)
         self.problems: list[str] = list(problems)
-        self._scans = [FileScan(f) for f in self.files]
+        self._scans = [FileScan(f, max_chunk_bytes) for f in self.files]
         self._info: BagInfo | None = None
 
     # -- topics
@@ -82,6 +86,7 @@ class BagReader:
         distro = ''
         library = ''
         walked = True  # every file read through, not summarised from its summary
+        losses = LossCounter()
         for scan in self._scans:
             library = library or scan.library
             if scan.summary is not None and not verify:
@@ -107,6 +112,8 @@ class BagReader:
                             continue
                         t.count += 1
                         count += 1
+                        losses.add_topic(t.name, t.type, len(t.offered_qos))
+                        losses.message(t.name, m.sequence, m.data)
                         start = m.log_time if start is None else min(start, m.log_time)
                         end = m.log_time if end is None else max(end, m.log_time)
                 for cid in scan.channels:
@@ -128,7 +135,8 @@ class BagReader:
             custom_data={str(k): str(v) for k, v in
                          ((self.metadata_yaml or {}).get('custom_data') or {}).items()},
             verified=walked, chunks=sum(s.chunks for s in self._scans) if walked else 0,
-            chunks_without_crc=sum(s.chunks_without_crc for s in self._scans) if walked else 0)
+            chunks_without_crc=sum(s.chunks_without_crc for s in self._scans) if walked else 0,
+            losses=losses if walked else None)
         return self._info
 
     def _merge_topic(self, topics: dict, scan: FileScan, channel_id: int) -> TopicInfo | None:

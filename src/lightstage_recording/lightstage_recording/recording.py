@@ -13,6 +13,7 @@ from typing import Iterable, Sequence
 
 from .exceptions import BagWriteError
 from .formatting import format_size
+from .losses import LossCounter
 from .msg_definitions import is_service_event
 from .qos import INFINITE_NS, QosProfile
 from .writer import BagWriter
@@ -147,11 +148,15 @@ class Recording:
     that is counted in `dropped`, not written; `close` still finishes the bag for the
     messages in it (metadata.yaml, as far as the disk allows; the file in progress ends after
     its last complete chunk, for `lightstage bag recover` to complete).
+
+    `losses` counts what never arrived (`losses.LossCounter`: publisher sequence gaps,
+    service requests without response); `report` says it.
     """
 
     def __init__(self, writer: BagWriter):
         self.writer = writer
         self.dropped = 0
+        self.losses = LossCounter()
 
     @property
     def error(self) -> str:
@@ -168,6 +173,7 @@ class Recording:
             self.writer.add_topic(name, type_name, offered_qos, **kwargs)
         except BagWriteError:
             return False
+        self.losses.add_topic(name, type_name, len(list(offered_qos)))
         return True
 
     def receive(self, topic: str, data: bytes, info: dict) -> bool:
@@ -178,12 +184,13 @@ class Recording:
             return False
         received = info.get('received_timestamp') or time.time_ns()
         sent = info.get('source_timestamp') or received
+        sequence = info.get('publication_sequence_number') or None
         try:
-            self.writer.write(topic, data, received, sent,
-                              info.get('publication_sequence_number') or None)
+            self.writer.write(topic, data, received, sent, sequence)
         except BagWriteError:
             self.dropped += 1
             return False
+        self.losses.message(topic, sequence or 0, data)
         return True
 
     def flush(self) -> bool:
@@ -227,6 +234,11 @@ class Recording:
                 lines.append(f'  never published while recording: {", ".join(never)}')
         for topic, why in sorted((skipped or {}).items()):
             lines.append(f'  not recorded: {topic}: {why}')
+        lost = self.losses.lines()
+        if lost:
+            lines.append('  LOST WHILE RECORDING (sent by the graph, not in the bag: the recorder '
+                         'was stopped or too slow):')
+            lines.extend(f'    {text}' for text in lost)
         lines.extend(f'  warning: {text}' for text in w.warnings)
         lines.append(f'  `lightstage bag info {w.path}` summarises it; `lightstage play {w.path}` '
                      'replays it')

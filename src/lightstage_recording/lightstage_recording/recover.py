@@ -53,24 +53,38 @@ def recover_bag(src, dst, *, compression: str = 'lz4') -> Recovery:
     midway (disk full), ``dst`` holds the messages copied until then, and its summary and
     metadata.yaml list exactly those (`BagWriter`); ``error`` says what happened.
     """
+    return copy_bag(src, dst, compression=compression, verb='recover')
+
+
+def copy_bag(src, dst, *, compression: str = 'lz4', verb: str = 'recover',
+             source_key: str = 'recovered_from', topic_as=None,
+             custom_data: dict | None = None) -> Recovery:
+    """`recover_bag`, and `lightstage bag export`'s copy: ``topic_as(TopicInfo)`` gives each
+    topic's (type, (schema encoding, schema text), type hash) in ``dst`` (default: as in
+    ``src``); ``verb`` names the command in the bag's library and in what to do again;
+    ``custom_data`` goes into ``dst``'s metadata.yaml, with ``src`` under ``source_key``."""
     src, dst = Path(src), Path(dst)
     reader = BagReader(src)
     source = reader.info()
     check_output_dir(dst)
     result = Recovery(src, dst, source, reader.listed_count())
+    if topic_as is None:
+        def topic_as(t):
+            return t.type, (t.schema_encoding, t.schema_text), t.type_hash
     writer: BagWriter | None = None
     try:
         try:
             for m in reader.messages():
                 if writer is None:
                     writer = BagWriter(dst, compression=compression,
-                                       library='lightstage_recording bag recover',
-                                       custom_data={'recovered_from': str(src)},
-                                       retry=f'run `lightstage bag recover {src} -o {dst}` '
+                                       library=f'lightstage_recording bag {verb}',
+                                       custom_data={source_key: str(src), **(custom_data or {})},
+                                       retry=f'run `lightstage bag {verb} {src} -o {dst}` '
                                              f'again once {dst} is deleted')
                     for t in source.topics.values():
-                        writer.add_topic(t.name, t.type, t.offered_qos, type_hash=t.type_hash,
-                                         schema=(t.schema_encoding, t.schema_text),
+                        type_name, schema, type_hash = topic_as(t)
+                        writer.add_topic(t.name, type_name, t.offered_qos, type_hash=type_hash,
+                                         schema=schema,
                                          serialization_format=t.serialization_format)
                 writer.write(m.topic, m.data, m.log_time_ns, m.publish_time_ns, m.sequence)
                 result.read += 1
@@ -79,7 +93,7 @@ def recover_bag(src, dst, *, compression: str = 'lz4') -> Recovery:
         except OSError as exc:
             result.error = (f'reading {src} failed after {result.read} messages '
                             f'({exc.strerror or exc}); check the disk it is on and run '
-                            f'`lightstage bag recover {src} -o {dst}` again once {dst} is deleted')
+                            f'`lightstage bag {verb} {src} -o {dst}` again once {dst} is deleted')
     finally:
         result.source_problems = list(reader.problems)
         if writer is not None:

@@ -1,16 +1,67 @@
 """One MCAP file walked record by record, so that a file whose writer was killed (no summary,
-no footer) or that is damaged still yields every intact record; what was wrong is described."""
+no footer) or that is damaged still yields every intact record; what was wrong is described.
+
+A bag may come from anywhere, so what a file makes the reader hold in memory is bounded: a
+chunk is inflated only if the size it declares is within ``max_chunk_bytes`` (`MAX_CHUNK_BYTES`,
+256 MiB), and never beyond that declared size (`inflate_chunk`); a record the walk reads is
+within the same limit. A file beyond it is refused (`BagError`, naming the file and the limit)
+before anything is inflated.
+"""
 from __future__ import annotations
 
 import io
 import struct
-from dataclasses import dataclass
+import zlib
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator
 
 from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC
 
 from .exceptions import BagError
+
+# the most one chunk (or one record) may take in memory once inflated: a full-resolution image
+# is 1.3 MB, rosbag2 writes chunks of 768 KiB (one message may make one larger), this recorder
+# 1 MiB; a file declaring more is refused, not inflated
+MAX_CHUNK_BYTES = 256 << 20
+
+
+def too_large_text(path: Path, what: str, size: int, limit: int) -> str:
+    """The refusal of a record beyond the memory limit, naming the file and the limit."""
+    return (f'{path}: {what} is {size} bytes ({size / 2**20:.1f} MiB) inflated, more than the '
+            f'{limit} bytes ({limit / 2**20:.0f} MiB) this reader inflates per chunk; refused '
+            'without inflating it (a damaged or hostile file, or a bag written with chunks or '
+            'messages this large: read it with max_chunk_bytes raised, '
+            '`BagReader(path, max_chunk_bytes=...)`)')
+
+
+def inflate_chunk(chunk, limit: int, path: Path, offset: int) -> bytes:
+    """The records of an MCAP chunk, inflated to at most the size it declares. `BagError` if it
+    declares more than ``limit`` (nothing is inflated); ValueError if its data inflates to a
+    different size than declared (damaged: described by the caller, its messages skipped) or
+    does not match its CRC."""
+    declared = int(chunk.uncompressed_size)
+    if declared > limit:
+        raise BagError(too_large_text(path, f'the chunk at byte {offset}', declared, limit))
+    if chunk.compression == '':
+        data = bytes(chunk.data)
+    elif chunk.compression == 'lz4':
+        import lz4.frame
+        data = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=declared + 1)
+    elif chunk.compression == 'zstd':
+        import zstandard
+        with zstandard.ZstdDecompressor().stream_reader(io.BytesIO(chunk.data)) as stream:
+            data = stream.read(declared + 1)
+    else:
+        raise ValueError(f'unknown chunk compression {chunk.compression!r}')
+    if len(data) != declared:
+        more = 'more than' if len(data) > declared else f'{len(data)} bytes, not'
+        raise ValueError(f'it inflates to {more} the {declared} bytes it declares')
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        from mcap.exceptions import CRCValidationError
+        raise CRCValidationError(expected=chunk.uncompressed_crc, actual=zlib.crc32(data),
+                                 record=chunk)
+    return data
 
 
 def describe_non_mcap(head: bytes, path: Path) -> str:
@@ -38,8 +89,9 @@ class ChunkMessages:
 class FileScan:
     """Walk one MCAP file record by record; damaged parts are skipped and described."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, max_chunk_bytes: int = MAX_CHUNK_BYTES):
         self.path = path
+        self.max_chunk_bytes = int(max_chunk_bytes)
         self.size = path.stat().st_size
         self.schemas: dict = {}
         self.channels: dict = {}
@@ -54,6 +106,10 @@ class FileScan:
         if head[:len(MCAP_MAGIC)] != MCAP_MAGIC:
             raise BagError(describe_non_mcap(head, path))
         self._read_summary()
+        for index in (self.summary.chunk_indexes if self.summary is not None else ()):
+            if index.uncompressed_size > self.max_chunk_bytes:
+                raise BagError(too_large_text(path, f'the chunk at byte {index.chunk_start_offset}',
+                                              index.uncompressed_size, self.max_chunk_bytes))
 
     def _read_summary(self) -> None:
         """Schemas, channels, statistics from the summary, if the file has an intact one."""
@@ -103,7 +159,6 @@ class FileScan:
                         f'{self.size - offset - 9} are left (the writer was killed while writing, '
                         'or the copy is incomplete)')
                     break
-                body = f.read(length)
                 record_at = offset
                 offset += 9 + length
                 if opcode == Opcode.FOOTER:
@@ -111,16 +166,26 @@ class FileScan:
                     break
                 if opcode not in (Opcode.CHUNK, Opcode.MESSAGE, Opcode.SCHEMA, Opcode.CHANNEL,
                                   Opcode.METADATA, Opcode.HEADER):
-                    continue  # indexes, statistics, data end: the walk does not need them
+                    f.seek(length, io.SEEK_CUR)  # indexes, statistics, attachments, data end:
+                    continue                     # the walk does not need them
+                if length > self.max_chunk_bytes:
+                    what = 'chunk' if opcode == Opcode.CHUNK else f'record (opcode 0x{opcode:02x})'
+                    raise BagError(too_large_text(self.path, f'the {what} at byte {record_at}',
+                                                  length, self.max_chunk_bytes))
+                body = f.read(length)
                 try:
                     reader = StreamReader(io.BytesIO(head + body), skip_magic=True, emit_chunks=True)
                     record = next(iter(reader.records))
                     if isinstance(record, Chunk):
                         self.chunks += 1
                         self.chunks_without_crc += record.uncompressed_crc == 0
-                        records = breakup_chunk(record, validate_crc=True)
+                        data = inflate_chunk(record, self.max_chunk_bytes, self.path, record_at)
+                        records = breakup_chunk(replace(record, compression='', data=data,
+                                                        uncompressed_crc=0))
                     else:
                         records = [record]
+                except BagError:
+                    raise
                 except Exception as exc:  # noqa: BLE001 - damaged data, described and skipped
                     what = 'chunk' if opcode == Opcode.CHUNK else f'record (opcode 0x{opcode:02x})'
                     problems.append(f'{self.path.name}: the {what} at byte {record_at} '

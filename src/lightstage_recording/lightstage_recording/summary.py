@@ -55,6 +55,7 @@ class BagInfo:
     verified: bool = False        # every chunk was read back (CRCs checked where they have one)
     chunks: int = 0               # chunks read back
     chunks_without_crc: int = 0   # of those, chunks that carry no CRC (rosbag2's default)
+    losses: object = None         # losses.LossCounter of the messages read back (None: not read)
 
     @property
     def duration_ns(self) -> int:
@@ -68,6 +69,7 @@ class BagInfo:
                 'complete': self.complete, 'problems': list(self.problems),
                 'custom_data': dict(self.custom_data), 'verified': self.verified,
                 'chunks_checked': self.chunks, 'chunks_without_crc': self.chunks_without_crc,
+                'lost_while_recording': self.losses.to_json() if self.losses is not None else None,
                 'topics': [{'name': t.name, 'type': t.type, 'count': t.count,
                             'serialization_format': t.serialization_format,
                             'type_hash': t.type_hash,
