@@ -82,8 +82,9 @@ def serve(args, selector) -> int:
               '--port', file=sys.stderr)
         return EXIT_FAILED
     if not is_loopback(args.host):
-        print(f'lightstage view: listening on {args.host}: the graph is visible to that network',
-              file=sys.stderr)
+        print(f'lightstage view: listening on {args.host}: the graph is visible to that network'
+              + ('; clients must address this machine by a name given with --allow-host'
+                 if wildcard and not args.allow_host else ''), file=sys.stderr)
     rclpy.init(args=[], domain_id=args.domain_id, signal_handler_options=SignalHandlerOptions.NO)
     node = ViewNode(selector, server)
     executor = SingleThreadedExecutor()
