@@ -73,6 +73,7 @@ def test_a_foreign_origin_or_host_is_refused_and_the_foxglove_clients_connect():
 
     with served('view', fresh_domain_id(), '--allow-origin', 'https://viewer.lab') as (server, url):
         seen = asyncio.run(probe(url))
+        output = server.output()
     assert seen == {
         'plain': (101, 'foxglove.websocket.v1', 'serverInfo'),
         'sdk name': (101, 'foxglove.sdk.v1', 'serverInfo'),
@@ -82,4 +83,6 @@ def test_a_foreign_origin_or_host_is_refused_and_the_foxglove_clients_connect():
         'foxglove app': (101, 'foxglove.websocket.v1', 'serverInfo'),
         'local page': (101, 'foxglove.websocket.v1', 'serverInfo'),
         'allowed origin': (101, 'foxglove.websocket.v1', 'serverInfo'),
-    }, server.output()
+    }, output
+    assert "refused a connection: Origin 'http://evil.example' may not connect" in output
+    assert "refused a connection: Host 'evil.example:" in output

@@ -74,7 +74,9 @@ def serve(args, selector) -> int:
     wildcard = args.host in ('0.0.0.0', '::', '0', '')
     guard = Guard(hosts=tuple(args.allow_host) + (() if wildcard else (args.host,)),
                   origins=APP_ORIGINS + tuple(args.allow_origin))
-    server = FoxgloveServer('lightstage', metadata=server_metadata(), guard=guard)
+    server = FoxgloveServer('lightstage', metadata=server_metadata(), guard=guard,
+                            report=lambda text: print(f'lightstage view: {text}', file=sys.stderr,
+                                                      flush=True))
     try:
         port = server.start(args.host, args.port)
     except OSError as exc:

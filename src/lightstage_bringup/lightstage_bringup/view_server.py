@@ -144,11 +144,13 @@ class FoxgloveServer:
 
     def __init__(self, name: str, *, metadata: dict[str, str] | None = None,
                  guard: Guard | None = None, backlog: int = DEFAULT_BACKLOG,
-                 backlog_bytes: int = DEFAULT_BACKLOG_BYTES):
+                 backlog_bytes: int = DEFAULT_BACKLOG_BYTES, report=None):
         self.name = name
         self.metadata = dict(metadata or {})
         self.guard = guard or Guard()
         self.backlog, self.backlog_bytes = backlog, backlog_bytes
+        self.report = report               # report(text): each distinct refusal, once
+        self._reported: set[str] = set()
         self.session_id = str(time.time_ns())
         self.port: int | None = None
         self._channels: dict[int, _Channel] = {}
@@ -242,6 +244,9 @@ class FoxgloveServer:
     async def _handle(self, request: web.Request):
         why = self.guard.refusal(request.headers.get('Host'), request.headers.get('Origin'))
         if why:
+            if self.report is not None and why not in self._reported and len(self._reported) < 100:
+                self._reported.add(why)
+                self.report(f'refused a connection: {why}')
             return web.Response(status=403, text=why + '\n')
         offered = [p.strip() for h in request.headers.getall('Sec-WebSocket-Protocol', [])
                    for p in h.split(',')]
