@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import concurrent.futures
 import ipaddress
 import json
 import struct
@@ -194,14 +195,16 @@ class FoxgloveServer:
         if self._loop is None:
             return
         if self._runner is not None:
-            asyncio.run_coroutine_threadsafe(self._close(), self._loop).result(timeout=10)
+            try:   # a client that does not answer the close handshake is not waited for longer
+                asyncio.run_coroutine_threadsafe(self._close(), self._loop).result(timeout=10)
+            except concurrent.futures.TimeoutError:
+                pass
         self._loop.call_soon_threadsafe(self._loop.stop)
         self._thread.join(timeout=10)
         self._loop = None
 
     async def _close(self) -> None:
-        for client in list(self._clients):
-            await client.ws.close()
+        await asyncio.gather(*(c.ws.close() for c in list(self._clients)), return_exceptions=True)
         await self._runner.cleanup()
 
     # ------------------------------------------------------------------ from any thread
