@@ -1,13 +1,15 @@
 """`lightstage view` beside the graph on the simulated stage, seen by a Foxglove-protocol
-client (the ws-protocol's messages over aiohttp's WebSocket client; foxglove-sdk names the
-subprotocol `foxglove.sdk.v1`, the same messages as `foxglove.websocket.v1`, which it no
-longer accepts by that name): during a classify it receives
-the camera images, the illumination states and the result, each decoded from its CDR bytes
-with the ros2msg schema the server advertised (as Foxglove does it), with the right sizes;
-the shipped layout names only topics the server serves; the server listens on loopback only.
+client offering only the subprotocol `foxglove.websocket.v1`, as Foxglove's own client library
+(@foxglove/ws-protocol 0.8.0) and Lichtblick's WebSocket player before its `foxglove.sdk.v1`
+support do (the ws-protocol's messages over aiohttp's WebSocket client): serverInfo names the
+ROS distribution; during a classify it receives the camera images, the illumination states
+and the result, each decoded from its CDR bytes with the ros2msg schema the server advertised
+(as Foxglove does it), with the right sizes; the shipped layout names only topics the server
+serves and shows a full-scale camera frame as white; the server listens on loopback only.
 """
 import asyncio
 import json
+import os
 import struct
 
 import pytest
@@ -19,7 +21,7 @@ from helpers.web import served
 
 pytestmark = pytest.mark.ros
 
-SUBPROTOCOL = 'foxglove.sdk.v1'
+SUBPROTOCOL = 'foxglove.websocket.v1'   # the only name the released clients offer
 MESSAGE_DATA = 0x01   # binary opcode: subscription id (u32), log time (u64), payload
 WANTED = {'/camera/image_raw': 'sensor_msgs/msg/Image',
           '/illumination': 'lightstage_interfaces/msg/IlluminationState',
@@ -65,11 +67,11 @@ def test_a_foxglove_client_sees_images_illumination_and_result_of_a_classify(
     async def watch(url):
         channels, received = {}, {topic: [] for topic in WANTED}
         async with aiohttp.ClientSession() as session:
-            async with session.ws_connect(url, protocols=[SUBPROTOCOL, 'foxglove.websocket.v1'],
-                                          max_msg_size=64 << 20) as ws:
+            async with session.ws_connect(url, protocols=[SUBPROTOCOL], max_msg_size=64 << 20) as ws:
                 assert ws.protocol == SUBPROTOCOL
                 info = json.loads((await ws.receive(timeout=10)).data)
                 assert info['op'] == 'serverInfo' and info['name'] == 'lightstage'
+                assert info['metadata']['ROS_DISTRO'] == (os.environ.get('ROS_DISTRO') or 'jazzy')
                 deadline = asyncio.get_running_loop().time() + 30
                 while not set(WANTED) <= set(channels):  # topics are advertised as discovered
                     message = await ws.receive(timeout=max(0.1, deadline - asyncio.get_running_loop().time()))
@@ -149,3 +151,28 @@ def test_a_foxglove_client_sees_images_illumination_and_result_of_a_classify(
     assert listening and all(s.loopback for s in listening), [str(s) for s in listening]
     layout = json.loads((REPO / 'src/lightstage_bringup/config/foxglove_layout.json').read_text())
     assert layout_topics(layout) <= set(channels), layout_topics(layout)
+    assert max(int(image_pixels(image).max()) for image in images) <= full_scale_mono16()
+
+
+def image_pixels(image):
+    import numpy as np
+    return np.frombuffer(bytes(image.data), dtype='<u2')
+
+
+def full_scale_mono16(bit_depth: int = 10) -> int:
+    """The largest value of the camera's MSB-aligned mono16 images (10 bits: 1023 << 6)."""
+    import numpy as np
+    from lightstage_camera.camera_backend import to_mono16
+    return int(to_mono16(np.array([(1 << bit_depth) - 1]), bit_depth)[0])
+
+
+def test_the_layouts_image_panel_shows_a_full_scale_frame_as_white():
+    """Foxglove's and Lichtblick's image panel map a mono16 value v to the gradient's colour at
+    (v - minValue) / (maxValue - minValue), clamped (the ImageModeConfig fields: "Minimum
+    (black) value" / "Maximum (white) value" for single-channel images): black at 0, white at
+    the 10-bit camera's largest value, 65472, not 65535."""
+    layout = json.loads((REPO / 'src/lightstage_bringup/config/foxglove_layout.json').read_text())
+    image_mode = layout['configById']['Image!camera']['imageMode']
+    assert image_mode.get('colorMode', 'gradient') == 'gradient'
+    assert image_mode.get('gradient', ['#000000', '#ffffff']) == ['#000000', '#ffffff']
+    assert (image_mode['minValue'], image_mode['maxValue']) == (0, full_scale_mono16())

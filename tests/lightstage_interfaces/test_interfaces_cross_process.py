@@ -56,6 +56,7 @@ def _patterns(n: int):
         p.intensities = rng.random(32).astype(np.float32)
         p.exposure_us = 1000 * (i + 1)
         p.gain_db = float(i) / 2
+        p.gain_db_set = True   # the first is 0 dB, asked for (without the flag: the camera's gain)
         patterns.append(p)
     return patterns
 

@@ -23,6 +23,7 @@ import sys
 import time
 from pathlib import Path
 
+from lightstage_graph.limits import gain_db_fields
 from lightstage_graph.names import CALIBRATE_ACTION, CAPTURE_ACTION
 from lightstage_graph.ros_env import apply_ros_environment
 
@@ -269,7 +270,7 @@ def capture_main(argv: list[str] | None = None) -> int:
                       '(Ctrl-C stops) ')
             goal = CaptureModel.Goal(output_dir=_absolute(args.output_dir), label=label,
                                      sample=sample, pose=pose, exposure_us=args.exposure_us,
-                                     gain_db=args.gain_db, frames_averaged=args.frames,
+                                     **gain_db_fields(args.gain_db), frames_averaged=args.frames,
                                      overwrite=args.overwrite)
             start = time.monotonic()
 
@@ -348,7 +349,7 @@ def calibrate_main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     from lightstage_interfaces.action import CalibrateNoise
     goal = CalibrateNoise.Goal(output_path=_absolute(args.output), plot_path=_absolute(args.plot),
-                               exposure_us=args.exposure_us, gain_db=args.gain_db,
+                               exposure_us=args.exposure_us, **gain_db_fields(args.gain_db),
                                frames_per_level=args.frames, levels=args.levels,
                                overwrite=args.overwrite)
     answers = []

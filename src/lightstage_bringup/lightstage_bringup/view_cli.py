@@ -5,8 +5,10 @@
                                      # ws://127.0.0.1:8765, and import the stage's layout
 
 Serves every topic of the graph (camera images, /illumination, /lightstage/result,
-/diagnostics, the service calls' events, ...) over the Foxglove WebSocket protocol with
-foxglove-sdk, as CDR with ros2msg schemas. Bound to 127.0.0.1 unless --host says otherwise.
+/diagnostics, the service calls' events, ...) over the Foxglove WebSocket protocol
+(`view_server`: subprotocol foxglove.websocket.v1 or foxglove.sdk.v1), as CDR with ros2msg
+schemas. Bound to 127.0.0.1 unless --host says otherwise; connections from other websites'
+pages (Origin) or through other host names (Host) are refused.
 
 Exit codes: 0 stopped by Ctrl-C / SIGTERM; 1 the server could not start (port in use);
 2 bad arguments.
@@ -18,6 +20,7 @@ import signal
 import sys
 import threading
 
+from lightstage_bringup.view_server import APP_ORIGINS
 from lightstage_bringup.web_cli import is_loopback, server_parser
 from lightstage_graph.ros_env import apply_ros_environment
 
@@ -35,6 +38,14 @@ def _parser() -> argparse.ArgumentParser:
                    help='never serve topics matching this regular expression')
     p.add_argument('--no-services', action='store_true',
                    help='leave out the service calls (<service>/_service_event topics)')
+    p.add_argument('--allow-origin', action='append', default=[], metavar='ORIGIN',
+                   help='also accept browser pages from this origin (e.g. https://viewer.example.org; '
+                        'repeatable). Accepted without it: programs (no Origin), pages on this '
+                        'machine (http://localhost:*, http://127.0.0.1:*), the desktop apps '
+                        '(file://) and ' + ', '.join(APP_ORIGINS))
+    p.add_argument('--allow-host', action='append', default=[], metavar='NAME',
+                   help='also accept connections addressed to this host name (repeatable; the '
+                        'loopback names and --host are accepted)')
     return p
 
 
@@ -52,32 +63,39 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def serve(args, selector) -> int:
-    import foxglove
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    from lightstage_bringup.view_channels import layout_path
+    from lightstage_bringup.view_channels import layout_path, server_metadata
     from lightstage_bringup.view_node import ViewNode
+    from lightstage_bringup.view_server import FoxgloveServer, Guard
 
+    wildcard = args.host in ('0.0.0.0', '::', '0', '')
+    guard = Guard(hosts=tuple(args.allow_host) + (() if wildcard else (args.host,)),
+                  origins=APP_ORIGINS + tuple(args.allow_origin))
+    server = FoxgloveServer('lightstage', metadata=server_metadata(), guard=guard,
+                            report=lambda text: print(f'lightstage view: {text}', file=sys.stderr,
+                                                      flush=True))
     try:
-        server = foxglove.start_server(name='lightstage', host=args.host, port=args.port)
-    except Exception as exc:  # noqa: BLE001 (the SDK raises its own error type for a busy port)
+        port = server.start(args.host, args.port)
+    except OSError as exc:
         print(f'lightstage view: cannot listen on {args.host}:{args.port}: {exc}; choose another '
               '--port', file=sys.stderr)
         return EXIT_FAILED
     if not is_loopback(args.host):
-        print(f'lightstage view: listening on {args.host}: the graph is visible to that network',
-              file=sys.stderr)
+        print(f'lightstage view: listening on {args.host}: the graph is visible to that network'
+              + ('; clients must address this machine by a name given with --allow-host'
+                 if wildcard and not args.allow_host else ''), file=sys.stderr)
     rclpy.init(args=[], domain_id=args.domain_id, signal_handler_options=SignalHandlerOptions.NO)
-    node = ViewNode(selector)
+    node = ViewNode(selector, server)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     layout = layout_path()
-    print(f'lightstage view: Foxglove WebSocket at ws://{args.host}:{server.port} '
+    print(f'lightstage view: Foxglove WebSocket at ws://{args.host}:{port} '
           f'(ROS_DOMAIN_ID={node.context.get_domain_id()})'
           + (f'; the stage\'s layout: {layout}' if layout else '') + '; Ctrl-C stops', flush=True)
     try:

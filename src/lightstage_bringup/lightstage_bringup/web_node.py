@@ -14,6 +14,7 @@ import threading
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from lightstage_graph.frames import image_from_buffer
+from lightstage_graph.limits import gain_db_fields
 from lightstage_graph.names import (CALIBRATE_ACTION, CAPTURE_ACTION, CLASSIFY_SERVICE,
                                     DIAGNOSTICS_TOPIC, FRAME_LOST_TOPIC, ILLUMINATION_TOPIC,
                                     IMAGE_TOPIC, RESULT_TOPIC)
@@ -164,7 +165,8 @@ class WebBridge(Node):
         if not client.server_is_ready():
             raise self._unavailable('action', name, kind)
         job = self.state.start_job(kind, goal)   # refuses a second one (409)
-        fields = {k: (math.nan if v is None else v) for k, v in goal.items()}
+        fields = {**{k: (math.nan if v is None else v) for k, v in goal.items()},
+                  **gain_db_fields(goal['gain_db'])}
         progress = capture_progress if kind == 'capture' else calibrate_progress
 
         def on_feedback(message):

@@ -26,7 +26,8 @@ from datetime import datetime, timezone
 
 from lightstage_graph.awaitable import executor_future
 from lightstage_graph.errors import StageError
-from lightstage_graph.limits import EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN
+from lightstage_graph.limits import (EXPOSURE_US_MAX, EXPOSURE_US_MIN, GAIN_DB_MAX, GAIN_DB_MIN,
+                                    requested_gain_db)
 from lightstage_graph.names import ACQUISITION_NODE, CALIBRATE_ACTION, CAPTURE_ACTION
 from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
 from lightstage_graph.spin import init_node, spin_until_stopped
@@ -50,7 +51,8 @@ PARAMETERS = {
     'exposure_us': (30000, integer('model capture: exposure per frame [us] for goals with '
                                    'exposure_us 0 (long: models should be low-noise)',
                                    EXPOSURE_US_MIN, EXPOSURE_US_MAX)),
-    'gain_db': (15.0, floating('model capture: camera gain [dB] for goals with gain_db NaN',
+    'gain_db': (15.0, floating('model capture: camera gain [dB] for goals without one (gain_db '
+                               '0 with gain_db_set false, as a field left out comes, or NaN)',
                                GAIN_DB_MIN, GAIN_DB_MAX)),
     'frames_averaged': (16, integer('model capture: frames averaged per single-LED image for '
                                     'goals with frames_averaged 0', 1, MAX_FRAMES_AVERAGED)),
@@ -67,8 +69,9 @@ PARAMETERS = {
     'calibration_exposure_us': (30000, integer('noise calibration: exposure per frame [us] for '
                                                'goals with exposure_us 0 (the paper: 30 ms)',
                                                EXPOSURE_US_MIN, EXPOSURE_US_MAX)),
-    'calibration_gain_db': (15.0, floating('noise calibration: gain [dB] for goals with gain_db '
-                                           'NaN (the paper: 15 dB)', GAIN_DB_MIN, GAIN_DB_MAX)),
+    'calibration_gain_db': (15.0, floating('noise calibration: gain [dB] for goals without one '
+                                           '(gain_db 0 with gain_db_set false, or NaN; the paper: '
+                                           '15 dB)', GAIN_DB_MIN, GAIN_DB_MAX)),
     'calibration_frames': (120, integer('noise calibration: frames per illumination level for '
                                         'goals with frames_per_level 0 (the paper: 120; >= 3: '
                                         'the fit splits them in two halves)', 3, 100_000)),
@@ -85,11 +88,15 @@ PARAMETERS = {
 
 
 def _or_default(value, default):
-    """Goal field value, or the node's default: for counts and exposures when the field is 0,
-    for gains (0 dB is a real gain) only when it is NaN."""
-    if isinstance(value, float):
-        return default if math.isnan(value) else value
+    """Goal field value, or the node's default when the field is 0 (counts, exposures)."""
     return value if value else default
+
+
+def _gain_or_default(goal, default: float) -> float:
+    """The goal's gain [dB], or the node's: a goal that leaves gain_db out (0 with gain_db_set
+    false, what `ros2 action send_goal` fills in) or gives NaN gets the node's gain."""
+    gain = requested_gain_db(goal.gain_db, goal.gain_db_set)
+    return float(default) if math.isnan(gain) else gain
 
 
 class AcquisitionNode(Node):
@@ -201,7 +208,7 @@ class AcquisitionNode(Node):
     def _capture_settings(self, goal) -> CaptureSettings:
         return CaptureSettings(
             exposure_us=int(_or_default(int(goal.exposure_us), self.p('exposure_us'))),
-            gain_db=float(_or_default(float(goal.gain_db), self.p('gain_db'))),
+            gain_db=_gain_or_default(goal, self.p('gain_db')),
             frames=int(_or_default(int(goal.frames_averaged), self.p('frames_averaged'))),
             bit_depth=int(self.p('camera_bit_depth')), n_sites=N_SITES,
             frames_per_request=int(self.p('frames_per_request')),
@@ -257,7 +264,7 @@ class AcquisitionNode(Node):
     def _calibration_settings(self, goal) -> CalibrationSettings:
         return CalibrationSettings(
             exposure_us=int(_or_default(int(goal.exposure_us), self.p('calibration_exposure_us'))),
-            gain_db=float(_or_default(float(goal.gain_db), self.p('calibration_gain_db'))),
+            gain_db=_gain_or_default(goal, self.p('calibration_gain_db')),
             frames_per_level=int(_or_default(int(goal.frames_per_level),
                                              self.p('calibration_frames'))),
             levels=int(_or_default(int(goal.levels), self.p('calibration_levels'))),

@@ -17,7 +17,6 @@ node is armed again.
 """
 from __future__ import annotations
 
-import math
 import sys
 import threading
 import time
@@ -27,6 +26,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from lightstage_graph.diagnostics import ERROR, OK, WARN, DiagnosticsPublisher, Report
 from lightstage_graph.exits import describe_exit
+from lightstage_graph.limits import requested_gain_db
 from lightstage_graph.links import ReaderMatch
 from lightstage_graph.names import APPLY_PATTERNS_SERVICE, DRIVER_NODE, ILLUMINATION_TOPIC
 from lightstage_graph.params import boolean, declare_parameters, floating, integer, string
@@ -35,6 +35,7 @@ from lightstage_graph.spin import init_node, spin_until_stopped
 from lightstage_graph.stamps import ns_to_stamp
 from lightstage_interfaces.msg import IlluminationState
 from lightstage_interfaces.srv import ApplyPatterns
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import Node as LifecycleNode
 from rclpy.lifecycle import State, TransitionCallbackReturn
 from rclpy.qos import qos_profile_services_default
@@ -51,38 +52,66 @@ def _sentence(text: str) -> str:
     return text.rstrip('. ') + '.'
 
 
+ON_CONFIGURE = ' (taken at configure: settable while the driver is unconfigured)'
+ON_ACTIVATE = ' (taken at activate: settable while the driver is not active)'
+
 PARAMETERS = {
     'port': ('sim', string('serial port path, usb:SERIAL, or sim / sim://?pwm_bits=8&latency_ms=1 '
-                           'to start the Python firmware simulator')),
-    'baud': (115200, integer('serial baud rate', 1200, 2_000_000)),
+                           'to start the Python firmware simulator' + ON_CONFIGURE)),
+    'baud': (115200, integer('serial baud rate' + ON_CONFIGURE, 1200, 2_000_000)),
     'timeout_ms': (100, integer('reply timeout per attempt [ms] (FIRE adds its exposure; a sequence '
                                 'fails after (retries + 1) x this with no trigger event beyond its '
-                                'exposures)', 5, 10_000)),
-    'retries': (3, integer('retries after a lost or corrupted reply', 0, 10)),
-    'connect_timeout_s': (3.0, floating('time to wait for the firmware at configure [s]', 0.1, 30.0)),
+                                'exposures)' + ON_CONFIGURE, 5, 10_000)),
+    'retries': (3, integer('retries after a lost or corrupted reply' + ON_CONFIGURE, 0, 10)),
+    'connect_timeout_s': (3.0, floating('time to wait for the firmware at configure [s]' + ON_CONFIGURE,
+                                        0.1, 30.0)),
     'default_exposure_us': (30_000, integer('exposure for patterns whose exposure_us is 0 [us]',
                                             1, 10_000_000)),
     'gap_us': (0, integer('dark time between the triggers of a sequence [us]', 0, 1_000_000)),
-    'heartbeat_period_s': (0.25, floating('heartbeat period while active [s]', 0.02, 10.0)),
-    'watchdog_ms': (1000, integer('firmware watchdog: LEDs off after this much host silence [ms]',
-                                  50, 60_000)),
-    'diagnostics_period_s': (1.0, floating('/diagnostics period [s]', 0.1, 60.0)),
+    'heartbeat_period_s': (0.25, floating('heartbeat period while active [s]' + ON_ACTIVATE,
+                                          0.02, 10.0)),
+    'watchdog_ms': (1000, integer('firmware watchdog: LEDs off after this much host silence [ms]'
+                                  + ON_CONFIGURE, 50, 60_000)),
+    'diagnostics_period_s': (1.0, floating('/diagnostics period [s]', 0.1, 60.0, read_only=True)),
     'reconnect_period_s': (1.0, floating('while the link is down: time between attempts to reopen the port '
                                           '(restarting the simulator first for port sim) [s]', 0.1, 60.0)),
-    'sites': (8, integer('rig layout: illumination sites the firmware must report', 1, 32)),
-    'channels': (4, integer('rig layout: LEDs (colour channels) per site the firmware must report', 1, 32)),
+    'sites': (8, integer('rig layout: illumination sites the firmware must report' + ON_CONFIGURE,
+                         1, 32)),
+    'channels': (4, integer('rig layout: LEDs (colour channels) per site the firmware must report'
+                            + ON_CONFIGURE, 1, 32)),
     'frame_id': ('lightstage', string('frame id of the rig in IlluminationState headers')),
-    'autostart': (True, boolean('configure and activate on start-up')),
+    'autostart': (True, boolean('configure and activate on start-up', read_only=True)),
     'service_introspection': (True, boolean(
         'publish the ApplyPatterns calls (request and response contents) on '
         '/lightstage/apply_patterns/_service_event, so that recordings hold them', read_only=True)),
 }
+# the lifecycle states in which a parameter taken at a transition may change: a value set
+# at another time would change nothing until that transition, while `ros2 param set` said
+# "successful"
+SETTABLE_IN = {**{name: ('unconfigured',) for name, (_, d) in PARAMETERS.items()
+                  if d.description.endswith(ON_CONFIGURE)},
+               **{name: ('unconfigured', 'inactive') for name, (_, d) in PARAMETERS.items()
+                  if d.description.endswith(ON_ACTIVATE)}}
+
+
+def refused_change(name: str, state: str) -> str:
+    """Why `name` cannot change in lifecycle state `state` ('' if it can), with what to do."""
+    allowed = SETTABLE_IN.get(name)
+    if allowed is None or state in allowed:
+        return ''
+    steps = {'active': 'deactivate, cleanup', 'inactive': 'cleanup'}.get(state, 'cleanup')
+    if allowed == ('unconfigured',):
+        return (f'{name} is taken when the driver is configured and it is {state}: '
+                f'`ros2 lifecycle set /{DRIVER_NODE}` {steps}, set {name}, then configure and activate')
+    return (f'{name} is taken when the driver is activated and it is {state}: '
+            f'`ros2 lifecycle set /{DRIVER_NODE} deactivate`, set {name}, then activate')
 
 
 class LightStageDriverNode(LifecycleNode):
     def __init__(self, node_name: str = DRIVER_NODE, **kwargs):
         super().__init__(node_name, **kwargs)
         self.p = declare_parameters(self, PARAMETERS)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self.stage: LightStage | None = None
         self.backend = None
         self.request_id = 0
@@ -106,6 +135,11 @@ class LightStageDriverNode(LifecycleNode):
         if self.p('service_introspection'):
             self._service.configure_introspection(self.get_clock(), qos_profile_services_default,
                                                   ServiceIntrospectionState.CONTENTS)
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        state = self._state_machine.current_state[1]
+        reasons = [r for r in (refused_change(p.name, state) for p in params) if r]
+        return SetParametersResult(successful=not reasons, reason='; '.join(reasons))
 
     # ------------------------------------------------------------------ lifecycle
     def autostart(self) -> None:
@@ -450,7 +484,7 @@ class LightStageDriverNode(LifecycleNode):
         else:
             msg.intensities = np.array([(trigger.word >> i) & 1 for i in range(32)], dtype=np.float32)
         msg.exposure_us = trigger.exposure_us
-        msg.gain_db = float(pattern.gain_db) if not math.isnan(pattern.gain_db) else math.nan
+        msg.gain_db = requested_gain_db(pattern.gain_db, pattern.gain_db_set)   # NaN: the camera's
         self._illumination_pub.publish(msg)
 
 

@@ -6,7 +6,7 @@ and the range, so that the service answers with what to fix and never dies on a 
 from __future__ import annotations
 
 import numpy as np
-from lightstage_graph.limits import LimitError, check_gain_db
+from lightstage_graph.limits import LimitError, check_gain_db, requested_gain_db
 
 from .errors import PatternError
 from .patterns import led_name
@@ -20,8 +20,9 @@ def check_request(patterns, default_exposure_us: int, min_exposure_us: int, max_
                   ) -> tuple[np.ndarray, list[int]]:
     """(intensities (k, 32) float64, exposures [us]) of a request's patterns, or PatternError.
 
-    `patterns` are Pattern messages (or anything with intensities, exposure_us, gain_db).
-    exposure_us 0 is the driver's default; gain_db NaN is the camera's default.
+    `patterns` are Pattern messages (or anything with intensities, exposure_us, gain_db and
+    optionally gain_db_set). exposure_us 0 is the driver's default; gain_db NaN, or 0 with
+    gain_db_set false (a field left out), is the camera's gain (`requested_gain_db`).
     """
     if len(patterns) == 0:
         raise PatternError('no patterns in the request: send at least one Pattern')
@@ -60,6 +61,8 @@ def check_request(patterns, default_exposure_us: int, min_exposure_us: int, max_
         exposures.append(exposure)
         try:  # the camera checks the same range (lightstage_graph.limits) again
             check_gain_db(pattern.gain_db, f'{field}.gain_db', nan_is_default=True)
+            check_gain_db(requested_gain_db(pattern.gain_db, getattr(pattern, 'gain_db_set', False)),
+                          f'{field}.gain_db', nan_is_default=True)
         except LimitError as exc:
             raise PatternError(str(exc)) from None
     return np.array(rows), exposures

@@ -4,7 +4,8 @@ die on a value), an artifact's noise setting, a rig.yaml, a noise file, node par
 
 One place, so that a value one of them takes is taken by all the others:
 
-    GAIN_DB        0 .. 48 dB       (NaN where "the camera's default" is meant)
+    GAIN_DB        0 .. 48 dB       (NaN where "the camera's default" is meant; in a
+                                    message, 0 too unless its gain_db_set is true)
     EXPOSURE_US    1 .. 10 000 000 us (0 in a pattern: the driver's default)
     DIMMER         0.001 .. 10
 
@@ -18,7 +19,7 @@ import numbers
 
 __all__ = ["GAIN_DB_MIN", "GAIN_DB_MAX", "EXPOSURE_US_MIN", "EXPOSURE_US_MAX", "DIMMER_MIN",
            "DIMMER_MAX", "LimitError", "check_range", "check_gain_db", "check_exposure_us",
-           "check_dimmer", "check_camera_setting"]
+           "check_dimmer", "check_camera_setting", "requested_gain_db", "gain_db_fields"]
 
 # Machine-vision cameras give 0 .. 24-48 dB of analogue plus digital gain; 48 dB is 251 x.
 GAIN_DB_MIN, GAIN_DB_MAX = 0.0, 48.0
@@ -101,3 +102,22 @@ def check_camera_setting(exposure_us, gain_db) -> None:
         raise LimitError(f"exposure_us must be a whole number of microseconds, got {exposure_us}")
     check_exposure_us(exposure_us)
     check_gain_db(gain_db, nan_is_default=False)
+
+
+def requested_gain_db(gain_db, gain_db_set: bool = False) -> float:
+    """The gain a message's (gain_db, gain_db_set) asks for, NaN for "the node's / camera's
+    gain": NaN, or 0 with gain_db_set false. `ros2 action send_goal` / `ros2 service call` fill
+    a field left out with 0 / false, so a goal or pattern without a gain gets the default gain,
+    not 0 dB; 0 dB is asked for with gain_db_set true. Any other value is the gain asked for
+    (checked with `check_gain_db` where it is used)."""
+    value = float(gain_db)
+    if math.isnan(value) or (value == 0.0 and not gain_db_set):
+        return math.nan
+    return value
+
+
+def gain_db_fields(gain_db: float | None) -> dict:
+    """A message's gain fields for a gain in dB (None or NaN: the default gain):
+    {'gain_db': ..., 'gain_db_set': ...}, the inverse of `requested_gain_db`."""
+    value = math.nan if gain_db is None else float(gain_db)
+    return {"gain_db": value, "gain_db_set": not math.isnan(value)}

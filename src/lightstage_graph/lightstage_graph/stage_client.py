@@ -37,6 +37,7 @@ from sensor_msgs.msg import Image
 
 from .errors import StageError
 from .frames import ImageMatcher
+from .limits import gain_db_fields
 from .names import APPLY_PATTERNS_SERVICE, CAMERA_NODE, FRAME_LOST_TOPIC, IMAGE_TOPIC
 from .qos import IMAGE_QOS
 from .stamps import stamp_to_ns
@@ -90,7 +91,7 @@ class StageClient:
         request = ApplyPatterns.Request(trigger=True)
         for column in patterns.T:
             request.patterns.append(Pattern(intensities=column, exposure_us=int(exposure_us),
-                                            gain_db=float(gain_db)))
+                                            **gain_db_fields(gain_db)))
         done = threading.Event()
         future = self._apply_client.call_async(request)
         future.add_done_callback(lambda _f: done.set())

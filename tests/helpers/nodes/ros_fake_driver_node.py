@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import rclpy
+from lightstage_graph.limits import requested_gain_db
 from lightstage_graph.spin import spin_until_stopped
 from rclpy.node import Node
 
@@ -49,7 +50,7 @@ class FakeDriver(Node):
             msg.count_in_request = len(request.patterns)
             msg.intensities = p.intensities
             msg.exposure_us = p.exposure_us
-            msg.gain_db = p.gain_db
+            msg.gain_db = requested_gain_db(p.gain_db, p.gain_db_set)
             self.publisher.publish(msg)
             response.trigger_stamps.append(msg.header.stamp)
             response.sequences.append(msg.sequence)
