@@ -6,7 +6,8 @@ and prints the fitted noise model and its generalization to the Sigma1..3 settin
 simulated stage the camera node's parameters (which sample is on the stage, which capture
 folder it renders from) can be set first: ``TARGET=SIM_SAMPLE``, ``--camera-param``.
 
-Exit codes: 0 done; 1 the node refused or failed a goal (its message is printed); 2 bad
+Exit codes: 0 done; 1 the node refused or failed a goal (its message is printed), or went
+away while the goal ran (killed: the CLI says so a few seconds later, not never); 2 bad
 arguments; 3 the action server (or the camera node, for camera parameters) is not available;
 130 interrupted (the running goal is cancelled first and how it ended is printed: a
 cancelled goal leaves nothing half-written). ``capture DIR --from-rescued FILE`` writes a
@@ -166,9 +167,10 @@ def _set_camera_params(graph, camera_node: str, params: list, wait_s: float) -> 
 
 
 def _run_goal(graph, action_type, name: str, goal, wait_s: float, on_feedback):
-    """Send `goal`, spin until its result; Ctrl-C cancels it and re-raises."""
+    """Send `goal`, spin until its result; Ctrl-C cancels it and re-raises. A server that
+    goes away meanwhile (the acquisition node killed) fails the goal with the reason."""
     from action_msgs.msg import GoalStatus
-    from lightstage_graph.graph_client import GraphTimeout
+    from lightstage_graph.graph_client import GraphTimeout, ServerLost
     try:
         handle = graph.send_goal(action_type, name, goal, wait_s, on_feedback, hint=START_HINT)
     except GraphTimeout as exc:
@@ -178,8 +180,9 @@ def _run_goal(graph, action_type, name: str, goal, wait_s: float, on_feedback):
                       'the stage (one goal at a time); try again when it is done')
     result_future = handle.get_result_async()
     try:
-        while not result_future.done():
-            graph.executor.spin_once(timeout_sec=0.1)
+        answer = graph.goal_result(handle, result_future, name)
+    except ServerLost as exc:
+        raise _Failed(str(exc)) from None
     except KeyboardInterrupt:
         print('\ninterrupted: cancelling the goal ...', file=sys.stderr)
         handle.cancel_goal_async()
@@ -193,7 +196,6 @@ def _run_goal(graph, action_type, name: str, goal, wait_s: float, on_feedback):
             print(f'the goal ended {_status_name(answer.status)}: {answer.result.message}',
                   file=sys.stderr)
         raise
-    answer = result_future.result()
     return answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result, answer.status
 
 
