@@ -42,6 +42,11 @@ class _Unavailable(_Failed):
     exit_code = EXIT_UNAVAILABLE
 
 
+class _Usage(_Failed):
+    """An argument the graph says is wrong (a camera parameter's type or range)."""
+    exit_code = EXIT_USAGE
+
+
 # --------------------------------------------------------------------------- arguments
 
 
@@ -124,19 +129,42 @@ def parse_target(text: str) -> tuple[str, str, str, str]:
 
 
 def parse_param(text: str):
-    """'name=value' -> (name, bool | int | float | str)."""
+    """'name=value' -> (name, bool | int | float | str): the value as YAML would type it."""
+    name, raw = split_param(text)
+    return name, guess_value(raw)
+
+
+def split_param(text: str) -> tuple[str, str]:
+    """'name=value' -> (name, value text)."""
     name, sep, raw = text.partition('=')
     if not sep or not name.strip():
         raise ValueError(f'--camera-param {text!r}: expected NAME=VALUE, e.g. sample=3')
-    raw = raw.strip()
+    return name.strip(), raw.strip()
+
+
+def guess_value(raw: str):
     if raw.lower() in ('true', 'false'):
-        return name.strip(), raw.lower() == 'true'
+        return raw.lower() == 'true'
     for kind in (int, float):
         try:
-            return name.strip(), kind(raw)
+            return kind(raw)
         except ValueError:
             pass
-    return name.strip(), raw
+    return raw
+
+
+def typed_value(name: str, raw: str, descriptor):
+    """The text of --camera-param NAME=RAW as the parameter `descriptor` declares it: text
+    for a string parameter, a float for a float one (a whole number too, as a params file
+    gives it), checked against the declared range (`params.check_value`: ValueError naming
+    the type and the range). A dynamically typed parameter gets YAML's type."""
+    from rcl_interfaces.msg import ParameterType
+    from lightstage_graph.params import check_value
+    if descriptor.type == ParameterType.PARAMETER_STRING and not descriptor.dynamic_typing:
+        value = raw
+    else:
+        value = guess_value(raw)
+    return check_value(f'--camera-param {name}', value, descriptor)
 
 
 def _absolute(path: str) -> str:
@@ -150,12 +178,41 @@ def _absolute(path: str) -> str:
 START_HINT = 'start the graph with `lightstage up driver camera acquisition` in this domain'
 
 
+def _camera_values(graph, camera_node: str, params: list, wait_s: float) -> list:
+    """[(name, value text)] -> [(name, value)] as the camera node declares each parameter
+    (its /describe_parameters: type and range). A value of the wrong type or out of range is
+    a usage error naming the type and the range (the node itself answered only "wrong
+    parameter type", and refused a whole number for a float parameter that a params file
+    gives it)."""
+    from rcl_interfaces.srv import DescribeParameters
+    from lightstage_graph.graph_client import GraphTimeout
+    values = []
+    for name, raw in params:
+        try:
+            described = graph.call(
+                DescribeParameters, f'/{camera_node}/describe_parameters',
+                DescribeParameters.Request(names=[name]), wait_s=wait_s,
+                hint='start the camera (`lightstage up driver camera acquisition`) or check '
+                     '--camera-node').descriptors
+        except GraphTimeout as exc:
+            raise _Unavailable(str(exc)) from None
+        if not described:
+            raise _Usage(f'--camera-param {name}: the camera node {camera_node!r} has no '
+                         'parameter of that name')
+        try:
+            values.append((name, typed_value(name, raw, described[0])))
+        except ValueError as exc:
+            raise _Usage(str(exc)) from None
+    return values
+
+
 def _set_camera_params(graph, camera_node: str, params: list, wait_s: float) -> None:
     """Set camera parameters together (SetParametersAtomically: the camera sees e.g. a new
-    capture_dir and the sample in it as one change)."""
+    capture_dir and the sample in it as one change); `params` [(name, value text)]."""
     from lightstage_graph.graph_client import GraphTimeout
     if not params:
         return
+    params = _camera_values(graph, camera_node, params, wait_s)
     try:
         result = graph.set_parameters_atomically(
             camera_node, dict(params), wait_s=wait_s,
@@ -210,7 +267,7 @@ def _setup(args):
     """Validate the shared options and enter the ROS environment; returns camera params."""
     if args.exposure_us < 0 or args.frames < 0 or args.wait_s < 0:
         raise ValueError('--exposure-us, --frames and --wait-s must be >= 0')
-    params = [parse_param(p) for p in args.camera_param]
+    params = [split_param(p) for p in args.camera_param]
     apply_ros_environment(args.domain_id)  # before rclpy is imported: LOCALHOST discovery
     return params
 

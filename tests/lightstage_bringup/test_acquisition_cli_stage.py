@@ -1,7 +1,10 @@
-"""`lightstage capture` / `lightstage calibrate` whose acquisition node is killed (SIGKILL: no
-result, no goodbye) mid-goal end as failed with the reason, a few seconds later: the graph
-drops the node when its participant's lease (5 s, the project's Fast DDS profile) ends, and
-the CLI gives up on the goal a grace period after that (graph_client.goal_result)."""
+"""`lightstage capture` / `lightstage calibrate` against a running driver and camera.
+
+Their acquisition node killed (SIGKILL: no result, no goodbye) mid-goal, they end as failed
+with the reason a few seconds later: the graph drops the node when its participant's lease
+(5 s, the project's Fast DDS profile) ends, and the CLI gives up on the goal a grace period
+after that (graph_client.goal_result). Their --camera-param values are typed and checked
+as the camera node declares its parameters."""
 import subprocess
 import sys
 import time
@@ -74,3 +77,30 @@ def test_a_cli_whose_acquisition_node_is_killed_mid_goal_fails_with_the_reason(s
     assert cli.returncode == 1, (out, err)
     assert f'the action server {action} went away while the goal ran' in err, err
     assert 'Traceback' not in err, err
+
+
+def test_camera_params_are_checked_against_the_cameras_declared_type_and_range(stage):
+    """`--camera-param dimmer=99` was refused as "wrong parameter type" without the range,
+    and `dimmer=1` too, though a params file gives a float parameter a whole number."""
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.parameter import parameter_value_to_python
+
+    def calibrate(*params):
+        return subprocess.run(lightstage_command(
+            'calibrate', *[a for p in params for a in ('--camera-param', p)], '--wait-s', '1',
+            '--domain-id', str(stage.domain_id)), capture_output=True, text=True, timeout=120)
+
+    p = calibrate('dimmer=99')
+    assert p.returncode == 2, p.stderr
+    assert p.stderr.startswith('lightstage calibrate: --camera-param dimmer: 99.0 is out of range: '
+                               'give a number in 0.001 .. 10'), p.stderr
+    p = calibrate('dimmer=bright')
+    assert p.returncode == 2 and 'dimmer: must be a number in 0.001 .. 10, got \'bright\'' in p.stderr, p.stderr
+    p = calibrate('dimmr=1')
+    assert p.returncode == 2 and "camera node 'camera' has no parameter of that name" in p.stderr, p.stderr
+    # a whole number for a float parameter is taken (then: no acquisition node in this graph)
+    p = calibrate('dimmer=1', 'frame_id=007')
+    assert p.returncode == 3 and 'the action /lightstage/calibrate_noise is not available' in p.stderr, p.stderr
+    values = stage.call(GetParameters, '/camera/get_parameters',
+                        GetParameters.Request(names=['dimmer', 'frame_id'])).values
+    assert [parameter_value_to_python(v) for v in values] == [1.0, '007']
