@@ -128,12 +128,6 @@ def parse_target(text: str) -> tuple[str, str, str, str]:
     return m.group(1), m.group(2), m.group(3), m.group(4) or ''
 
 
-def parse_param(text: str):
-    """'name=value' -> (name, bool | int | float | str): the value as YAML would type it."""
-    name, raw = split_param(text)
-    return name, guess_value(raw)
-
-
 def split_param(text: str) -> tuple[str, str]:
     """'name=value' -> (name, value text)."""
     name, sep, raw = text.partition('=')
@@ -143,6 +137,7 @@ def split_param(text: str) -> tuple[str, str]:
 
 
 def guess_value(raw: str):
+    """A value's text as YAML would type it: bool, int, float, else the text."""
     if raw.lower() in ('true', 'false'):
         return raw.lower() == 'true'
     for kind in (int, float):
