@@ -6,7 +6,8 @@ and prints the fitted noise model and its generalization to the Sigma1..3 settin
 simulated stage the camera node's parameters (which sample is on the stage, which capture
 folder it renders from) can be set first: ``TARGET=SIM_SAMPLE``, ``--camera-param``.
 
-Exit codes: 0 done; 1 the node refused or failed a goal (its message is printed); 2 bad
+Exit codes: 0 done; 1 the node refused or failed a goal (its message is printed), or went
+away while the goal ran (killed: the CLI says so a few seconds later, not never); 2 bad
 arguments; 3 the action server (or the camera node, for camera parameters) is not available;
 130 interrupted (the running goal is cancelled first and how it ended is printed: a
 cancelled goal leaves nothing half-written). ``capture DIR --from-rescued FILE`` writes a
@@ -28,6 +29,7 @@ from lightstage_graph.names import CALIBRATE_ACTION, CAPTURE_ACTION
 from lightstage_graph.ros_env import apply_ros_environment
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNAVAILABLE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+TEARDOWN_S = 10.0  # destroying the ROS client after the outcome is printed
 TARGET = re.compile(r'^([^/=]+)/([^/=]+)/([^/=]+)(?:=(.+))?$')
 
 
@@ -39,6 +41,11 @@ class _Failed(Exception):
 class _Unavailable(_Failed):
     """The action server (or the camera node) is not there."""
     exit_code = EXIT_UNAVAILABLE
+
+
+class _Usage(_Failed):
+    """An argument the graph says is wrong (a camera parameter's type or range)."""
+    exit_code = EXIT_USAGE
 
 
 # --------------------------------------------------------------------------- arguments
@@ -122,20 +129,38 @@ def parse_target(text: str) -> tuple[str, str, str, str]:
     return m.group(1), m.group(2), m.group(3), m.group(4) or ''
 
 
-def parse_param(text: str):
-    """'name=value' -> (name, bool | int | float | str)."""
+def split_param(text: str) -> tuple[str, str]:
+    """'name=value' -> (name, value text)."""
     name, sep, raw = text.partition('=')
     if not sep or not name.strip():
         raise ValueError(f'--camera-param {text!r}: expected NAME=VALUE, e.g. sample=3')
-    raw = raw.strip()
+    return name.strip(), raw.strip()
+
+
+def guess_value(raw: str):
+    """A value's text as YAML would type it: bool, int, float, else the text."""
     if raw.lower() in ('true', 'false'):
-        return name.strip(), raw.lower() == 'true'
+        return raw.lower() == 'true'
     for kind in (int, float):
         try:
-            return name.strip(), kind(raw)
+            return kind(raw)
         except ValueError:
             pass
-    return name.strip(), raw
+    return raw
+
+
+def typed_value(name: str, raw: str, descriptor):
+    """The text of --camera-param NAME=RAW as the parameter `descriptor` declares it: text
+    for a string parameter, a float for a float one (a whole number too, as a params file
+    gives it), checked against the declared range (`params.check_value`: ValueError naming
+    the type and the range). A dynamically typed parameter gets YAML's type."""
+    from rcl_interfaces.msg import ParameterType
+    from lightstage_graph.params import check_value
+    if descriptor.type == ParameterType.PARAMETER_STRING and not descriptor.dynamic_typing:
+        value = raw
+    else:
+        value = guess_value(raw)
+    return check_value(f'--camera-param {name}', value, descriptor)
 
 
 def _absolute(path: str) -> str:
@@ -149,12 +174,41 @@ def _absolute(path: str) -> str:
 START_HINT = 'start the graph with `lightstage up driver camera acquisition` in this domain'
 
 
+def _camera_values(graph, camera_node: str, params: list, wait_s: float) -> list:
+    """[(name, value text)] -> [(name, value)] as the camera node declares each parameter
+    (its /describe_parameters: type and range). A value of the wrong type or out of range is
+    a usage error naming the type and the range (the node itself answered only "wrong
+    parameter type", and refused a whole number for a float parameter that a params file
+    gives it)."""
+    from rcl_interfaces.srv import DescribeParameters
+    from lightstage_graph.graph_client import GraphTimeout
+    values = []
+    for name, raw in params:
+        try:
+            described = graph.call(
+                DescribeParameters, f'/{camera_node}/describe_parameters',
+                DescribeParameters.Request(names=[name]), wait_s=wait_s,
+                hint='start the camera (`lightstage up driver camera acquisition`) or check '
+                     '--camera-node').descriptors
+        except GraphTimeout as exc:
+            raise _Unavailable(str(exc)) from None
+        if not described:
+            raise _Usage(f'--camera-param {name}: the camera node {camera_node!r} has no '
+                         'parameter of that name')
+        try:
+            values.append((name, typed_value(name, raw, described[0])))
+        except ValueError as exc:
+            raise _Usage(str(exc)) from None
+    return values
+
+
 def _set_camera_params(graph, camera_node: str, params: list, wait_s: float) -> None:
     """Set camera parameters together (SetParametersAtomically: the camera sees e.g. a new
-    capture_dir and the sample in it as one change)."""
+    capture_dir and the sample in it as one change); `params` [(name, value text)]."""
     from lightstage_graph.graph_client import GraphTimeout
     if not params:
         return
+    params = _camera_values(graph, camera_node, params, wait_s)
     try:
         result = graph.set_parameters_atomically(
             camera_node, dict(params), wait_s=wait_s,
@@ -167,9 +221,10 @@ def _set_camera_params(graph, camera_node: str, params: list, wait_s: float) -> 
 
 
 def _run_goal(graph, action_type, name: str, goal, wait_s: float, on_feedback):
-    """Send `goal`, spin until its result; Ctrl-C cancels it and re-raises."""
+    """Send `goal`, spin until its result; Ctrl-C cancels it and re-raises. A server that
+    goes away meanwhile (the acquisition node killed) fails the goal with the reason."""
     from action_msgs.msg import GoalStatus
-    from lightstage_graph.graph_client import GraphTimeout
+    from lightstage_graph.graph_client import GraphTimeout, ServerLost
     try:
         handle = graph.send_goal(action_type, name, goal, wait_s, on_feedback, hint=START_HINT)
     except GraphTimeout as exc:
@@ -179,8 +234,9 @@ def _run_goal(graph, action_type, name: str, goal, wait_s: float, on_feedback):
                       'the stage (one goal at a time); try again when it is done')
     result_future = handle.get_result_async()
     try:
-        while not result_future.done():
-            graph.executor.spin_once(timeout_sec=0.1)
+        answer = graph.goal_result(handle, result_future, name)
+    except ServerLost as exc:
+        raise _Failed(str(exc)) from None
     except KeyboardInterrupt:
         print('\ninterrupted: cancelling the goal ...', file=sys.stderr)
         handle.cancel_goal_async()
@@ -194,7 +250,6 @@ def _run_goal(graph, action_type, name: str, goal, wait_s: float, on_feedback):
             print(f'the goal ended {_status_name(answer.status)}: {answer.result.message}',
                   file=sys.stderr)
         raise
-    answer = result_future.result()
     return answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result, answer.status
 
 
@@ -208,27 +263,37 @@ def _setup(args):
     """Validate the shared options and enter the ROS environment; returns camera params."""
     if args.exposure_us < 0 or args.frames < 0 or args.wait_s < 0:
         raise ValueError('--exposure-us, --frames and --wait-s must be >= 0')
-    params = [parse_param(p) for p in args.camera_param]
+    params = [split_param(p) for p in args.camera_param]
     apply_ros_environment(args.domain_id)  # before rclpy is imported: LOCALHOST discovery
     return params
 
 
-def _run(args, verb: str, params: list, work) -> int:
+def _run(args, verb: str, params: list, work, report=None) -> int:
     """On a client of its own: set the camera parameters, then `work(graph)` -> exit code.
     The node refusing, failing or missing, and Ctrl-C (or the end of input at a prompt),
-    end it with their exit code, the message printed."""
+    end it with their exit code, the message printed. `report()` prints the outcome, before
+    the client is torn down (within TEARDOWN_S, or the process ends with the exit code)."""
+    from lightstage_graph.deadline import ExitDeadline
     from lightstage_graph.graph_client import GraphClient
     graph = GraphClient(args.domain_id, f'lightstage_acquisition_cli_{os.getpid()}')
+    code = EXIT_FAILED
     try:
         _set_camera_params(graph, args.camera_node, params, args.wait_s)
-        return work(graph)
+        code = work(graph)
     except _Failed as exc:
-        print(f'lightstage {verb}: {exc}', file=sys.stderr)
-        return exc.exit_code
+        print(f'lightstage {verb}: {exc}', file=sys.stderr, flush=True)
+        code = exc.exit_code
     except (KeyboardInterrupt, EOFError):
-        return EXIT_INTERRUPTED
+        code = EXIT_INTERRUPTED
     finally:
-        graph.close()
+        if report is not None:
+            report()
+        sys.stdout.flush()
+        # destroying the participant is the one wait no timeout reaches (classify_cli)
+        with ExitDeadline(TEARDOWN_S, f'lightstage {verb}', code,
+                          phase='shutting down its ROS client (its outcome above is complete)'):
+            graph.close()
+    return code
 
 
 def _progress(args, text: str, end: bool = False) -> None:
@@ -292,10 +357,11 @@ def capture_main(argv: list[str] | None = None) -> int:
                 return EXIT_FAILED
         return EXIT_OK
 
-    code = _run(args, 'capture', params, capture_targets)
-    if args.json:
-        print(json.dumps(results))
-    return code
+    def report():
+        if args.json:
+            print(json.dumps(results), flush=True)
+
+    return _run(args, 'capture', params, capture_targets, report)
 
 
 def _write_rescued(args) -> int:
@@ -370,8 +436,9 @@ def calibrate_main(argv: list[str] | None = None) -> int:
                         'pixels_used': int(r.pixels_used), 'elapsed_s': r.elapsed_s})
         return EXIT_OK if ok else EXIT_FAILED
 
-    code = _run(args, 'calibrate', params, calibrate)
-    if answers:  # the node answered
+    def report():
+        if not answers:  # the node did not answer
+            return
         (answer,) = answers
         if args.json:
             print(json.dumps(answer))
@@ -381,4 +448,5 @@ def calibrate_main(argv: list[str] | None = None) -> int:
                 print(answer['message'][answer['message'].index('WARNING'):], file=sys.stderr)
         else:
             print(f'calibration {answer["status"]}: {answer["message"]}', file=sys.stderr)
-    return code
+
+    return _run(args, 'calibrate', params, calibrate, report)
