@@ -264,9 +264,22 @@ def test_a_lost_frame_shows_on_the_page(stage):
     assert 'frame of trigger 4242 lost: BlockID gap: frame 17 lost in transfer' in lost
 
 
+def _driver_status(stage, timeout_s=30.0):
+    """The driver's status once the page has one (its first /diagnostics come a second or so
+    after the graph is up)."""
+    import time
+    deadline = time.monotonic() + timeout_s
+    while True:
+        found = [d for d in _request(stage['url'] + '/api/state')[1]['diagnostics']
+                 if d['name'] == DRIVER_STATUS]
+        if found:
+            return found[0]
+        assert time.monotonic() < deadline, f'no {DRIVER_STATUS!r} status on the page in {timeout_s:g} s'
+        time.sleep(0.2)
+
+
 def test_a_driver_fault_and_the_classify_it_fails_show_on_the_page(stage):
-    code, state = _request(stage['url'] + '/api/state')
-    (driver,) = [d for d in state['diagnostics'] if d['name'] == DRIVER_STATUS]
+    driver = _driver_status(stage)
     assert driver['level'] == 'OK'
     os.kill(int(driver['values']['simulator_pid']), signal.SIGKILL)
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import math
 import threading
+import time
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -41,6 +42,7 @@ from lightstage_bringup.web_state import (Illumination, PageState, calibrate_pro
 WEB_NODE = 'web'
 GOAL_ANSWER_S = 10.0   # an action server answers a goal (accept / refuse) within this
 CANCEL_ANSWER_S = 10.0  # ... and a cancel request within this
+STATE_ANSWER_S = 3.0   # a lifecycle node answers get_state within this, or is asked again
 SERVER_GRACE_S = 3.0   # a job's action server gone for longer than this: the job failed
 WATCHED_NODES = ('driver', 'camera', 'classifier', 'acquisition')
 ACTIVATABLE = ('driver',)   # lifecycle nodes the page may configure + activate (arming the
@@ -177,16 +179,20 @@ class WebBridge(Node):
             self._ask_defaults()
         for name in WATCHED_NODES:
             get_state = self._lifecycle[name][0]
+            pending = self._state_pending.get(name)
+            if pending is not None and not pending[0].done():
+                if name in present and time.monotonic() - pending[1] < STATE_ANSWER_S:
+                    continue
+                get_state.remove_pending_request(pending[0])   # a node gone mid-call answers never
+            self._state_pending.pop(name, None)
             if name not in present:
                 self.state.set_node(name, 'stopped')
                 continue
             if not get_state.service_is_ready():
                 self.state.set_node(name, 'running')
                 continue
-            if name in self._state_pending and not self._state_pending[name].done():
-                continue
             future = get_state.call_async(GetState.Request())
-            self._state_pending[name] = future
+            self._state_pending[name] = (future, time.monotonic())
 
             def answered(done, name=name):
                 if done.exception() is None and done.result() is not None:

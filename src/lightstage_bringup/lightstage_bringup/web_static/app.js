@@ -121,10 +121,10 @@ const START = {driver: 'lightstage up driver', camera: 'lightstage up camera',
 function nodeAlerts() {
   const out = [];
   for (const [name, n] of Object.entries(state.nodes || {})) {
-    if (n.state === 'stopped' || (n.state === 'not started' && name !== 'acquisition')) {
+    if (n.state === 'stopped') {   // one never started is a pill: a graph may leave it out
       out.push(el('div', {class: 'alert node', 'data-source': name, 'data-node-state': n.state},
         el('span', {class: 'source'}, name),
-        `${n.state === 'stopped' ? 'stopped: the node left the graph' : 'not running'}; start it again (`,
+        'stopped: the node left the graph; start it again (',
         el('code', {}, `${START[name] || 'lightstage up ' + name} --params ...`), ')'));
     } else if (n.lifecycle && n.state !== 'active') {
       const can = name === 'driver' && ['inactive', 'unconfigured'].includes(n.state);
