@@ -43,7 +43,7 @@ def test_launch_file_keeps_discovery_on_this_machine():
         if isinstance(node, ast.Call) and getattr(node.func, 'id', None) == 'SetEnvironmentVariable':
             name = ast.literal_eval(node.args[0])
             env[name] = ast.unparse(node.args[1])
-    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == "'LOCALHOST'"
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == "'SYSTEM_DEFAULT'"  # with the profile below
     unset = [ast.literal_eval(n.args[0]) for n in ast.walk(tree) if isinstance(n, ast.Call)
              and getattr(n.func, 'id', None) == 'UnsetEnvironmentVariable']
     assert unset == ['ROS_STATIC_PEERS']

@@ -135,5 +135,5 @@ print(json.dumps({'packages': found, 'env': env}))
         assert Path(prefix) == VENV
         shipped = sorted(f.name for f in (REPO / 'src' / package / 'scripts').glob('*'))
         assert executables == shipped, package
-    assert result['env']['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    assert result['env']['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'  # the profile confines it
     assert Path(result['env']['FASTRTPS_DEFAULT_PROFILES_FILE']).is_file()

@@ -21,11 +21,12 @@ NS = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
 
 
 # -- ros_env --------------------------------------------------------------------------
-def test_ros_environment_forces_localhost_and_sets_domain_without_touching_the_base():
+def test_ros_environment_confines_discovery_and_sets_domain_without_touching_the_base():
     base = {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET', 'ROS_STATIC_PEERS': '10.0.0.7',
             'ROS_DOMAIN_ID': '5', 'PATH': '/bin'}
     env = ros_env.ros_environment(17, base=base)
-    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    # the project's profile does what LOCALHOST would, on its own loopback-only transports
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
     assert 'ROS_STATIC_PEERS' not in env
     assert env['ROS_DOMAIN_ID'] == '17' and env['PATH'] == '/bin'
     assert env['RMW_IMPLEMENTATION'] == 'rmw_fastrtps_cpp'
@@ -34,6 +35,23 @@ def test_ros_environment_forces_localhost_and_sets_domain_without_touching_the_b
     # no explicit id: the base's is kept; a profile the user chose is kept
     env = ros_env.ros_environment(None, base={'ROS_DOMAIN_ID': '5', 'FASTRTPS_DEFAULT_PROFILES_FILE': '/my.xml'})
     assert env['ROS_DOMAIN_ID'] == '5' and env['FASTRTPS_DEFAULT_PROFILES_FILE'] == '/my.xml'
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'  # a profile of the user's: rmw's range
+
+
+def test_discovery_range_is_system_default_only_with_the_projects_profile_on_fast_dds(tmp_path):
+    ours = str(ros_env.fastdds_profile_path())
+    copy = tmp_path / 'installed_copy.xml'
+    copy.write_bytes(ros_env.fastdds_profile_path().read_bytes())
+    other = tmp_path / 'other.xml'
+    other.write_text('<dds/>')
+    fast = {'RMW_IMPLEMENTATION': 'rmw_fastrtps_cpp'}
+    assert ros_env.discovery_range({**fast, 'FASTRTPS_DEFAULT_PROFILES_FILE': ours}) == 'SYSTEM_DEFAULT'
+    assert ros_env.discovery_range({**fast, 'FASTRTPS_DEFAULT_PROFILES_FILE': str(copy)}) == 'SYSTEM_DEFAULT'
+    assert ros_env.discovery_range({**fast, 'FASTRTPS_DEFAULT_PROFILES_FILE': str(other)}) == 'LOCALHOST'
+    assert ros_env.discovery_range({**fast, 'FASTRTPS_DEFAULT_PROFILES_FILE': str(tmp_path / 'gone.xml')}) == 'LOCALHOST'
+    assert ros_env.discovery_range(fast) == 'LOCALHOST'
+    assert ros_env.discovery_range({'RMW_IMPLEMENTATION': 'rmw_cyclonedds_cpp',
+                                    'FASTRTPS_DEFAULT_PROFILES_FILE': ours}) == 'LOCALHOST'
 
 
 @pytest.mark.parametrize('bad', [-1, 233])
@@ -55,7 +73,8 @@ def test_apply_ros_environment_updates_this_process(monkeypatch, saved_environ):
     monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SUBNET')
     monkeypatch.setenv('ROS_DOMAIN_ID', '3')
     ros_env.apply_ros_environment(9)
-    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST'
+    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == ros_env.discovery_range(dict(os.environ))
+    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] != 'SUBNET'
     assert os.environ['ROS_DOMAIN_ID'] == '9'
 
 
@@ -136,6 +155,59 @@ def test_socket_check_flags_a_profile_without_the_loopback_whitelist(tmp_path):
     assert bad and all(str(s.address) == '0.0.0.0' for s in bad), [str(s) for s in sockets]
 
 
+BARE_NODE = '''
+import os, sys, time
+import rclpy
+rclpy.init()
+node = rclpy.create_node('bare_socket_probe')
+node.create_publisher(__import__('std_msgs.msg', fromlist=['String']).String, '/probe', 10)
+print('up', flush=True)
+sys.stdin.readline()
+'''
+
+
+def _bare_node_sockets(env: dict[str, str]) -> list[InetSocket]:
+    """Every internet socket of a bare rclpy node (one participant, one publisher) started
+    with `env`, listed once it is up."""
+    node = subprocess.Popen([sys.executable, '-c', BARE_NODE], env=env, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert node.stdout.readline().strip() == 'up', node.stderr.read()
+        return sockets_of(node.pid)
+    finally:
+        node.communicate('\n', timeout=30)
+
+
+def _beyond_loopback(sockets: list[InetSocket]) -> list[str]:
+    """Every socket, of any protocol and port (send sockets included), bound to an address
+    outside 127.0.0.0/8 and ::1: 0.0.0.0 and :: too, which a namespace with only loopback
+    cannot tell from an external address."""
+    return [str(s) for s in sockets if not s.loopback]
+
+
+@pytest.mark.ros
+def test_a_bare_node_with_the_shipped_profile_binds_only_loopback():
+    sockets = _bare_node_sockets(ros_env.ros_environment(fresh_domain_id()))
+    assert any(s.proto.startswith('udp') for s in sockets), 'no DDS socket found: nothing was checked'
+    assert _beyond_loopback(sockets) == []
+
+
+@pytest.mark.ros
+def test_socket_check_flags_localhost_discovery_with_the_shipped_profile():
+    """The negative control: under LOCALHOST, rmw_fastrtps adds a UDPv4 transport of its own
+    without the whitelist, whose send sockets bind 0.0.0.0 (and each interface's address)."""
+    env = ros_env.ros_environment(fresh_domain_id())
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    bad = _beyond_loopback(_bare_node_sockets(env))
+    assert any(s.startswith('udp 0.0.0.0:') for s in bad), bad
+
+
+@pytest.mark.ros
+def test_a_node_process_binds_only_loopback():
+    sockets = _driver_sockets(fresh_domain_id())
+    assert _beyond_loopback(sockets) == []
+
+
 def _strace_works() -> bool:
     if shutil.which('strace') is None:
         return False
@@ -186,8 +258,8 @@ def test_a_node_started_without_the_environment_applies_it_and_says_what_it_set(
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv('ROS_STATIC_PEERS', '10.0.0.7')
     message = ros_env.apply_node_environment()
-    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST' and 'ROS_STATIC_PEERS' not in os.environ
-    assert 'ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (was unset)' in message
+    assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT' and 'ROS_STATIC_PEERS' not in os.environ
+    assert 'ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT (was unset)' in message
     assert f'FASTRTPS_DEFAULT_PROFILES_FILE={ros_env.fastdds_profile_path()} (was unset)' in message
     assert 'unset ROS_STATIC_PEERS (was 10.0.0.7)' in message
     assert ros_env.apply_node_environment() is None  # already the project's: nothing to say

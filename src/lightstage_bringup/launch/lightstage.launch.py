@@ -41,8 +41,9 @@ def generate_launch_description():
         ('recorder', 'lightstage_recording', 'recorder', 'use_recorder'),
     ]
     actions = [
-        # the same settings as lightstage_graph.ros_env.ros_environment()
-        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'),
+        # the same settings as lightstage_graph.ros_env.ros_environment(): the profile confines
+        # discovery to 127.0.0.1; rmw's LOCALHOST would add a UDPv4 transport bound to 0.0.0.0
+        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'SYSTEM_DEFAULT'),
         UnsetEnvironmentVariable('ROS_STATIC_PEERS'),  # contacted even with LOCALHOST
         SetEnvironmentVariable('FASTRTPS_DEFAULT_PROFILES_FILE',
                                os.path.join(get_package_share_directory('lightstage_graph'),

@@ -6,7 +6,8 @@ and prints the fitted noise model and its generalization to the Sigma1..3 settin
 simulated stage the camera node's parameters (which sample is on the stage, which capture
 folder it renders from) can be set first: ``TARGET=SIM_SAMPLE``, ``--camera-param``.
 
-Exit codes: 0 done; 1 the node refused or failed a goal (its message is printed); 2 bad
+Exit codes: 0 done; 1 the node refused or failed a goal (its message is printed), or went
+away while the goal ran (killed: the CLI says so a few seconds later, not never); 2 bad
 arguments; 3 the action server (or the camera node, for camera parameters) is not available;
 130 interrupted (the running goal is cancelled first and how it ended is printed: a
 cancelled goal leaves nothing half-written). ``capture DIR --from-rescued FILE`` writes a
@@ -27,6 +28,7 @@ from lightstage_graph.names import CALIBRATE_ACTION, CAPTURE_ACTION
 from lightstage_graph.ros_env import apply_ros_environment
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNAVAILABLE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+TEARDOWN_S = 10.0  # destroying the ROS client after the outcome is printed
 TARGET = re.compile(r'^([^/=]+)/([^/=]+)/([^/=]+)(?:=(.+))?$')
 
 
@@ -166,9 +168,10 @@ def _set_camera_params(graph, camera_node: str, params: list, wait_s: float) -> 
 
 
 def _run_goal(graph, action_type, name: str, goal, wait_s: float, on_feedback):
-    """Send `goal`, spin until its result; Ctrl-C cancels it and re-raises."""
+    """Send `goal`, spin until its result; Ctrl-C cancels it and re-raises. A server that
+    goes away meanwhile (the acquisition node killed) fails the goal with the reason."""
     from action_msgs.msg import GoalStatus
-    from lightstage_graph.graph_client import GraphTimeout
+    from lightstage_graph.graph_client import GraphTimeout, ServerLost
     try:
         handle = graph.send_goal(action_type, name, goal, wait_s, on_feedback, hint=START_HINT)
     except GraphTimeout as exc:
@@ -178,8 +181,9 @@ def _run_goal(graph, action_type, name: str, goal, wait_s: float, on_feedback):
                       'the stage (one goal at a time); try again when it is done')
     result_future = handle.get_result_async()
     try:
-        while not result_future.done():
-            graph.executor.spin_once(timeout_sec=0.1)
+        answer = graph.goal_result(handle, result_future, name)
+    except ServerLost as exc:
+        raise _Failed(str(exc)) from None
     except KeyboardInterrupt:
         print('\ninterrupted: cancelling the goal ...', file=sys.stderr)
         handle.cancel_goal_async()
@@ -193,7 +197,6 @@ def _run_goal(graph, action_type, name: str, goal, wait_s: float, on_feedback):
             print(f'the goal ended {_status_name(answer.status)}: {answer.result.message}',
                   file=sys.stderr)
         raise
-    answer = result_future.result()
     return answer.status == GoalStatus.STATUS_SUCCEEDED, answer.result, answer.status
 
 
@@ -212,22 +215,32 @@ def _setup(args):
     return params
 
 
-def _run(args, verb: str, params: list, work) -> int:
+def _run(args, verb: str, params: list, work, report=None) -> int:
     """On a client of its own: set the camera parameters, then `work(graph)` -> exit code.
     The node refusing, failing or missing, and Ctrl-C (or the end of input at a prompt),
-    end it with their exit code, the message printed."""
+    end it with their exit code, the message printed. `report()` prints the outcome, before
+    the client is torn down (within TEARDOWN_S, or the process ends with the exit code)."""
+    from lightstage_graph.deadline import ExitDeadline
     from lightstage_graph.graph_client import GraphClient
     graph = GraphClient(args.domain_id, f'lightstage_acquisition_cli_{os.getpid()}')
+    code = EXIT_FAILED
     try:
         _set_camera_params(graph, args.camera_node, params, args.wait_s)
-        return work(graph)
+        code = work(graph)
     except _Failed as exc:
-        print(f'lightstage {verb}: {exc}', file=sys.stderr)
-        return exc.exit_code
+        print(f'lightstage {verb}: {exc}', file=sys.stderr, flush=True)
+        code = exc.exit_code
     except (KeyboardInterrupt, EOFError):
-        return EXIT_INTERRUPTED
+        code = EXIT_INTERRUPTED
     finally:
-        graph.close()
+        if report is not None:
+            report()
+        sys.stdout.flush()
+        # destroying the participant is the one wait no timeout reaches (classify_cli)
+        with ExitDeadline(TEARDOWN_S, f'lightstage {verb}', code,
+                          phase='shutting down its ROS client (its outcome above is complete)'):
+            graph.close()
+    return code
 
 
 def _progress(args, text: str, end: bool = False) -> None:
@@ -291,10 +304,11 @@ def capture_main(argv: list[str] | None = None) -> int:
                 return EXIT_FAILED
         return EXIT_OK
 
-    code = _run(args, 'capture', params, capture_targets)
-    if args.json:
-        print(json.dumps(results))
-    return code
+    def report():
+        if args.json:
+            print(json.dumps(results), flush=True)
+
+    return _run(args, 'capture', params, capture_targets, report)
 
 
 def _write_rescued(args) -> int:
@@ -369,8 +383,9 @@ def calibrate_main(argv: list[str] | None = None) -> int:
                         'pixels_used': int(r.pixels_used), 'elapsed_s': r.elapsed_s})
         return EXIT_OK if ok else EXIT_FAILED
 
-    code = _run(args, 'calibrate', params, calibrate)
-    if answers:  # the node answered
+    def report():
+        if not answers:  # the node did not answer
+            return
         (answer,) = answers
         if args.json:
             print(json.dumps(answer))
@@ -380,4 +395,5 @@ def calibrate_main(argv: list[str] | None = None) -> int:
                 print(answer['message'][answer['message'].index('WARNING'):], file=sys.stderr)
         else:
             print(f'calibration {answer["status"]}: {answer["message"]}', file=sys.stderr)
-    return code
+
+    return _run(args, 'calibrate', params, calibrate, report)

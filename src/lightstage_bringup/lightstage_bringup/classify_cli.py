@@ -1,7 +1,9 @@
 """`lightstage classify`: classify the sample on the stage through ``/lightstage/classify``.
 
 Exit codes: 0 classified; 1 the classifier answered with an error (printed); 2 bad
-arguments; 3 the service is not available or did not answer in time.
+arguments; 3 the service is not available or did not answer in time, or the call ran past
+its overall limit (--wait-s + the classification's limit + 30 s; the answer, once printed,
+is followed by at most 10 s of teardown). Every call ends, with a message saying why.
 """
 from __future__ import annotations
 
@@ -15,6 +17,10 @@ from lightstage_graph.names import CLASSIFY_SERVICE
 from lightstage_graph.ros_env import apply_ros_environment
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_UNAVAILABLE = 0, 1, 2, 3
+# beyond --wait-s and the classification's own limit: starting and stopping the ROS client
+# (a participant takes a few seconds to come up on a loaded machine, 12 started at once)
+SETUP_S = 30.0
+TEARDOWN_S = 10.0
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -65,28 +71,48 @@ def main(argv: list[str] | None = None) -> int:
         print(f'lightstage classify: {exc}', file=sys.stderr)
         return EXIT_USAGE
 
+    from lightstage_graph.deadline import ExitDeadline
     from lightstage_graph.graph_client import GraphClient, GraphTimeout
     from lightstage_interfaces.srv import Classify
 
     # the node enforces the timeout; sent 0, its own default is at most TIMEOUT_MAX_S
     limit_s = (args.timeout_s if args.timeout_s > 0 else TIMEOUT_MAX_S) + 5.0
     request = Classify.Request(max_images=args.max_images, timeout_s=args.timeout_s)
-    with GraphClient(args.domain_id, f'lightstage_classify_cli_{os.getpid()}') as graph:
+    # Every wait below is bounded; the deadline bounds what no timeout reaches (creating and
+    # destroying the DDS participant): the whole call, then the teardown once answered.
+    with ExitDeadline(args.wait_s + limit_s + SETUP_S, 'lightstage classify', EXIT_UNAVAILABLE,
+                      phase='setting up its ROS client') as deadline:
+        graph = GraphClient(args.domain_id, f'lightstage_classify_cli_{os.getpid()}')
         try:
-            r = graph.call(Classify, CLASSIFY_SERVICE, request, timeout_s=limit_s,
-                           wait_s=args.wait_s, hint='start the graph with `lightstage up` '
-                                                    '(driver camera classifier) in the same domain')
-        except GraphTimeout as exc:
-            print(f'lightstage classify: {exc}', file=sys.stderr)
-            return EXIT_UNAVAILABLE
+            deadline.phase = f'waiting for {CLASSIFY_SERVICE} and its answer'
+            try:
+                r = graph.call(Classify, CLASSIFY_SERVICE, request, timeout_s=limit_s,
+                               wait_s=args.wait_s, hint='start the graph with `lightstage up` '
+                                                        '(driver camera classifier) in the same domain')
+            except GraphTimeout as exc:
+                print(f'lightstage classify: {exc}', file=sys.stderr, flush=True)
+                code = EXIT_UNAVAILABLE
+            else:
+                code = _print_answer(r, args.json)
+            # the answer is out before the participant is destroyed: a teardown that hangs
+            # cannot swallow it, and ends after TEARDOWN_S with the answer's exit code
+            deadline.phase = 'shutting down its ROS client (the answer above is complete)'
+            deadline.restart(TEARDOWN_S, code)
+        finally:
+            graph.close()
+    return code
+
+
+def _print_answer(r, as_json: bool) -> int:
+    """Print a Classify response (JSON, or the human-readable answer); its exit code."""
     answer = {'success': bool(r.success), 'message': r.message, 'label': r.label,
               'class_names': list(r.class_names), 'scores': [float(s) for s in r.scores],
               'images_used': int(r.images_used), 'acquisition_ms': float(r.acquisition_ms),
               'compute_ms': float(r.compute_ms)}
-    if args.json:
-        print(json.dumps(answer))
+    if as_json:
+        print(json.dumps(answer), flush=True)
     else:
-        print(format_answer(answer), file=sys.stdout if answer['success'] else sys.stderr)
+        print(format_answer(answer), file=sys.stdout if answer['success'] else sys.stderr, flush=True)
     return EXIT_OK if answer['success'] else EXIT_FAILED
 
 

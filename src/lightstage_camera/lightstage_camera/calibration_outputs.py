@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 from lightstage_physics.errors import DestinationError
 from lightstage_physics.noise import save_noise_file
-from lightstage_physics.output_files import check_output_file
+from lightstage_physics.output_files import NOISE_FILE, PLOT_FILE, check_output_file
 
 if TYPE_CHECKING:
     from .calibration import CalibrationResult
@@ -27,15 +27,16 @@ NOISE_FILE_SUFFIXES = (".yaml", ".yml")
 def check_calibration_outputs(noise_path: str = "", plot_path: str = "",
                               overwrite: bool = False) -> tuple[Path | None, Path | None]:
     """The noise file and plot a calibration will write, checked before anything is lit:
-    known suffixes (which also keeps the two apart), nothing replaced unless `overwrite`, folders that
-    take new files. None for an empty path. Raises DestinationError."""
+    known suffixes (which also keeps the two apart), nothing replaced unless `overwrite` and
+    then only a noise file by a noise file and a plot by a plot (never a capture's rig.yaml),
+    folders that take new files. None for an empty path. Raises DestinationError."""
     targets = []
-    for path, suffixes, what in ((noise_path, NOISE_FILE_SUFFIXES, "noise file"),
-                                 (plot_path, PLOT_SUFFIXES, "plot")):
+    for path, suffixes, what, kind in ((noise_path, NOISE_FILE_SUFFIXES, "noise file", NOISE_FILE),
+                                       (plot_path, PLOT_SUFFIXES, "plot", PLOT_FILE)):
         if not str(path).strip():
             targets.append(None)
             continue
-        target = check_output_file(path, overwrite)
+        target = check_output_file(path, overwrite, kind)
         if target.suffix.lower() not in suffixes:
             raise DestinationError(f"the {what} {target} should end in one of "
                                    f"{', '.join(suffixes)} (the {what} format follows it)")

@@ -12,7 +12,7 @@ import math
 import os
 import re
 import shutil
-import tempfile
+import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -155,7 +155,25 @@ def check_destination(root, label: str, sample: str, pose: str, rig: Rig, *,
                                "overwrite it (overwrite: true / --overwrite)")
     if pose_exists and not pose_dir.is_dir():
         raise DestinationError(f"{pose_dir} exists and is not a folder; remove it")
+    if pose_exists:
+        strangers = _not_pose_files(pose_dir, final_rig.n_sites)
+        if strangers:
+            raise DestinationError(
+                f"{pose_dir} exists and is not a pose folder (it holds {', '.join(strangers)}); "
+                "overwrite replaces only a pose (its single-LED images), nothing else: choose "
+                "another pose name, or move that folder away first")
     return Destination(root, label, sample, pose, final_rig, rig_exists, pose_exists)
+
+
+def _not_pose_files(pose_dir: Path, n_sites: int, shown: int = 3) -> list[str]:
+    """Up to `shown` entries of `pose_dir` that a pose folder does not hold (anything but
+    its single-LED images), the count of the rest last; empty for a pose folder."""
+    images = set(model_files(n_sites))
+    strangers = sorted(p.name + ("/" if p.is_dir() else "") for p in pose_dir.iterdir()
+                       if p.name not in images or not p.is_file())
+    if len(strangers) > shown:
+        return strangers[:shown] + [f"{len(strangers) - shown} more"]
+    return strangers
 
 
 def write_model(destination: Destination, model: np.ndarray, *, overwrite: bool = False,
@@ -180,7 +198,10 @@ def write_model(destination: Destination, model: np.ndarray, *, overwrite: bool 
     try:
         d.root.mkdir(parents=True, exist_ok=True)
         staging_root.mkdir(exist_ok=True)
-        stage = Path(tempfile.mkdtemp(prefix=f"{d.label}.{d.sample}.{d.pose}.", dir=staging_root))
+        # mkdir, not tempfile.mkdtemp: the folder becomes the pose folder, and mkdtemp's 0700
+        # would keep it from everyone but the node's user (a pose folder gets the umask's mode)
+        stage = staging_root / f"{d.label}.{d.sample}.{d.pose}.{os.getpid()}.{uuid.uuid4().hex[:12]}"
+        stage.mkdir()
         write_pose(stage, model, rig.bit_depth, compress_level)
         if not d.rig_exists:
             tmp = staging_root / f"{RIG_FILE}.{os.getpid()}.tmp"

@@ -11,6 +11,8 @@ Pure (no rclpy; usable anywhere):
     limits        the ranges of gain, exposure and dimmer every package checks against
     output        printing to a pipe whose reader may go away (`| head -1`)
     ros_env       the project's ROS environment (`python -m lightstage_graph.ros_env`)
+    goal_watch    ServerWatch: when a client gives up on an action server that went away
+    deadline      ExitDeadline: a CLI call that ends, whatever it is stuck in
 ROS (rclpy):
     qos           the image and illumination QoS profiles
     spin          init_node / spin_until_stopped: every node's main()

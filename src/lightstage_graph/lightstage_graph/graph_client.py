@@ -7,7 +7,8 @@ one node without parameter services, one single-threaded executor it spins itsel
 
 Ctrl-C raises KeyboardInterrupt in the caller (rclpy's signal handler is not installed, so
 the context stays usable, e.g. to cancel a running goal). Whatever does not happen in time
-raises `GraphTimeout` saying what was awaited.
+raises `GraphTimeout` saying what was awaited; a goal whose action server goes away raises
+`ServerLost` (a GraphTimeout too) instead of waiting for a result that cannot come.
 """
 from __future__ import annotations
 
@@ -17,6 +18,11 @@ import time
 
 class GraphTimeout(TimeoutError):
     """A service, action server, answer or condition did not come in time."""
+
+
+class ServerLost(GraphTimeout):
+    """The action server of a running goal went away (its node stopped or was killed), or
+    came back without the goal: the goal's result will never come."""
 
 
 class GraphClient:
@@ -143,6 +149,47 @@ class GraphClient:
         send = client.send_goal_async(
             goal, feedback_callback=None if on_feedback is None else lambda m: on_feedback(m.feedback))
         return self.result(send, timeout_s, f'{name} to answer the goal')
+
+    def goal_result(self, handle, result_future, name: str, grace_s: float = 1.0,
+                    recheck_s: float = 10.0):
+        """Spin until `result_future` (from `handle.get_result_async()`) is done and return
+        its response (`.status`, `.result`); raise `ServerLost` once the server of action
+        `name` has been gone for more than `grace_s` (`goal_watch.ServerWatch`).
+
+        A killed server sends no result: the graph drops it when its participant's lease
+        ends (the project's Fast DDS profile: 5 s), and this gives up `grace_s` after that.
+        A server that came back (restarted within the lease, or after a gap shorter than
+        the grace) has no record of the goal: the result is asked for again after every gap
+        and every `recheck_s`, and the new server's STATUS_UNKNOWN answer ends the wait.
+        """
+        from action_msgs.msg import GoalStatus
+
+        from .goal_watch import ServerWatch
+        client = self._clients[('action', name)]
+        watch = ServerWatch(grace_s)
+        probes, gap, next_probe_at = [], False, time.monotonic() + recheck_s
+        while not result_future.done():
+            self.executor.spin_once(timeout_sec=0.1)
+            if result_future.done():
+                break
+            ready = client.server_is_ready()
+            if watch.observe(ready):
+                raise ServerLost(f'the action server {name} went away while the goal ran (gone '
+                                 f'for {watch.lost_for_s:.1f} s: its node stopped or was killed); '
+                                 'the goal\'s outcome is unknown, check the node\'s log and output')
+            gap = gap or not ready
+            for probe in probes:
+                if probe.done():
+                    answer = probe.result()
+                    if answer.status == GoalStatus.STATUS_UNKNOWN:
+                        raise ServerLost(f'the action server {name} restarted while the goal ran '
+                                         'and does not know the goal; its outcome is unknown, '
+                                         'check the node\'s log and output')
+                    return answer
+            if ready and (gap or time.monotonic() >= next_probe_at):
+                probes.append(handle.get_result_async())
+                gap, next_probe_at = False, time.monotonic() + recheck_s
+        return result_future.result()
 
     # ------------------------------------------------------------------ the graph
     def subscribed_by(self, topic: str, node_name: str) -> bool:

@@ -1,8 +1,12 @@
 """The one place that sets up the ROS environment for every process the project starts.
 
-Discovery stays on this machine (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST), Fast DDS gets
-a profile with a large shared-memory segment so that 800 x 800 mono16 images travel
-without fragmentation, the install prefix is on AMENT_PREFIX_PATH (so `ros2 run` and
+Discovery and data stay on this machine: Fast DDS gets the project's profile (shared memory
+with a segment large enough for 800 x 800 mono16 images unfragmented, UDPv4 on 127.0.0.1
+only, discovery by unicast to 127.0.0.1), and ROS_AUTOMATIC_DISCOVERY_RANGE is
+`discovery_range`'s choice: SYSTEM_DEFAULT while that profile is the one Fast DDS reads,
+LOCALHOST otherwise (a profile of the user's, another RMW). Not LOCALHOST with the profile:
+rmw_fastrtps 8.4's LOCALHOST appends an unrestricted UDPv4 transport to the profile's, which
+binds send sockets on 0.0.0.0 and on every interface's address. The install prefix is on AMENT_PREFIX_PATH (so `ros2 run` and
 ament_index_python find the project's packages), and the domain id is explicit. Pure
 Python, no rclpy import, so it can run before rclpy is loaded.
 
@@ -28,6 +32,28 @@ def fastdds_profile_path() -> Path:
     return Path(str(resources.files(PACKAGE) / 'config' / FASTDDS_PROFILE_NAME))
 
 
+def is_project_profile(path: str | None) -> bool:
+    """Whether `path` is the project's Fast DDS profile: this package's file, or a copy of it
+    (the launch file names the one installed under share/lightstage_graph)."""
+    if not path:
+        return False
+    ours = fastdds_profile_path()
+    try:
+        return Path(path).resolve() == ours.resolve() or Path(path).read_bytes() == ours.read_bytes()
+    except OSError:
+        return False
+
+
+def discovery_range(env: dict[str, str]) -> str:
+    """ROS_AUTOMATIC_DISCOVERY_RANGE for `env`: SYSTEM_DEFAULT when rmw_fastrtps reads the
+    project's profile, which confines discovery and data to loopback and shared memory
+    (rmw then applies nothing of its own); LOCALHOST for anything else."""
+    if (env.get('RMW_IMPLEMENTATION') == 'rmw_fastrtps_cpp'
+            and is_project_profile(env.get('FASTRTPS_DEFAULT_PROFILES_FILE'))):
+        return 'SYSTEM_DEFAULT'
+    return 'LOCALHOST'
+
+
 def ament_prefix() -> Path | None:
     """The install prefix holding this package's ament index marker (a venv: the venv; colcon:
     install/lightstage_graph), or None when it runs from a source tree."""
@@ -40,15 +66,17 @@ def ament_prefix() -> Path | None:
 def ros_environment(domain_id: int | None = None, base: dict[str, str] | None = None) -> dict[str, str]:
     """Return a copy of `base` (default: os.environ) with the project's ROS settings.
 
-    An explicit `domain_id` wins over ROS_DOMAIN_ID in `base`; a profile already chosen
+    The discovery range is `discovery_range`'s (SYSTEM_DEFAULT with the project's profile,
+    LOCALHOST otherwise); ROS_STATIC_PEERS is removed. An explicit `domain_id` wins over
+    ROS_DOMAIN_ID in `base`; a profile already chosen
     by the user (FASTRTPS_DEFAULT_PROFILES_FILE) is kept; the install prefix is put first
     on AMENT_PREFIX_PATH unless it is on it already.
     """
     env = dict(os.environ if base is None else base)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     env.pop('ROS_STATIC_PEERS', None)
     env.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
     env.setdefault('FASTRTPS_DEFAULT_PROFILES_FILE', str(fastdds_profile_path()))
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = discovery_range(env)
     prefix = ament_prefix()
     prefixes = [p for p in env.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
     if prefix is not None and str(prefix) not in prefixes:

@@ -1,22 +1,70 @@
-"""Files about to be written: refuse to replace one unless asked, check its folder takes files.
+"""Files about to be written: refuse to replace one unless asked, replace only one of the
+kind being written, check its folder takes files.
 
 Shared by everything that writes an output a run must not lose at the end (a capture pose,
 a noise file, a plot, a trained artifact, evaluation results): the check runs before the
-work, so a long run does not end in an unwritable path. What cannot be written where it was
-meant to go at the end is kept in a rescue folder (`save_in_rescue_dir`).
+work, so a long run does not end in an unwritable path. `overwrite` replaces only a file of
+the kind being written (`FileKind`: a noise file by its `kind:` line, a plot by its image
+format's signature): `lightstage calibrate CAPTURE/rig.yaml --overwrite` would otherwise
+have replaced a capture's rig.yaml with a noise file, and the capture no longer loaded.
+What cannot be written where it was meant to go at the end is kept in a rescue folder
+(`save_in_rescue_dir`).
 """
 from __future__ import annotations
 
 import os
+import re
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 from .errors import DestinationError
 
-__all__ = ["check_output_file", "writable_dir", "rescue_dirs", "save_in_rescue_dir", "RESCUE_DIR_ENV"]
+__all__ = ["check_output_file", "writable_dir", "rescue_dirs", "save_in_rescue_dir", "RESCUE_DIR_ENV",
+           "FileKind", "NOISE_FILE", "PLOT_FILE", "is_of_kind"]
 
 RESCUE_DIR_ENV = "LIGHTSTAGE_RESCUE_DIR"
+# how much of an existing file is read to tell its kind (its signature or header is at the start)
+KIND_PROBE_BYTES = 64 * 1024
+
+
+@dataclass(frozen=True)
+class FileKind:
+    """A kind of output file: `name` for messages, `recognizes(head)` whether an existing
+    file's first KIND_PROBE_BYTES bytes are one of this kind."""
+    name: str
+    recognizes: Callable[[bytes], bool]
+
+
+def _is_noise_file(head: bytes) -> bool:
+    from .noise import NOISE_FILE_KIND  # save_noise_file writes it as a top-level key
+    return re.search(rb"^kind:\s*['\"]?" + re.escape(NOISE_FILE_KIND.encode()) + rb"['\"]?\s*$",
+                     head, re.MULTILINE) is not None
+
+
+# the signatures of the formats plot_noise_characteristic writes (PLOT_SUFFIXES)
+_IMAGE_SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"%PDF-", b"\xff\xd8\xff", b"II*\x00", b"MM\x00*",
+                     b"%!PS", b"\xc5\xd0\xd3\xc6")
+
+
+def _is_plot(head: bytes) -> bool:
+    if head.startswith(_IMAGE_SIGNATURES):
+        return True
+    text = head.lstrip()
+    return text.startswith((b"<?xml", b"<svg", b"<!DOCTYPE svg")) and b"<svg" in head
+
+
+NOISE_FILE = FileKind("noise file", _is_noise_file)
+PLOT_FILE = FileKind("plot (PNG, PDF, SVG, JPEG, TIFF or PostScript image)", _is_plot)
+
+
+def is_of_kind(path: Path, kind: FileKind) -> bool:
+    """Whether the existing regular file `path` is of `kind`; an empty file counts as any
+    kind (nothing in it to lose). Reads at most KIND_PROBE_BYTES bytes."""
+    with open(path, "rb") as f:
+        head = f.read(KIND_PROBE_BYTES)
+    return not head or kind.recognizes(head)
 
 
 def writable_dir(path: Path) -> None:
@@ -38,15 +86,31 @@ def writable_dir(path: Path) -> None:
                                "writable folder") from None
 
 
-def check_output_file(path, overwrite: bool = False) -> Path:
+def check_output_file(path, overwrite: bool = False, kind: FileKind | None = None) -> Path:
     """A file about to be written (a noise file, a plot): refuses to replace one unless
-    `overwrite`, and checks its folder (or the first existing parent) takes new files."""
+    `overwrite`, and with `overwrite` replaces only a file of `kind` (given: every writer
+    that offers overwrite names what it writes); checks its folder (or the first existing
+    parent) takes new files."""
     path = Path(path).expanduser()
     if path.is_dir():
         raise DestinationError(f"{path} is a folder; give a file name")
     if path.exists() and not overwrite:
         raise DestinationError(f"{path} already exists; choose another name or ask to "
                                "overwrite it (overwrite: true / --overwrite)")
+    if path.exists() and kind is not None:
+        if not path.is_file():
+            raise DestinationError(f"{path} exists and is not a regular file; overwrite replaces "
+                                   f"only a {kind.name}: choose another name")
+        try:
+            same_kind = is_of_kind(path, kind)
+        except OSError as exc:
+            raise DestinationError(f"{path} exists and cannot be read to check it is a "
+                                   f"{kind.name} ({exc.strerror or exc}); overwrite replaces "
+                                   f"only a {kind.name}: choose another name") from None
+        if not same_kind:
+            raise DestinationError(f"{path} exists and is not a {kind.name}; overwrite replaces "
+                                   f"only a {kind.name}, nothing else: choose another name, or "
+                                   "move that file away first")
     writable_dir(path.parent)
     return path
 

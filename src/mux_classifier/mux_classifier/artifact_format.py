@@ -242,24 +242,98 @@ def _site_patterns(arrays: dict, array) -> np.ndarray:
 
 
 
-def _read_npz(path: str, what: str) -> dict:
-    """The arrays of the .npz at ``path``; ArtifactError for anything else."""
+# An artifact is read whole into memory and its members inflated: an untrusted file is bounded
+# before either. Trained artifacts are far below these (the demo's: well under 1 MB; a
+# learned model's largest layer, MAX_LEARNED_WIDTH^2 float64, is 128 MiB); a 1 MB file whose
+# member inflated to 1 GiB took the classifier node from 311 MB to 2.6 GB before it was
+# refused, and under a memory limit a bare MemoryError escaped.
+MAX_ARTIFACT_FILE_BYTES = 256 * 2**20
+MAX_ARTIFACT_ARRAY_BYTES = 256 * 2**20  # all members' arrays together, as their headers declare
+MAX_ARTIFACT_MEMBERS = 4096
+
+
+def _mib(n: int) -> str:
+    return f"{n / 2**20:.0f} MiB"
+
+
+def _check_npz_budget(data: bytes, path: str, what: str) -> None:
+    """Refuse, before anything is inflated, an archive whose members' declared sizes, or
+    whose arrays' declared shapes, exceed the budget (MAX_ARTIFACT_*), naming the file and
+    the limit. Only the members' .npy headers are read. The zip reader stops a member at its
+    declared size (a longer stream fails its CRC), and numpy allocates a member's array from
+    its header's shape, so these two bound what loading allocates."""
     try:
-        mode = os.stat(path).st_mode
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            members = archive.infolist()
+            if len(members) > MAX_ARTIFACT_MEMBERS:
+                raise ArtifactError(f"{what}: it has {len(members)} members, more than the "
+                                    f"{MAX_ARTIFACT_MEMBERS} an artifact may have")
+            declared = sum(m.file_size for m in members)
+            if declared > MAX_ARTIFACT_ARRAY_BYTES:
+                raise ArtifactError(
+                    f"{what}: its members would inflate to {_mib(declared)}, beyond the "
+                    f"{_mib(MAX_ARTIFACT_ARRAY_BYTES)} limit of an artifact (refused before "
+                    "inflating; a trained artifact is far smaller): retrain to get a new file")
+            total = 0
+            for member in members:
+                if not member.filename.endswith(".npy"):
+                    continue  # np.load hands it back as bytes; refused below as not an array
+                with archive.open(member) as fp:
+                    if fp.read(len(np.lib.format.MAGIC_PREFIX)) != np.lib.format.MAGIC_PREFIX:
+                        continue  # not an .npy: np.load hands it back as bytes, refused below
+                    version = tuple(fp.read(2))
+                    if version == (1, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_1_0(fp)
+                    elif version == (2, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_2_0(fp)
+                    else:
+                        raise ArtifactError(f"{what}: member {member.filename!r} is an .npy "
+                                            f"file of version {version}, not 1.0 or 2.0")
+                count = 1
+                for n in shape:
+                    count *= int(n)
+                total += count * dtype.itemsize
+                if total > MAX_ARTIFACT_ARRAY_BYTES:
+                    raise ArtifactError(
+                        f"{what}: its arrays declare {_mib(total)} or more (member "
+                        f"{member.filename!r}: shape {reprlib.repr(shape)} of {dtype}), beyond "
+                        f"the {_mib(MAX_ARTIFACT_ARRAY_BYTES)} limit of an artifact (refused "
+                        "before allocating): retrain to get a new file")
+    except ArtifactError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - bad headers, truncated members, bad zip structure
+        raise ArtifactError(f"{what}: {type(exc).__name__}: {exc}; retrain to get a new "
+                            "file") from None
+
+
+def _read_npz(path: str, what: str) -> dict:
+    """The arrays of the .npz at ``path``; ArtifactError for anything else, a file or arrays
+    beyond the budget (MAX_ARTIFACT_*) among it, before they are read or inflated."""
+    try:
+        st = os.stat(path)
     except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
         raise ArtifactError(f"cannot read classifier file {path!r}: {exc}") from exc
-    if not stat.S_ISREG(mode):  # a directory, a device (endless), a pipe (blocks)
+    if not stat.S_ISREG(st.st_mode):  # a directory, a device (endless), a pipe (blocks)
         raise ArtifactError(f"{path!r} is not a regular file; point to the .npz written by "
                             "`lightstage train`")
+    if st.st_size > MAX_ARTIFACT_FILE_BYTES:
+        raise ArtifactError(f"{what}: it is {_mib(st.st_size)}, beyond the "
+                            f"{_mib(MAX_ARTIFACT_FILE_BYTES)} limit of an artifact file (a "
+                            "trained artifact is far smaller)")
     try:
         with open(path, "rb") as fh:
-            data = fh.read()
-    except OSError as exc:
-        raise ArtifactError(f"cannot read classifier file {path!r}: {exc}") from exc
+            data = fh.read(MAX_ARTIFACT_FILE_BYTES + 1)
+    except (OSError, MemoryError) as exc:
+        raise ArtifactError(f"cannot read classifier file {path!r}: {type(exc).__name__}: "
+                            f"{exc}") from None
+    if len(data) > MAX_ARTIFACT_FILE_BYTES:  # grew since the stat
+        raise ArtifactError(f"{what}: it is beyond the {_mib(MAX_ARTIFACT_FILE_BYTES)} limit "
+                            "of an artifact file")
     if not zipfile.is_zipfile(io.BytesIO(data)):
         raise ArtifactError(
             f"{what}: it is not an .npz archive (truncated, or another kind of file); "
             "point to the .npz written by `lightstage train`, or retrain")
+    _check_npz_budget(data, path, what)
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             arrays = {name: npz[name] for name in npz.files}

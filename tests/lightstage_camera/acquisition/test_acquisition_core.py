@@ -158,6 +158,34 @@ def test_an_existing_pose_is_refused_unless_overwrite_and_then_replaced(tmp_path
     assert not (tmp_path / dest.STAGING_DIR).exists()
 
 
+def test_overwrite_replaces_a_pose_folder_only(tmp_path):
+    settings, model = _captured(level=100.0)
+    dest.write_model(_destination(tmp_path, settings=settings), model)
+    other = tmp_path / 'banana-fake' / 's0' / 'p01'
+    other.mkdir()
+    (other / 'thesis.tex').write_text('not an image of a pose')
+    with pytest.raises(errors.DestinationError, match=r'p01 exists and is not a pose folder '
+                                                     r'\(it holds thesis\.tex\); overwrite replaces only a pose'):
+        _destination(tmp_path, 'p01', settings=settings, overwrite=True)
+    assert (other / 'thesis.tex').exists()
+    _destination(tmp_path, 'p00', settings=settings, overwrite=True)  # a pose: replaced
+
+
+def test_a_written_pose_folder_has_the_umasks_mode_not_0700(tmp_path):
+    """tempfile.mkdtemp made the staging folder, renamed into the pose folder, 0700: no one
+    but the acquisition node's user could read the capture."""
+    import os
+    import stat
+    old = os.umask(0o022)
+    try:
+        settings, model = _captured(level=100.0)
+        pose = dest.write_model(_destination(tmp_path, settings=settings), model)
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(pose.stat().st_mode) == 0o755
+    assert stat.S_IMODE(pose.parent.stat().st_mode) == 0o755
+
+
 def test_a_folder_whose_rig_disagrees_is_refused_naming_each_difference(tmp_path):
     settings, model = _captured(level=50.0)
     dest.write_model(_destination(tmp_path, settings=settings), model)

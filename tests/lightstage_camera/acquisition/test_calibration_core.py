@@ -207,3 +207,30 @@ def test_a_failed_write_keeps_the_fit_in_the_error(tmp_path, target, monkeypatch
     message = str(err.value)
     assert 'No space left' in message and f'sigma_p2 = {result.model.sigma_p2:.6g}' in message
     assert 'written: ' in message and 'noise.yaml' in message  # the noise file made it
+
+
+def test_overwrite_replaces_a_noise_file_and_a_plot_but_not_a_captures_rig_yaml(tmp_path, target):
+    """`lightstage calibrate CAPTURE/rig.yaml --overwrite` (and the page's calibrate with that
+    output_path) replaced the capture's rig.yaml with a noise file: the capture no longer
+    loaded. overwrite replaces only a file of the kind being written."""
+    cam = SimCamera(target, dimmer=1.0, seed=4)
+    result = cal.calibrate_noise(sim_grab(cam, 1000, 15.0),
+                                 cal.CalibrationSettings(exposure_us=1000, frames_per_level=6, levels=3))
+    capture = ctarget.write_calibration_target(tmp_path / 'capture', shape=(24, 32), dimmer=1.0)
+    rig = capture / 'rig.yaml'
+    before = rig.read_bytes()
+    with pytest.raises(DestinationError, match=r'rig\.yaml exists and is not a noise file; '
+                                               r'overwrite replaces only a noise file'):
+        couts.write_calibration_outputs(result, rig, overwrite=True)
+    assert rig.read_bytes() == before
+    assert len(load_capture(capture, cache=False)) == 1  # the capture still loads
+    other = tmp_path / 'notes.png'
+    other.write_text('my notes, not an image')
+    with pytest.raises(DestinationError, match='notes.png exists and is not a plot'):
+        couts.check_calibration_outputs('', other, overwrite=True)
+    # a noise file and a plot of an earlier calibration are replaced
+    noise, plot = couts.write_calibration_outputs(result, tmp_path / 'noise.yaml', tmp_path / 'n.png')
+    again = couts.write_calibration_outputs(result, noise, plot, overwrite=True, measured_at='later')
+    assert again == (noise, plot) and yaml.safe_load(open(noise))['measured']['at'] == 'later'
+    (tmp_path / 'empty.yaml').touch()  # nothing in it to lose
+    assert couts.check_calibration_outputs(tmp_path / 'empty.yaml', overwrite=True)[0].name == 'empty.yaml'
