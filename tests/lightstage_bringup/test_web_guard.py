@@ -264,3 +264,30 @@ def test_failures_the_page_asked_for_go_to_the_history():
         (failed,) = state.snapshot()['history']
         assert not failed['success'] and 'not available' in failed['message']
     asyncio.run(run())
+
+
+@pytest.mark.parametrize('host', ['0.0.0.0', '::', '0', '192.0.2.7'])
+def test_a_host_beyond_loopback_needs_the_explicit_flag(host, capsys):
+    from lightstage_bringup import web_cli
+    assert web_cli.main(['--host', host]) == 2
+    err = capsys.readouterr().err
+    assert f'--host {host} is beyond this machine\'s loopback' in err and '--allow-network' in err
+
+
+@pytest.mark.ros
+def test_served_on_every_address_it_warns_and_every_request_needs_the_printed_token():
+    import re
+    import urllib.error
+    import urllib.request
+    from helpers.suite import fresh_domain_id
+    from helpers.web import served
+    with served('web', fresh_domain_id(), '--host', '0.0.0.0', '--allow-network') as (server, url):
+        output = server.output()
+        assert 'WARNING: listening on 0.0.0.0, beyond this machine' in output
+        token = re.search(r'\?token=([\w-]+)', url).group(1)
+        port = re.search(r':(\d+)/', url).group(1)
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(f'http://127.0.0.1:{port}/api/state', timeout=30)
+        assert refused.value.code == 401
+        with urllib.request.urlopen(f'http://127.0.0.1:{port}/api/state?token={token}', timeout=30) as r:
+            assert r.status == 200 and 'version' in json.loads(r.read())

@@ -191,8 +191,6 @@ def test_a_frozen_driver_s_status_turns_stale_and_is_never_shown_ok(base, nodes)
             await _shot(base, page, 'web_driver_stale.png')
         finally:
             os.kill(driver.pid, signal.SIGCONT)
-        # reporting again (OK, or ERROR: its firmware's watchdog may have tripped meanwhile)
-        await page.wait_for(f"!{DRIVER_DIAG}.classList.contains('STALE')", 30, 'fresh again once it reports')
         return text
 
     text = _in_browser(base, steps)

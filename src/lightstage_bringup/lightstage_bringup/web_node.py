@@ -184,6 +184,8 @@ class WebBridge(Node):
                 if name in present and time.monotonic() - pending[1] < STATE_ANSWER_S:
                     continue
                 get_state.remove_pending_request(pending[0])   # a node gone mid-call answers never
+                if name in present:   # there but silent (frozen, or its executor stuck)
+                    self.state.set_node(name, 'not answering', lifecycle=True)
             self._state_pending.pop(name, None)
             if name not in present:
                 self.state.set_node(name, 'stopped')

@@ -286,10 +286,11 @@ function renderJobs() {
 function renderDefaults() {
   const d = state.defaults || {};
   const say = (id, text) => { const n = document.getElementById(id); if (n) n.textContent = text; };
-  const known = (v, unit) => v === undefined ? 'the node\'s setting' : `${v}${unit}`;
-  say('default-frames', `0 = ${known(d.frames_averaged, '')} (the acquisition node's frames_averaged)`);
-  say('default-levels', `0 = ${known(d.calibration_levels, '')} levels, `
-    + `${known(d.calibration_frames, '')} frames per level (the node's calibration_levels, calibration_frames)`);
+  say('default-frames', d.frames_averaged === undefined
+    ? '0 = the acquisition node\'s frames_averaged' : `0 = ${d.frames_averaged} (the node's frames_averaged)`);
+  say('default-levels', d.calibration_levels === undefined
+    ? '0 = the acquisition node\'s calibration_frames / calibration_levels'
+    : `0 = ${d.calibration_frames} frames per level, ${d.calibration_levels} levels (the node's settings)`);
 }
 
 function render() {
