@@ -174,8 +174,11 @@ def test_the_page_listens_on_loopback_only_and_survives_the_bad_requests(stage):
     listening = [s for s in sockets_of(stage['server'].pid) if s.proto.startswith('tcp') and s.state == '0A']
     assert listening and all(s.loopback for s in listening), [str(s) for s in listening]
     assert stage['server'].poll() is None and not stage['supervisor'].exited()
-    code, state = _request(stage['url'] + '/api/state')
-    assert code == 200 and state['connected']['classify']
+    import time
+    deadline = time.monotonic() + 30   # the page looks at the graph each second
+    while not (state := _request(stage['url'] + '/api/state')[1])['connected'].get('classify'):
+        assert time.monotonic() < deadline, state['connected']
+        time.sleep(0.2)
 
 
 def test_a_capture_started_from_the_page_reports_its_progress_and_result(stage):
