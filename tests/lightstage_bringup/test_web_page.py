@@ -183,6 +183,7 @@ def test_the_page_listens_on_loopback_only_and_survives_the_bad_requests(stage):
 
 def test_a_capture_started_from_the_page_reports_its_progress_and_result(stage):
     import time
+    _wait_connected(stage, 'capture')
     out = stage['tmp'] / 'capture'
     code, job = _request(stage['url'] + '/api/capture', 'POST',
                          {'output_dir': str(out), 'target': 'banana-real/s0/p00', 'frames_averaged': 1})
@@ -206,6 +207,7 @@ def test_a_capture_started_from_the_page_reports_its_progress_and_result(stage):
 
 def test_a_noise_calibration_started_from_the_page_reports_its_progress_and_fit(stage):
     import time
+    _wait_connected(stage, 'calibrate')
     noise_file = stage['tmp'] / 'noise.yaml'
     code, job = _request(stage['url'] + '/api/calibrate', 'POST',
                          {'output_path': str(noise_file), 'frames_per_level': 8, 'levels': 3})
@@ -224,6 +226,7 @@ def test_a_noise_calibration_started_from_the_page_reports_its_progress_and_fit(
 
 def test_a_capture_cancelled_from_the_page_ends_canceled_and_writes_nothing(stage):
     import time
+    _wait_connected(stage, 'capture')
     out = stage['tmp'] / 'cancelled'
     code, job = _request(stage['url'] + '/api/capture', 'POST',
                          {'output_dir': str(out), 'target': 'banana-real/s0/p01', 'frames_averaged': 8})
@@ -239,6 +242,15 @@ def test_a_capture_cancelled_from_the_page_ends_canceled_and_writes_nothing(stag
         time.sleep(0.05)
     assert _job(stage, job['id'])['state'] == 'canceled'
     assert not (out / 'banana-real' / 's0' / 'p01').exists()
+
+
+def _wait_connected(stage, what, timeout_s=30.0):
+    """Until the page sees `what` (it looks at the graph each second; alone, a test comes first)."""
+    import time
+    deadline = time.monotonic() + timeout_s
+    while not _request(stage['url'] + '/api/state')[1]['connected'].get(what):
+        assert time.monotonic() < deadline, f'the page did not see {what} in {timeout_s:g} s'
+        time.sleep(0.2)
 
 
 def _job(stage, job_id):
