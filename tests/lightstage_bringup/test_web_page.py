@@ -174,12 +174,16 @@ def test_the_page_listens_on_loopback_only_and_survives_the_bad_requests(stage):
     listening = [s for s in sockets_of(stage['server'].pid) if s.proto.startswith('tcp') and s.state == '0A']
     assert listening and all(s.loopback for s in listening), [str(s) for s in listening]
     assert stage['server'].poll() is None and not stage['supervisor'].exited()
-    code, state = _request(stage['url'] + '/api/state')
-    assert code == 200 and state['connected']['classify']
+    import time
+    deadline = time.monotonic() + 30   # the page looks at the graph each second
+    while not (state := _request(stage['url'] + '/api/state')[1])['connected'].get('classify'):
+        assert time.monotonic() < deadline, state['connected']
+        time.sleep(0.2)
 
 
 def test_a_capture_started_from_the_page_reports_its_progress_and_result(stage):
     import time
+    _wait_connected(stage, 'capture')
     out = stage['tmp'] / 'capture'
     code, job = _request(stage['url'] + '/api/capture', 'POST',
                          {'output_dir': str(out), 'target': 'banana-real/s0/p00', 'frames_averaged': 1})
@@ -203,6 +207,7 @@ def test_a_capture_started_from_the_page_reports_its_progress_and_result(stage):
 
 def test_a_noise_calibration_started_from_the_page_reports_its_progress_and_fit(stage):
     import time
+    _wait_connected(stage, 'calibrate')
     noise_file = stage['tmp'] / 'noise.yaml'
     code, job = _request(stage['url'] + '/api/calibrate', 'POST',
                          {'output_path': str(noise_file), 'frames_per_level': 8, 'levels': 3})
@@ -221,6 +226,7 @@ def test_a_noise_calibration_started_from_the_page_reports_its_progress_and_fit(
 
 def test_a_capture_cancelled_from_the_page_ends_canceled_and_writes_nothing(stage):
     import time
+    _wait_connected(stage, 'capture')
     out = stage['tmp'] / 'cancelled'
     code, job = _request(stage['url'] + '/api/capture', 'POST',
                          {'output_dir': str(out), 'target': 'banana-real/s0/p01', 'frames_averaged': 8})
@@ -236,6 +242,15 @@ def test_a_capture_cancelled_from_the_page_ends_canceled_and_writes_nothing(stag
         time.sleep(0.05)
     assert _job(stage, job['id'])['state'] == 'canceled'
     assert not (out / 'banana-real' / 's0' / 'p01').exists()
+
+
+def _wait_connected(stage, what, timeout_s=30.0):
+    """Until the page sees `what` (it looks at the graph each second; alone, a test comes first)."""
+    import time
+    deadline = time.monotonic() + timeout_s
+    while not _request(stage['url'] + '/api/state')[1]['connected'].get(what):
+        assert time.monotonic() < deadline, f'the page did not see {what} in {timeout_s:g} s'
+        time.sleep(0.2)
 
 
 def _job(stage, job_id):
@@ -264,9 +279,22 @@ def test_a_lost_frame_shows_on_the_page(stage):
     assert 'frame of trigger 4242 lost: BlockID gap: frame 17 lost in transfer' in lost
 
 
+def _driver_status(stage, timeout_s=30.0):
+    """The driver's status once the page has one (its first /diagnostics come a second or so
+    after the graph is up)."""
+    import time
+    deadline = time.monotonic() + timeout_s
+    while True:
+        found = [d for d in _request(stage['url'] + '/api/state')[1]['diagnostics']
+                 if d['name'] == DRIVER_STATUS]
+        if found:
+            return found[0]
+        assert time.monotonic() < deadline, f'no {DRIVER_STATUS!r} status on the page in {timeout_s:g} s'
+        time.sleep(0.2)
+
+
 def test_a_driver_fault_and_the_classify_it_fails_show_on_the_page(stage):
-    code, state = _request(stage['url'] + '/api/state')
-    (driver,) = [d for d in state['diagnostics'] if d['name'] == DRIVER_STATUS]
+    driver = _driver_status(stage)
     assert driver['level'] == 'OK'
     os.kill(int(driver['values']['simulator_pid']), signal.SIGKILL)
 

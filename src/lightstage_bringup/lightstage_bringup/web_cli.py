@@ -6,7 +6,10 @@
 The live camera image and the LEDs lit for it, a Classify button with the label, scores and
 times and the images of each classification, the history, the driver's and camera's
 /diagnostics, capture and noise calibration with progress, and the errors (a failed
-classify, a lost frame, a driver in ERROR). Bound to 127.0.0.1 unless --host says otherwise.
+classify, a lost frame, a driver in ERROR). Bound to 127.0.0.1 unless --host says otherwise:
+an address beyond loopback (0.0.0.0, ::, a LAN address) needs --allow-network, and then
+every request needs the token printed in the page's address (anyone on that network could
+otherwise drive the stage).
 
 Exit codes: 0 stopped by Ctrl-C / SIGTERM; 1 the server could not start (port in use);
 2 bad arguments.
@@ -15,6 +18,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
+import secrets
 import signal
 import sys
 
@@ -39,6 +44,11 @@ def is_loopback(host: str) -> bool:
     return host in ('localhost', '::1') or host.startswith('127.')
 
 
+def server_url(host: str, port: int, token: str | None = None) -> str:
+    shown = f'[{host}]' if ':' in host else host
+    return f'http://{shown}:{port}/' + (f'?token={token}' if token else '')
+
+
 def server_parser(prog: str, description: str, default_port: int, exposes: str) -> argparse.ArgumentParser:
     """The options `lightstage web` and `lightstage view` share: where to listen, which graph."""
     p = argparse.ArgumentParser(
@@ -61,6 +71,12 @@ def _parser() -> argparse.ArgumentParser:
                       DEFAULT_PORT, 'the stage\'s controls')
     p.add_argument('--history', type=int, default=30,
                    help='classifications kept with their images (default 30)')
+    p.add_argument('--allow-network', action='store_true',
+                   help='allow a --host beyond loopback; every request then needs the token '
+                        'printed in the page\'s address (or --token)')
+    p.add_argument('--token', default=None,
+                   help='with --allow-network: the token to require (default: a random one, '
+                        'printed); also from $LIGHTSTAGE_WEB_TOKEN')
     return p
 
 
@@ -69,6 +85,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if not 1 <= args.history <= 1000:
             raise ValueError(f'--history must be 1..1000; got {args.history}')
+        if not is_loopback(args.host) and not args.allow_network:
+            raise ValueError(f'--host {args.host} is beyond this machine\'s loopback: the stage\'s '
+                             'controls would be open to that network; add --allow-network to do so '
+                             '(every request then needs a token), or leave --host out')
+        args.token = (args.token or os.environ.get('LIGHTSTAGE_WEB_TOKEN')
+                      or (secrets.token_urlsafe(24) if not is_loopback(args.host) else None))
+        if args.token is not None and (len(args.token) < 16 or not args.token.isascii()):
+            raise ValueError('--token must be at least 16 ASCII characters')
         apply_ros_environment(args.domain_id)  # before rclpy is imported: LOCALHOST discovery
     except ValueError as exc:
         print(f'lightstage web: {exc}', file=sys.stderr)
@@ -81,7 +105,8 @@ async def serve(args) -> int:
     from aiohttp import web
     from rclpy.signals import SignalHandlerOptions
 
-    from lightstage_bringup.web_app import LOOPBACK_HOSTS, make_app
+    from lightstage_bringup.web_app import (KEEPALIVE_TIMEOUT_S, LOOPBACK_HOSTS, guard_connections,
+                                            make_app)
     from lightstage_bringup.web_node import WebBridge, spin_in_thread
     from lightstage_bringup.web_state import PageState
 
@@ -91,9 +116,10 @@ async def serve(args) -> int:
     node.loop = asyncio.get_running_loop()
     executor, thread = spin_in_thread(node)
     state.set_connected('ros', True)
-    app = make_app(state, node, LOOPBACK_HOSTS if is_loopback(args.host) else None)
-    runner = web.AppRunner(app, access_log=None)
+    app = make_app(state, node, LOOPBACK_HOSTS if is_loopback(args.host) else None, token=args.token)
+    runner = web.AppRunner(app, access_log=None, keepalive_timeout=KEEPALIVE_TIMEOUT_S)
     await runner.setup()
+    guard_connections(runner.server)
     try:
         site = web.TCPSite(runner, args.host, args.port)
         try:
@@ -103,8 +129,12 @@ async def serve(args) -> int:
                   'choose another --port', file=sys.stderr)
             return EXIT_FAILED
         port = runner.addresses[0][1]
-        shown = f'[{args.host}]' if ':' in args.host else args.host
-        print(f'lightstage web: the operator\'s page is at http://{shown}:{port}/ '
+        if not is_loopback(args.host):
+            print(f'lightstage web: WARNING: listening on {args.host}, beyond this machine: anyone '
+                  'who can reach it and has the token can drive the stage; the token is in the '
+                  'address below (keep it private; plain HTTP: use a trusted network only)',
+                  file=sys.stderr, flush=True)
+        print(f'lightstage web: the operator\'s page is at {server_url(args.host, port, args.token)} '
               f'(ROS_DOMAIN_ID={node.context.get_domain_id()}); Ctrl-C stops', flush=True)
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()

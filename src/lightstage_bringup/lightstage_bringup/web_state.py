@@ -11,6 +11,12 @@ on /illumination), and a classification's images by the sequence numbers its res
 Stamps go out as strings (nanoseconds since 1970 do not fit a JavaScript number exactly).
 Gray values are MSB-aligned 16-bit; the page shows each image stretched so that its 99.5th
 percentile is white, and says how bright its brightest pixel was of the camera's full scale.
+
+Health is never shown older than it is: a /diagnostics status not updated for
+`DIAGNOSTIC_STALE_S` is shown STALE (diagnostic_aggregator's rule: no update within its
+timeout, 5 s by default); a status of a node that has left the graph is shown STALE at once; an
+OK status of a lifecycle node that is not active is shown WARN "not armed". `tick()` (called
+every second) makes the page see the time pass.
 """
 from __future__ import annotations
 
@@ -30,6 +36,8 @@ from lightstage_physics.rig import CHANNELS, N_LEDS, Rig
 THUMBNAIL_PX = 240      # images kept with a classification: at most this many pixels a side
 LIVE_MAX_PX = 800       # the live image: at most this many pixels a side
 DIAGNOSTIC_LEVELS = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
+DIAGNOSTIC_STALE_S = 5.0   # diagnostic_aggregator's default timeout
+SATURATED = 0.98           # a brightest pixel at this fraction of full scale: likely clipped
 
 
 class RequestError(ValueError):
@@ -125,6 +133,8 @@ class Job:
     result: dict = field(default_factory=dict)
     started: float = field(default_factory=time.time)
     ended: float | None = None
+    goal_id: str = ''          # the action goal's UUID (hex) once accepted
+    known: bool = True         # False: a goal found running on the node, not started here
 
     @property
     def running(self) -> bool:
@@ -134,15 +144,21 @@ class Job:
         return {'id': self.id, 'kind': self.kind, 'goal': self.goal, 'state': self.state,
                 'progress': self.progress, 'fraction': round(self.fraction, 4),
                 'message': self.message, 'result': self.result, 'started': self.started,
-                'ended': self.ended}
+                'ended': self.ended, 'goal_id': self.goal_id, 'known': self.known}
 
 
 class PageState:
     """The page's picture of the graph; every method is safe from any thread."""
 
     def __init__(self, history_size: int = 30, image_buffer: int = 40, events_size: int = 50,
-                 rig: Rig | None = None, on_change: Callable[[], None] | None = None):
+                 rig: Rig | None = None, on_change: Callable[[], None] | None = None,
+                 stale_s: float = DIAGNOSTIC_STALE_S, clock: Callable[[], float] = time.monotonic):
         self._lock = threading.Lock()
+        self.stale_s = stale_s
+        self._clock = clock
+        self._nodes: dict[str, dict] = {}   # node name -> {'state', 'lifecycle'}
+        self._defaults: dict = {}           # the acquisition node's settings, by parameter
+        self._shown_health: tuple = ()      # the health last shown, to notice when it ages
         self.on_change = on_change
         self.version = 0
         self.history_version = 0   # the history alone changes less often than the rest
@@ -260,7 +276,8 @@ class PageState:
         thumb = self._thumbnail(frame)
         self._history_frames[thumb.stamp_ns] = thumb
         entry['image'] = {'stamp_ns': str(thumb.stamp_ns), 'width': frame.width,
-                          'height': frame.height, 'peak': round(frame.peak, 4)}
+                          'height': frame.height, 'peak': round(frame.peak, 4),
+                          'saturated': frame.peak >= SATURATED}
         self.history_version += 1
         self._changed()
 
@@ -307,11 +324,74 @@ class PageState:
                 name = status['name']
                 before = self._diagnostics.get(name)
                 level = DIAGNOSTIC_LEVELS.get(int(status['level']), str(status['level']))
-                self._diagnostics[name] = {**status, 'level': level, 'received': time.time()}
+                self._diagnostics[name] = {**status, 'level': level, 'received': time.time(),
+                                           'seen': self._clock()}
                 if level == 'ERROR' and (before is None or before['level'] != 'ERROR'):
                     self._event('error', name, f'ERROR: {status["message"]}')
                 elif before is not None and before['level'] == 'ERROR' and level != 'ERROR':
                     self._event('info', name, f'{level} again: {status["message"]}')
+            self._changed()
+        self._notify()
+
+    def set_node(self, name: str, node_state: str, lifecycle: bool = False) -> None:
+        """A node of the graph: 'running' (a plain node in the graph), a lifecycle state
+        ('active', 'inactive', 'unconfigured', 'finalized'), or 'stopped' (gone from the
+        graph; 'not started' if it never was in it). Changes are events."""
+        with self._lock:
+            before = self._nodes.get(name)
+            if before is None and node_state == 'stopped':
+                node_state = 'not started'
+            elif before is not None and before['state'] == 'not started' and node_state == 'stopped':
+                node_state = 'not started'
+            if before is not None and before['state'] == node_state and before['lifecycle'] == lifecycle:
+                return
+            self._nodes[name] = {'state': node_state, 'lifecycle': lifecycle}
+            if before is not None and before['state'] != node_state:
+                if node_state == 'stopped':
+                    self._event('error', name, f'the {name} node stopped: it left the graph')
+                elif lifecycle and node_state != 'active':
+                    self._event('warning', name, f'the {name} node is {node_state}: not armed')
+                elif before['state'] in ('stopped', 'not started') or node_state == 'active':
+                    self._event('info', name, f'the {name} node is {node_state}')
+            self._changed()
+        self._notify()
+
+    def _shown_diagnostic(self, d: dict, now: float) -> dict:
+        """Under the lock: a status as the page shows it (aged, its node's state applied)."""
+        node = self._nodes.get(d['name'].split(':', 1)[0])
+        last = f'last report {d["level"]}: {d["message"]}'
+        shown = {k: v for k, v in d.items() if k != 'seen'}
+        shown['reported_level'] = d['level']
+        shown['age_s'] = round(now - d['seen'], 1)
+        if node is not None and node['state'] in ('stopped', 'not started'):
+            shown.update(level='STALE', stale=True,
+                         message=f'the {d["name"].split(":", 1)[0]} node is not running ({last})')
+        elif now - d['seen'] > self.stale_s:
+            shown.update(level='STALE', stale=True,
+                         message=f'no update for more than {self.stale_s:g} s ({last})')
+        elif node is not None and node['lifecycle'] and node['state'] != 'active' and d['level'] == 'OK':
+            shown.update(level='WARN', stale=False,
+                         message=f'not armed: the node is {node["state"]} ({d["message"]})')
+        else:
+            shown['stale'] = False
+        return shown
+
+    def tick(self) -> None:
+        """Time passed: a status that aged past `stale_s` is shown so (the page is told)."""
+        with self._lock:
+            now = self._clock()
+            health = tuple((d['name'], self._shown_diagnostic(d, now)['level'])
+                           for d in self._diagnostics.values())
+            if health == self._shown_health:
+                return
+            self._shown_health = health
+            self._changed()
+        self._notify()
+
+    def set_defaults(self, values: dict) -> None:
+        """The acquisition node's settings that a goal field of 0 (or no gain) stands for."""
+        with self._lock:
+            self._defaults = dict(values)
             self._changed()
         self._notify()
 
@@ -356,35 +436,76 @@ class PageState:
         with self._lock:
             return next((j for j in self._jobs if j.running), None)
 
+    def job_plot_path(self, job_id: int) -> str | None:
+        """The plot file a succeeded calibration job wrote (None if none)."""
+        with self._lock:
+            job = next((j for j in self._jobs if j.id == job_id), None)
+            if job is None or job.kind != 'calibrate' or job.state != 'succeeded':
+                return None
+            return job.result.get('plot_path') or job.goal.get('plot_path') or None
+
+    def on_active_goals(self, kind: str, goal_ids: list[str]) -> None:
+        """The goals the action server of `kind` says are active (its status topic). One this
+        page did not start (started elsewhere, or before this page's server restarted) is
+        shown as a job whose progress is not known here; it can be cancelled. Such a job
+        ends when the server no longer lists it."""
+        with self._lock:
+            if any(j.kind == kind and j.state == 'starting' for j in self._jobs):
+                return   # a goal of this page's, not yet answered: it is not someone else's
+            ours = {j.goal_id for j in self._jobs if j.goal_id}
+            for j in self._jobs:
+                if not j.known and j.running and j.kind == kind and j.goal_id not in goal_ids:
+                    self._set_job(j, state='ended', message='it is no longer running on the node; '
+                                  'its result is not known here (see the node\'s log and the output)')
+            for goal_id in goal_ids:
+                if goal_id not in ours:
+                    job = Job(self._new_id(), kind, {}, state='running', goal_id=goal_id, known=False,
+                              message=f'a {kind} this page did not start (another client, or this '
+                                      'page\'s server restarted while it ran) is running on the '
+                                      'node; its progress is not known here; Cancel stops it')
+                    self._jobs.appendleft(job)
+                    self._event('warning', kind, job.message)
+                    self._changed()
+        self._notify()
+
     def update_job(self, job: Job, **changes) -> None:
         with self._lock:
-            for key, value in changes.items():
-                setattr(job, key, value)
-            if not job.running and job.ended is None:
-                job.ended = time.time()
-                if job.state != 'succeeded':
-                    self._event('error' if job.state == 'failed' else 'warning', job.kind,
-                                f'{job.kind} {job.state}: {job.message}')
-            self._changed()
+            self._set_job(job, **changes)
         self._notify()
+
+    def _set_job(self, job: Job, **changes) -> None:
+        for key, value in changes.items():
+            setattr(job, key, value)
+        if not job.running and job.ended is None:
+            job.ended = time.time()
+            if job.state != 'succeeded':
+                self._event('error' if job.state == 'failed' else 'warning', job.kind,
+                            f'{job.kind} {job.state}: {job.message}')
+        self._changed()
 
     # ------------------------------------------------------------------ outputs
     def snapshot(self, history_since: int | None = None) -> dict:
         """Everything the page shows; the history is left out if it is the one of
         `history_version` `history_since` (a page that has it keeps it)."""
         with self._lock:
+            now = self._clock()
             live = None
             if self._live is not None:
                 seq = self._stamp_to_sequence.get(self._live.stamp_ns)
                 ill = self._illumination.get(seq) if seq is not None else None
                 live = {'stamp_ns': str(self._live.stamp_ns), 'width': self._live.width,
                         'height': self._live.height, 'peak': round(self._live.peak, 4),
+                        'saturated': self._live.peak >= SATURATED,
                         'received': self._live.received,
                         'illumination': ill.as_dict() if ill else None}
             snap = {'version': self.version, 'history_version': self.history_version,
                     'connected': dict(self.connected), 'stage': self.stage_layout(), 'live': live,
                     'classify_running': self._classify_running, 'events': list(self._events),
-                    'diagnostics': sorted(self._diagnostics.values(), key=lambda d: d['name']),
+                    'diagnostics': [self._shown_diagnostic(d, now) for d in
+                                    sorted(self._diagnostics.values(), key=lambda d: d['name'])],
+                    'nodes': {k: dict(v) for k, v in self._nodes.items()},
+                    'defaults': dict(self._defaults),
+                    'stale_s': self.stale_s, 'saturated_at': SATURATED,
                     'jobs': [j.as_dict() for j in self._jobs]}
             if history_since != self.history_version:
                 snap['history'] = list(self._history)

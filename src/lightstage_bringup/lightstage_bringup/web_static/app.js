@@ -7,6 +7,7 @@ let state = null;
 let selected = null;      // id of the history entry shown under Classify (null: the newest)
 let lastAnswer = null;    // the Classify service's answer to this page's last call
 let liveShown = null;
+const formNote = {};       // why a capture / calibration this page asked for did not start
 
 function el(tag, attrs, ...children) {
   const node = document.createElement(tag);
@@ -64,27 +65,90 @@ function ledPicture(intensities, size) {
   return box;
 }
 
-function patternText(ill) {
-  if (!ill) return 'LEDs: not known for this image';
-  const lit = ill.intensities.map((v, i) => [v, i]).filter(([v]) => v > 0);
-  const chans = state.stage.channels;
-  const names = lit.map(([v, i]) => `${Math.floor(i / chans.length)}${chans[i % chans.length][0].toUpperCase()}`);
-  return `trigger ${ill.sequence} (pattern ${ill.index + 1}/${ill.count} of request ${ill.request_id}): `
-    + `${lit.length} LED${lit.length === 1 ? '' : 's'} lit ${names.join(' ')}; exposure `
-    + `${(ill.exposure_us / 1000).toFixed(1)} ms` + (ill.gain_db === null ? '' : `, gain ${ill.gain_db} dB`);
+const CHANNEL_WORDS = {red: 'red', green: 'green', blue: 'blue', nir: 'near-infrared'};
+
+function listWords(items) {
+  return items.length <= 1 ? items.join('') : `${items.slice(0, -1).join(', ')} and ${items[items.length - 1]}`;
 }
+
+// The LEDs lit, in words: "5 near-infrared LEDs on, at sites 3, 4, 5, 6 and 7 (full power)".
+function ledWords(intensities) {
+  const chans = state.stage.channels;
+  const parts = [];
+  chans.forEach((ch, c) => {
+    const lit = [];
+    intensities.forEach((v, i) => { if (v > 0 && i % chans.length === c) lit.push([Math.floor(i / chans.length), v]); });
+    if (!lit.length) return;
+    const levels = new Set(lit.map(([, v]) => Math.round(v * 100)));
+    const power = levels.size === 1
+      ? ([...levels][0] === 100 ? 'full power' : `${[...levels][0]} % power`)
+      : lit.map(([s, v]) => `site ${s} ${Math.round(v * 100)} %`).join(', ');
+    const word = CHANNEL_WORDS[ch] || ch;
+    parts.push(`${lit.length} ${word} LED${lit.length === 1 ? '' : 's'} on, at site${lit.length === 1 ? '' : 's'} `
+      + `${listWords(lit.map(([s]) => String(s)))} (${power})`);
+  });
+  return parts.length ? parts.join('; ') : 'all LEDs off';
+}
+
+function patternText(ill) {
+  if (!ill) return 'which LEDs were on: not known for this image';
+  return `${ledWords(ill.intensities)}. Pattern ${ill.index + 1} of ${ill.count} of request `
+    + `${ill.request_id} (trigger ${ill.sequence}); exposure ${(ill.exposure_us / 1000).toFixed(1)} ms`
+    + (ill.gain_db === null ? '' : `, gain ${ill.gain_db} dB`);
+}
+
+const NODE_OK = ['active', 'running'];
 
 function renderLinks() {
   const links = document.getElementById('links');
-  links.replaceChildren(...Object.entries(state.connected).map(([k, up]) =>
-    el('span', {class: `pill ${up ? 'up' : 'down'}`, title: up ? `${k}: available` : `${k}: not available`}, k)));
+  const nodes = Object.entries(state.nodes || {}).map(([name, n]) => {
+    const cls = NODE_OK.includes(n.state) ? 'up' : (['stopped', 'not started'].includes(n.state) ? 'down' : 'warn');
+    return el('span', {class: `pill node ${cls}`, 'data-node': name, 'data-state': n.state,
+      title: `the ${name} node: ${n.state}`}, `${name} ${n.state === 'running' ? '' : n.state}`.trim());
+  });
+  // a node that is gone takes its topics and services with it: shown as the node, once
+  const gone = new Set(Object.entries(state.nodes || {}).filter(([, n]) => !NODE_OK.includes(n.state)).map(([k]) => k));
+  const links_ = Object.entries(state.connected).filter(([k]) => !gone.has(k) && !(state.nodes || {})[k]).map(([k, up]) =>
+    el('span', {class: `pill ${up ? 'up' : 'down'}`, title: up ? `${k}: available` : `${k}: not available`}, k));
+  links.replaceChildren(...nodes, ...links_);
   document.getElementById('classify').disabled = state.classify_running;
+}
+
+const START = {driver: 'lightstage up driver', camera: 'lightstage up camera',
+  classifier: 'lightstage up classifier', acquisition: 'lightstage up acquisition'};
+
+// What an operator must know about the nodes first: one that stopped, a driver not armed.
+function nodeAlerts() {
+  const out = [];
+  for (const [name, n] of Object.entries(state.nodes || {})) {
+    if (n.state === 'stopped') {   // one never started is a pill: a graph may leave it out
+      out.push(el('div', {class: 'alert node', 'data-source': name, 'data-node-state': n.state},
+        el('span', {class: 'source'}, name),
+        'stopped: the node left the graph; start it again (',
+        el('code', {}, `${START[name] || 'lightstage up ' + name} --params ...`), ')'));
+    } else if (n.lifecycle && n.state !== 'active') {
+      const can = name === 'driver' && ['inactive', 'unconfigured'].includes(n.state);
+      out.push(el('div', {class: 'alert warning node', 'data-source': name, 'data-node-state': n.state},
+        el('span', {class: 'source'}, name),
+        `not armed: the ${name} is ${n.state}, so the stage cannot be lit and a Classify will fail. `,
+        can ? el('button', {type: 'button', class: 'activate', onclick: () => activate(name)},
+          n.state === 'unconfigured' ? 'Configure and activate' : 'Activate')
+          : `Restart it (${START[name] || name}).`));
+    }
+  }
+  return out;
+}
+
+async function activate(name) {
+  try { await post(`/api/nodes/${name}/activate`, {}); } catch (e) { alert(e.message); }
 }
 
 function renderAlerts() {
   const alerts = document.getElementById('alerts');
   const errors = [];
+  const nodeDown = new Set(Object.entries(state.nodes || {}).filter(([, n]) => ['stopped', 'not started'].includes(n.state)).map(([k]) => k));
   for (const d of state.diagnostics) {
+    if (d.level === 'STALE' && nodeDown.has(d.name.split(':')[0])) continue;   // said by its node
     if (d.level === 'ERROR' || d.level === 'STALE') {
       errors.push(el('div', {class: 'alert', 'data-source': d.name},
         el('span', {class: 'source'}, d.name), `${d.level}: ${d.message}`));
@@ -94,7 +158,7 @@ function renderAlerts() {
   const inError = new Set(errors.map(a => a.dataset.source));
   const recent = state.events.filter(e => !(inError.has(e.source) && e.text.startsWith('ERROR'))).slice(0, 6).map(e => el('div', {class: `alert ${e.level}`, 'data-source': e.source},
     el('time', {}, clock(e.time)), el('span', {class: 'source'}, e.source), e.text));
-  alerts.replaceChildren(...errors, ...recent);
+  alerts.replaceChildren(...nodeAlerts(), ...errors, ...recent);
 }
 
 function renderLive() {
@@ -105,9 +169,12 @@ function renderLive() {
     liveShown = live.stamp_ns;
     img.src = `/api/images/live.png?stamp=${live.stamp_ns}`;
   }
-  document.getElementById('live-caption').textContent =
-    `${live.width} x ${live.height}, received ${clock(live.received)}; brightest pixel `
-    + `${(live.peak * 100).toFixed(1)} % of full scale`;
+  const caption = document.getElementById('live-caption');
+  caption.replaceChildren(`${live.width} x ${live.height}, received ${clock(live.received)}; brightest pixel `
+    + `${(live.peak * 100).toFixed(1)} % of full scale`,
+    live.saturated ? el('span', {class: 'saturated'}, ' — near full scale: likely saturated; '
+      + 'lower the exposure or the gain') : '');
+  caption.dataset.saturated = live.saturated ? '1' : '0';
   document.getElementById('live-leds').replaceChildren(ledPicture(live.illumination && live.illumination.intensities, 150));
   document.getElementById('live-pattern').textContent = patternText(live.illumination);
 }
@@ -174,24 +241,62 @@ function renderDiagnostics() {
   if (!state.diagnostics.length) return;
   box.replaceChildren(...state.diagnostics.map(d => el('div', {class: `diag ${d.level}`, 'data-name': d.name},
     el('div', {}, el('span', {class: 'level'}, d.level), el('strong', {}, d.name), ': ', d.message),
-    el('details', {}, el('summary', {}, `${Object.keys(d.values).length} values, ${clock(d.received)}`),
+    el('details', {}, el('summary', {}, `${Object.keys(d.values).length} values, last report ${clock(d.received)}`),
       el('dl', {}, Object.entries(d.values).flatMap(([k, v]) => [el('dt', {}, k), el('dd', {}, v)]))))));
 }
 
+function jobResult(j) {
+  const r = j.result || {};
+  if (j.state !== 'succeeded') return null;
+  if (j.kind === 'capture') {
+    return el('div', {class: 'result'}, `${r.images_captured} images written to `, el('code', {}, r.model_dir),
+      r.saturated_pixels ? el('span', {class: 'saturated'}, ` — ${r.saturated_pixels} saturated pixels`) : '',
+      ` (${(r.elapsed_s || 0).toFixed(1)} s)`);
+  }
+  return el('div', {class: 'result'},
+    el('div', {}, 'noise file: ', r.output_path ? el('code', {}, r.output_path) : 'not written (no file named)'),
+    el('div', {}, 'plot: ', r.plot_path ? el('code', {}, r.plot_path) : 'not written (no file named)'),
+    el('div', {}, `photon noise sigma_p2 ${Number(r.sigma_p2).toPrecision(4)}, read noise sigma_r2 `
+      + `${Number(r.sigma_r2).toPrecision(4)} at ${r.gain_db} dB, ${r.exposure_ms} ms`),
+    r.plot_path ? el('img', {class: 'plot', src: `/api/jobs/${j.id}/plot.png`, alt: 'the noise characteristic plot'}) : null);
+}
+
+function jobBox(j) {
+  const running = ['starting', 'running', 'cancelling'].includes(j.state);
+  return el('div', {class: `job ${j.state}`, 'data-id': j.id, 'data-state': j.state},
+    el('div', {}, el('strong', {}, j.kind), ` ${j.state}`, j.progress ? `: ${j.progress}` : '',
+      running && j.state !== 'cancelling' ? el('button', {type: 'button', class: 'small', onclick: cancelJob}, 'Cancel') : null),
+    el('div', {class: 'progress'}, el('span', {style: `width:${Math.round(j.fraction * 100)}%`})),
+    j.message ? el('div', {class: 'muted'}, j.message) : null, jobResult(j));
+}
+
 function renderJobs() {
-  document.getElementById('jobs').replaceChildren(...state.jobs.slice(0, 4).map(j => {
-    const running = ['starting', 'running', 'cancelling'].includes(j.state);
-    return el('div', {class: `job ${j.state}`, 'data-id': j.id},
-      el('div', {}, el('strong', {}, j.kind), ` ${j.state}`, j.progress ? `: ${j.progress}` : '',
-        running ? el('button', {type: 'button', style: 'margin-left:1em;padding:.1em .6em', onclick: cancelJob}, 'Cancel') : null),
-      el('div', {class: 'progress'}, el('span', {style: `width:${Math.round(j.fraction * 100)}%`})),
-      j.message ? el('div', {class: 'muted'}, j.message) : null);
-  }));
+  // the latest job of each kind beside its button; the ones before below
+  const latest = {};
+  for (const j of state.jobs) if (!latest[j.kind]) latest[j.kind] = j;
+  for (const kind of ['capture', 'calibrate']) {
+    const box = document.getElementById(`${kind}-job`);
+    const note = formNote[kind] ? el('div', {class: 'job failed note'}, formNote[kind]) : null;
+    box.replaceChildren(...[note, latest[kind] ? jobBox(latest[kind]) : null].filter(Boolean));
+  }
+  const shown = new Set(Object.values(latest).map(j => j.id));
+  document.getElementById('jobs').replaceChildren(...state.jobs.filter(j => !shown.has(j.id)).slice(0, 4).map(jobBox));
+}
+
+function renderDefaults() {
+  const d = state.defaults || {};
+  const say = (id, text) => { const n = document.getElementById(id); if (n) n.textContent = text; };
+  say('default-frames', d.frames_averaged === undefined
+    ? '0 = the acquisition node\'s frames_averaged' : `0 = ${d.frames_averaged} (the node's frames_averaged)`);
+  say('default-levels', d.calibration_levels === undefined
+    ? '0 = the acquisition node\'s calibration_frames / calibration_levels'
+    : `0 = ${d.calibration_frames} frames per level, ${d.calibration_levels} levels (the node's settings)`);
 }
 
 function render() {
   if (!state) return;
   renderLinks(); renderAlerts(); renderLive(); renderAnswer(); renderHistory(); renderDiagnostics(); renderJobs();
+  renderDefaults();
 }
 
 async function post(path, body) {
@@ -239,7 +344,10 @@ function formBody(form) {
 for (const [id, path] of [['capture-form', '/api/capture'], ['calibrate-form', '/api/calibrate']]) {
   document.getElementById(id).addEventListener('submit', async (ev) => {
     ev.preventDefault();
-    try { await post(path, formBody(ev.target)); } catch (e) { alert(e.message); }
+    const kind = id.split('-')[0];
+    formNote[kind] = '';
+    try { await post(path, formBody(ev.target)); } catch (e) { formNote[kind] = `not started: ${e.message}`; }
+    if (state) render();
   });
 }
 document.getElementById('classify').addEventListener('click', classify);
