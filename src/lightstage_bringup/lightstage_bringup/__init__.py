@@ -15,7 +15,9 @@ The operator's page (`lightstage web`, docs/WEB.md):
     web_cli          `lightstage web`
 The Foxglove / Lichtblick view (`lightstage view`, docs/WEB.md):
     view_channels    the schemas and the layout a Foxglove client is given (no rclpy)
-    view_node        the graph's topics on a Foxglove WebSocket server
+    view_server      the Foxglove WebSocket protocol server (both subprotocol names, the Host
+                     and Origin guard, bounded per-client queues; aiohttp, no rclpy)
+    view_node        the graph's topics on that server
     view_cli         `lightstage view`
 
 The launch file, the parameter files (simulated stage, real rig) and the Foxglove layout are
@@ -24,5 +26,5 @@ ROS environment is `lightstage_graph.ros_env`. Importing the package imports non
 """
 
 __all__ = ['cli', 'demo', 'launcher', 'supervisor', 'acquisition_cli', 'classify_cli',
-           'web_state', 'web_app', 'web_node', 'web_cli', 'view_channels', 'view_node',
-           'view_cli']
+           'web_state', 'web_app', 'web_node', 'web_cli', 'view_channels', 'view_server',
+           'view_node', 'view_cli']

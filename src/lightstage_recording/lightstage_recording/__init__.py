@@ -3,7 +3,8 @@
 One concern per module, the bag format ones pure Python (no rclpy), thin over the ``mcap``
 library: `layout` (the bag directory and metadata.yaml), `qos` (QoS as rosbag2 stores it),
 `msg_definitions` (schemas and type hashes), `summary` (what a bag holds), `writer`,
-`scan` (one MCAP file record by record) and `reader`, `recover`, `formatting` (text for
+`scan` (one MCAP file record by record) and `reader`, `recover`, `export` (a copy every Python bag reader opens), `losses` (what a
+recording lost: sequence gaps, unmatched service events), `formatting` (text for
 people), `fileio` (durable writes), `exceptions`; `recording` (the recorder's and player's
 rules). ROS side: `bag_ros`, `recorder_node`, `player_node`; `bag_cli` is
 `lightstage record|play|bag`. The names below are the bag API.
