@@ -39,6 +39,7 @@ import numpy as np
 sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests')]  # the tests' helpers package
 from helpers.acquisition import StageGraph  # noqa: E402  (the tests' ROS client and node start-up)
 from helpers.suite import fresh_domain_id, write_params  # noqa: E402
+from lightstage_graph.limits import gain_db_fields  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -107,7 +108,7 @@ def main(argv=None) -> int:
             start = time.perf_counter()
             r = run(CaptureModel, '/lightstage/capture_model', CaptureModel.Goal(
                 output_dir=str(out), label='banana-real', sample='s0', pose='p00',
-                exposure_us=args.exposure_us, gain_db=args.gain_db, frames_averaged=n),
+                exposure_us=args.exposure_us, frames_averaged=n, **gain_db_fields(args.gain_db)),
                 n_exposures=32 * (n + 1))
             wall = time.perf_counter() - start
             if r is None or not r.success:
@@ -134,7 +135,7 @@ def main(argv=None) -> int:
         for frames in args.calibration_frames:
             start = time.perf_counter()
             r = run(CalibrateNoise, '/lightstage/calibrate_noise', CalibrateNoise.Goal(
-                exposure_us=args.exposure_us, gain_db=args.gain_db, frames_per_level=frames,
+                exposure_us=args.exposure_us, frames_per_level=frames, **gain_db_fields(args.gain_db),
                 levels=args.levels), n_exposures=frames * args.levels)
             wall = time.perf_counter() - start
             if r is None or not r.success:
