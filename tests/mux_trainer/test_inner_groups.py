@@ -58,9 +58,10 @@ def test_every_search_holds_out_whole_samples_and_says_so_in_the_artifact(memori
     labels, inst = memorisable.labels, memorisable.instance
     for model in (greedy, snr):
         for mask in model.evaluator_.test_masks:
+            held = [set(inst[mask & (labels == c)]) for c in (0, 1)]
+            assert len(held[0]) == 2 and held[0] == held[1]   # the same samples of each class
             for c in (0, 1):
-                held = set(inst[mask & (labels == c)])
-                assert len(held) == 2 and not held & set(inst[~mask & (labels == c)])
+                assert not held[c] & set(inst[~mask & (labels == c)])
         prov = model.to_artifact().provenance['inner_estimate']
         assert prov['held_out'] == 'physical samples' and prov['groups_per_class'] == 8
         assert prov['held_out_per_class'] == 2
@@ -88,9 +89,10 @@ def test_learned_loss_folds_hold_out_whole_samples(memorisable):
     folds = instance_folds(labels, inst, 5)
     assert folds.shape[0] == 5 and np.all(folds.sum(axis=0) == 1)   # each sample once
     for fold in folds:
+        held = [set(inst[fold & (labels == c)]) for c in (0, 1)]
+        assert len(held[0]) in (1, 2) and held[0] == held[1]
         for c in (0, 1):
-            held = set(inst[fold & (labels == c)])
-            assert len(held) in (1, 2) and not held & set(inst[~fold & (labels == c)])
+            assert not held[c] & set(inst[~fold & (labels == c)])
     poses = inner_folds(memorisable, 5, 'poses')
     assert any(len(set(inst[f & (labels == 0)])) > 1 for f in poses)
     np.testing.assert_array_equal(inner_folds(memorisable, 5), folds)

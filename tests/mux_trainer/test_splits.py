@@ -47,20 +47,17 @@ def _samples(n_classes=3, per_class=(4, 4, 4), poses=3):
     return np.array(labels), np.array(pose), np.array(inst)
 
 
-def test_instance_splits_hold_out_whole_samples_of_every_class_each_in_turn():
+def test_instance_splits_hold_out_the_same_whole_samples_of_every_class_each_in_turn():
     labels, _, inst = _samples(per_class=(4, 4, 6))
     masks = instance_splits(labels, inst, 12, 0.25, rng=0)
     for mask in masks:
+        held = [set(inst[mask & (labels == c)]) for c in range(3)]
         for c in range(3):
-            test = set(inst[mask & (labels == c)])
-            train = set(inst[~mask & (labels == c)])
-            assert not test & train                     # every pose of a held-out sample
-            assert len(test) == (1 if c < 2 else 2)     # 25 % of 4, of 6 (rounded)
-    # every sample of every class held out within ceil(n / k) + 1 consecutive splits
-    for c, n in ((0, 4), (1, 4), (2, 6)):
-        window = masks[:n // (1 if c < 2 else 2) + 1]
-        held = set().union(*(set(inst[m & (labels == c)]) for m in window))
-        assert held == set(range(n))
+            assert not held[c] & set(inst[~mask & (labels == c)])   # every pose of a sample
+        # one number (25 % of the fewest, 4), the same in every class that has it
+        assert len(held[2]) == 1 and held[0] == held[1] == held[2] - {4, 5}
+    # every sample number held out within ceil(6 / 1) + 1 consecutive splits
+    assert set().union(*(set(inst[m]) for m in masks[:7])) == set(range(6))
 
 
 def test_auto_groups_by_sample_only_where_every_class_has_two():

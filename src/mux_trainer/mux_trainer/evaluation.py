@@ -3,8 +3,10 @@
 For one new column the whole training set is rendered under the earlier columns and each
 candidate with fresh noise, features are extracted (the data's extractor, the HOG grid by
 default; `rendering.scoring_features`), and the mean test accuracy over
-`n_repeats` random pose splits (75 / 25, the same held-out pose indices for every class) is
-the candidate's score. Everything is seeded: the same seed gives the same scores whatever
+`n_repeats` inner splits is the candidate's score: each holds out whole physical samples
+(a quarter of every class's, all their poses) where the data has two or more of every class,
+else a quarter of the pose indices, the same for every class (`splits.inner_splits`,
+`SplitScoring.inner_groups`). Everything is seeded: the same seed gives the same scores whatever
 `n_jobs` or joblib backend is used.
 
 Random numbers (common random numbers within a column):
@@ -153,8 +155,9 @@ class CandidateEvaluator:
     ----------
     data : SearchData
     mode : 'per_colour' (8-site patterns, 4 images each) or 'joint' (32-LED patterns).
-    n_repeats : random pose splits per candidate (the paper: 400).
-    test_fraction : share of the pose indices held out per split (the paper: 0.25).
+    n_repeats : random inner splits per candidate (the paper: 400).
+    test_fraction : share of the physical samples (or pose indices) held out per split (the
+        paper: 0.25).
     inner_classifier : 'ridge' (kernel shared by all splits; fast), 'squared_hinge' (the exact
         linear SVM in kernel form) or 'linear_svm' (one LinearSVC per split, slowest). See
         `split_scoring`; timings in docs/SEARCH.md.

@@ -347,18 +347,16 @@ def pose_folds(pose_index: np.ndarray, n_folds: int) -> np.ndarray:
 
 
 def instance_folds(labels: np.ndarray, instance: np.ndarray, n_folds: int) -> np.ndarray:
-    """Boolean (folds, n) masks holding out whole physical samples: each class's samples
-    dealt round-robin into at most `n_folds` folds (at least 2, at most the most samples a
-    class has), so every fold holds out at most one sample per class in turn where
-    n_folds reaches it, and every sample is held out once: the loss asks for light that
-    tells new objects apart, not other poses of the ones fitted on."""
+    """Boolean (folds, n) masks holding out whole physical samples: the sample numbers dealt
+    round-robin into at most `n_folds` folds (at least 2, at most the number of distinct
+    sample numbers), the same numbers in every class (as `splits.instance_splits`), so
+    every sample is held out once: the loss asks for light that tells new objects apart,
+    not other poses of the ones fitted on."""
     labels, instance = np.asarray(labels), np.asarray(instance)
-    per_class = [np.unique(instance[labels == c]) for c in np.unique(labels)]
-    n_folds = max(2, min(int(n_folds), max(ids.size for ids in per_class)))
-    fold_of = np.empty(labels.size, np.int64)
-    for c, ids in zip(np.unique(labels), per_class):
-        for i, sample in enumerate(ids):
-            fold_of[(labels == c) & (instance == sample)] = i % n_folds
+    numbers = np.unique(instance)
+    n_folds = max(2, min(int(n_folds), numbers.size))
+    fold = {int(s): i % n_folds for i, s in enumerate(numbers)}
+    fold_of = np.array([fold[int(s)] for s in instance])
     return np.stack([fold_of == f for f in range(n_folds)])
 
 

@@ -46,8 +46,9 @@ class ParamGroup:
 
 @dataclass(frozen=True)
 class SplitScoring(ParamGroup):
-    """How columns are scored: the mean accuracy over `n_repeats` random pose splits holding
-    out `test_fraction` of the pose indices (the paper: 400, 0.25), by the split classifier
+    """How columns are scored: the mean accuracy over `n_repeats` random inner splits holding
+    out `test_fraction` of the physical samples or of the pose indices (`inner_groups`; the
+    paper: 400 pose splits, 0.25), by the split classifier
     `classifier`: 'ridge' (fast, one kernel for all splits), 'squared_hinge' (the exact
     linear SVM) or 'linear_svm' (one LinearSVC per split); None: the method's own (the
     greedy search: the ridge screen, refined by the exact SVM; the baselines, which score
