@@ -144,7 +144,7 @@ def _learned_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument('--steps', type=int, default=None,
                    help=f'gradient steps on the LED levels from each start descended (the random '
                         f'one, greedy\'s columns and the best raking split; snapshots scored by the '
-                        f'inner pose splits, the best kept); default: {DEFAULT_STEPS}, the starts '
+                        f'inner splits, the best kept); default: {DEFAULT_STEPS}, the starts '
                         f'alone (docs/LEARNED.md, round 9)')
 
 

@@ -23,7 +23,7 @@ in JAX `stack_ratio_stats`): per pair, the log ratio's spread and gradient, whic
 relief's shading keeps and a print of it does not.
 
 Training (why: docs/LEARNED.md, rounds 3, 8 and 9). Candidate lights are scored with the
-greedy search's own inner pose splits and the exact linear SVM on them
+greedy search's own inner splits and the exact linear SVM on them
 (`evaluation.CandidateEvaluator` in the joint mode) and the best is kept (a tie keeps the
 earlier): the starts (a random graded light with every LED partly on, the per-colour
 start, the SNR-optimal baseline's site columns expanded to LED levels, greedy's columns,
