@@ -16,10 +16,12 @@ split of `holdout.holdout_split` (25 % of the pose indices, or of the physical s
   the control for what the gradient steps add; evaluated by
   `learned.evaluate_learned_heldout`: the same test-noise stream (`holdout.test_images`)
   and the same n_renders.
-With `--inner-groups instances` every method's inner splits (greedy's, SNR-optimal's, the
-learned loss's folds and its candidate scoring) hold out physical samples instead of poses.
-Prints held-out accuracy and training seconds per method and exposure count, and writes the
-figures as JSON with --json.
+`--inner-groups` is every method's `SplitScoring.inner_groups` (greedy's, SNR-optimal's, the
+learned loss's folds and its candidate scoring): 'poses', 'instances' (whole physical
+samples) or 'auto' (instances where the training part has two or more of every class).
+Prints held-out accuracy, the inner estimate (the method's own split accuracy at that
+exposure count) and training seconds per method and exposure count, and writes the figures
+as JSON with --json.
 
     PYTHONPATH=src/lightstage_physics:src/mux_classifier:src/mux_trainer \\
         .venv/bin/python benchmarks/learned_vs_greedy.py /work/data/weak0.2 [--seed 0]
@@ -27,7 +29,6 @@ figures as JSON with --json.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 
@@ -69,21 +70,15 @@ def split_capture(path, holdout_by: str, seed: int, features: str = 'intensity_s
     return data.subset(tr), data.subset(te), instance[tr]
 
 
-def grouped_by_instance(train, train_instance):
-    """The training data with its pose numbers replaced by the physical sample numbers: every
-    method's inner splits (and the learned loss's folds) then hold out whole instances."""
-    _, groups = np.unique(train_instance, return_inverse=True)
-    return dataclasses.replace(train, pose_index=groups.astype(np.int64))
-
-
 def run_capture(path, args) -> dict:
-    train, test, train_instance = split_capture(path, args.holdout_by, args.seed, args.features)
-    if getattr(args, 'inner_groups', 'poses') == 'instances':
-        train = grouped_by_instance(train, train_instance)
+    train, test, _ = split_capture(path, args.holdout_by, args.seed, args.features)
+    inner_groups = getattr(args, 'inner_groups', 'poses')
     print(f'{path}: {train.n_samples} training, {test.n_samples} held-out samples, '
-          f'{len(train.class_names)} classes, held out by {args.holdout_by}', flush=True)
+          f'{len(train.class_names)} classes, held out by {args.holdout_by}, inner splits '
+          f'{inner_groups}', flush=True)
     out = {}
-    common = dict(seed=args.seed, scoring=SplitScoring(n_repeats=args.n_repeats))
+    common = dict(seed=args.seed, scoring=SplitScoring(n_repeats=args.n_repeats,
+                                                       inner_groups=inner_groups))
     for name, make in (('greedy', lambda: GreedyPatternSelector(mode='per_colour', n_patterns=2,
                                                                  **common)),
                        ('snr_optimal', lambda: SnrOptimalClassifier(n_images=2, **common))):
@@ -103,10 +98,13 @@ def run_capture(path, args) -> dict:
         seconds = time.perf_counter() - t0
         res = method_summary(model, test, args.n_renders, args.seed, train_seconds=seconds)
         out[name] = {'4': res['accuracy_by_images']['1'], '8': res['accuracy_by_images']['2'],
-                     'train_seconds': seconds}
+                     'estimate_4': float(model.accuracy_by_images_[1]),
+                     'estimate_8': float(model.accuracy_by_images_[2]),
+                     'inner_splits': model.evaluator_.inner_, 'train_seconds': seconds}
         if name == 'greedy':
             out['_greedy_columns'] = model.patterns_
-        print(f'  {name}: 4 exp {out[name]["4"]:.3f}, 8 exp {out[name]["8"]:.3f} '
+        print(f'  {name}: 4 exp {out[name]["4"]:.3f} (inner {out[name]["estimate_4"]:.3f}), '
+              f'8 exp {out[name]["8"]:.3f} (inner {out[name]["estimate_8"]:.3f}) '
               f'({seconds:.0f} s)', flush=True)
     greedy_columns = out.pop('_greedy_columns', None)
     variants = (('learned', False, args.fine_tune), ('learned_binary', True, args.fine_tune),
@@ -127,6 +125,7 @@ def run_capture(path, args) -> dict:
                 ridge=args.ridge, class_power=args.class_power,
                 split_classifier=args.split_classifier, ratio_stats=args.ratio_stats,
                 head_renders=args.head_renders, head=args.head, inner_draws=args.inner_draws,
+                inner_groups=inner_groups,
                 starts=builtin, start_patterns=starts,
                 n_repeats=args.n_repeats, progress=args.progress).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
@@ -135,6 +134,8 @@ def run_capture(path, args) -> dict:
             out[name][f'best_step_{k}'] = model.best_step_
             out[name][f'chosen_{k}'] = model.chosen_
             out[name][f'inner_{k}'] = model.candidate_scores_
+            out[name][f'estimate_{k}'] = float(model.accuracy_by_images_[k])
+            out[name]['inner_splits'] = model.inner_estimate_
             out[name][f'patterns_{k}'] = np.round(model.patterns_, 3).tolist()
             print(f'  {name}: {k} exp {acc:.3f} ({model.train_seconds_:.0f} s, chose '
                   f'{model.chosen_}; inner ' + ', '.join(
@@ -151,9 +152,10 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     """The options of `run_capture` (shared with learned_strength_sweep.py)."""
     p.add_argument('--features', default='intensity_stats')
     p.add_argument('--holdout-by', default='poses', choices=('poses', 'instances'))
-    p.add_argument('--inner-groups', default='poses', choices=('poses', 'instances'),
+    p.add_argument('--inner-groups', default='poses', choices=('auto', 'poses', 'instances'),
                    help="what every method's inner splits hold out on the training part: pose "
-                        "numbers (the methods' own) or physical samples (a probe)")
+                        "numbers, physical samples, or auto (the product's default: physical "
+                        "samples where the training part has two or more of every class)")
     p.add_argument('--n-repeats', type=int, default=400, help="greedy's / SNR's inner splits")
     p.add_argument('--n-renders', type=int, default=4)
     p.add_argument('--steps', type=int, default=DEFAULT_STEPS, help='learned: gradient steps')
@@ -210,11 +212,15 @@ def main(argv=None):
     for path in args.captures:
         args.reused = old['results'].get(path, {})
         results[path] = run_capture(path, args)
-    print('\nheld-out accuracy (4 / 8 exposures), training seconds')
+    print('\nheld-out accuracy (4 / 8 exposures), inner estimate - held-out (4 / 8), training '
+          'seconds')
     for path, res in results.items():
         for name, r in res.items():
             secs = r['train_seconds'] or sum(v for k, v in r.items() if k.startswith('train_seconds_'))
-            print(f'{path:30s} {name:15s} {r.get("4", np.nan):.3f} / {r.get("8", np.nan):.3f}  {secs:.0f} s'
+            gap = ' / '.join(f'{r[f"estimate_{k}"] - r[k]:+.3f}' if f'estimate_{k}' in r and k in r
+                             else '  n/a ' for k in ('4', '8'))
+            print(f'{path:30s} {name:15s} {r.get("4", np.nan):.3f} / {r.get("8", np.nan):.3f}  '
+                  f'gap {gap}  {secs:.0f} s'
                   + (f'  classify {r["classify_ms_8"]:.1f} ms' if 'classify_ms_8' in r else ''))
     if args.json:
         with open(args.json, 'w') as f:

@@ -212,3 +212,42 @@ def test_eval_count_rule_reports_what_each_rule_keeps(capture, capsys):
         assert set(m['search_se_by_images']) == set(m['search_accuracy_by_images'])
     with pytest.raises(SystemExit):
         eval_main([str(capture), '--count-rule', 'median', *TINY])
+
+
+def test_train_says_what_it_kept_in_exposures_and_columns(capture, tmp_path, capsys):
+    """One word for one thing: exposures are images taken, pattern columns what a per-colour
+    column is (4 exposures: R, G, B, NIR); the features named; no Python dicts."""
+    rc = train_main([str(capture), '--out', str(tmp_path / 'n.npz'), '--method', 'naive',
+                     '--repeats', '4', *TINY])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "{'" not in text and 'image count' not in text
+    assert 'naive: 1 pattern column of joint patterns, 1 exposure per column; features ' \
+           'hog_grid' in text
+    assert 'best: the first 1 exposure, by the inner accuracy' in text
+    assert 'inner accuracy by exposures: 1 exposure ' in text
+    assert 'inner estimate ' in text and 'objects trained on' in text
+
+
+def test_eval_rows_name_their_exposures_columns_and_own_features():
+    from mux_trainer.cli import method_row, train_text
+    types = {'accuracy_by_type': {'banana': 0.9}}
+    snr = dict(types, accuracy=0.845, n_images=4, images_per_pattern=4, n_exposures=16,
+               features='hog_grid', mode='per_colour')
+    learned = dict(types, accuracy=1.0, n_images=4, images_per_pattern=1, n_exposures=4,
+                   features='intensity_stats', cross_image_stats=True, mode='learned',
+                   levels='on/off', inner_estimate={'accuracy': 0.97, 'held_out': 'physical samples'})
+    bow = dict(types, accuracy=0.5, n_images=1, images_per_pattern=1, features='bow_dense_hog')
+    assert ' 84.50 %  at 16 exposures (4 pattern columns x 4), features hog_grid  [' \
+        in method_row('snr_optimal', snr)
+    assert '100.00 %  at 4 exposures, features intensity_stats + cross-image statistics, ' \
+           'on/off levels, inner estimate 97.0 % by physical samples  [' in method_row('learned', learned)
+    assert 'at 1 exposure, features bag of words on dense HOG' in method_row('naive_bow', bow)
+    doc = {'method': 'greedy', 'mode': 'per_colour', 'patterns': [[1, 0]] * 8,
+           'images_per_pattern': 4, 'features': 'hog_grid', 'best_n_images': 2,
+           'accuracy_by_images': {'1': 0.8, '2': 0.9}}
+    text = train_text(doc)
+    assert 'greedy: 2 pattern columns of per-colour patterns, 4 exposures per column ' \
+           '(R, G, B, NIR); features hog_grid' in text
+    assert 'best: the first 8 exposures (2 pattern columns x 4)' in text
+    assert 'inner accuracy by exposures: 4 exposures 80.0 %, 8 exposures 90.0 %' in text

@@ -19,7 +19,8 @@ def test_train_learned_writes_a_learned_artifact(capture, tmp_path, capsys):
     assert rc == 0
     captured = capsys.readouterr()
     doc = json.loads(captured.out)  # stdout is exactly one JSON document, progress on stderr
-    assert '[learned k=2] starts: inner' in captured.err  # round 2's progress: scored starts
+    # progress: the starts' inner accuracy
+    assert '[learned, 2 exposures, graded] inner accuracy of the starts: random ' in captured.err
     assert doc['method'] == 'learned' and doc['mode'] == 'learned' and not doc['binary']
     assert doc['features'] == 'intensity_stats' and doc['best_n_images'] == 2
     # what the model classifies with beyond the per-image statistics, and its head
@@ -32,6 +33,10 @@ def test_train_learned_writes_a_learned_artifact(capture, tmp_path, capsys):
     assert art.provenance['method'] == 'learned' and art.provenance['max_steps'] == 3
     assert art.provenance['chosen'] == doc['chosen'] and art.provenance['head'] == 'by_type'
     assert art.provenance['n_repeats'] == 30   # --repeats: its inner splits, as the search's
+    # one physical sample per class: pose splits, and the artifact says so
+    assert art.provenance['inner_estimate']['held_out'] == 'poses'
+    assert art.provenance['inner_estimate'] == doc['inner_estimate']
+    assert art.provenance['levels'] == doc['levels'] in ('graded', 'on/off')
     assert art.learned.class_groups is not None
     # graded: levels in [0, 1], and a fine-tuned snapshot (not a 0/1 start) has levels between
     assert ((art.led_patterns >= 0) & (art.led_patterns <= 1)).all()
@@ -44,11 +49,22 @@ def test_train_learned_writes_a_learned_artifact(capture, tmp_path, capsys):
 def test_train_learned_binary_gives_on_off_levels(capture, tmp_path, capsys):
     out = tmp_path / 'binary.npz'
     rc = train_main([str(capture), '--out', str(out), '--method', 'learned', '--binary',
-                     '--max-images', '2', '--steps', '2', '--quiet', *TINY])
+                     '--max-images', '2', '--steps', '2', '--repeats', '10', *TINY])
     assert rc == 0
     art = TrainedArtifact.load(out)
     assert set(np.unique(art.led_patterns)) == {0.0, 1.0}  # exactly: pwm_bits 0 boards
     assert art.provenance['binary'] is True and 'learned on/off patterns' in art.describe()
+    # what it kept, in words: exposures, its own features, on/off, the kept candidate, the
+    # inner estimate and that pose splits speak only for the objects trained on
+    text = capsys.readouterr().out
+    assert "{'" not in text and 'image count' not in text
+    assert 'learned: 2 exposures, one learned pattern each; features intensity_stats + ' \
+           'cross-image statistics; head gated by object type' in text
+    assert 'LED levels: on/off (every LED fully on or off)' in text
+    assert f'kept {art.provenance["chosen"]}' in text
+    assert 'inner accuracy by exposures: 2 exposures ' in text
+    assert 'holding out 2 of 8 pose indices (every class has one physical sample): it holds ' \
+           'only for the objects trained on' in text
 
 
 @pytest.mark.parametrize('argv, message', [

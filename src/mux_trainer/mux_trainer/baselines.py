@@ -1,7 +1,7 @@
 """The paper's baselines: fixed pattern matrices with a classifier per image count.
 
 - `FixedPatternClassifier`: any given pattern matrix; for k = 1..m it scores the first k
-  columns with the same repeated pose splits as the greedy search (by default with the exact
+  columns with the same repeated inner splits as the greedy search (by default with the exact
   linear SVM, the paper's classifier: one matrix per image count needs no fast screen) and
   trains the final classifier on them ("a classifier was trained for each image count using noise-accurate
   rendered imagery").

@@ -3,8 +3,10 @@
 For one new column the whole training set is rendered under the earlier columns and each
 candidate with fresh noise, features are extracted (the data's extractor, the HOG grid by
 default; `rendering.scoring_features`), and the mean test accuracy over
-`n_repeats` random pose splits (75 / 25, the same held-out pose indices for every class) is
-the candidate's score. Everything is seeded: the same seed gives the same scores whatever
+`n_repeats` inner splits is the candidate's score: each holds out whole physical samples
+(a quarter of every class's, all their poses) where the data has two or more of every class,
+else a quarter of the pose indices, the same for every class (`splits.inner_splits`,
+`SplitScoring.inner_groups`). Everything is seeded: the same seed gives the same scores whatever
 `n_jobs` or joblib backend is used.
 
 Random numbers (common random numbers within a column):
@@ -34,7 +36,7 @@ from .cluster import ArraySized, active_cluster
 from .rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
                         image_features, scoring_features, standard_normal, standardise_columns)
 from .split_scoring import make_scorer
-from .splits import pose_splits
+from .splits import inner_splits
 
 MODES = ('per_colour', 'joint')
 
@@ -153,12 +155,15 @@ class CandidateEvaluator:
     ----------
     data : SearchData
     mode : 'per_colour' (8-site patterns, 4 images each) or 'joint' (32-LED patterns).
-    n_repeats : random pose splits per candidate (the paper: 400).
-    test_fraction : share of the pose indices held out per split (the paper: 0.25).
+    n_repeats : random inner splits per candidate (the paper: 400).
+    test_fraction : share of the physical samples (or pose indices) held out per split (the
+        paper: 0.25).
     inner_classifier : 'ridge' (kernel shared by all splits; fast), 'squared_hinge' (the exact
         linear SVM in kernel form) or 'linear_svm' (one LinearSVC per split, slowest). See
         `split_scoring`; timings in docs/SEARCH.md.
     alpha, C : ridge penalty / the linear SVM's C.
+    inner_groups : 'auto' | 'poses' | 'instances': what the splits hold out
+        (`splits.inner_splits`; `SplitScoring.inner_groups`); `inner_` describes them.
     seed : seeds splits and noise.
     n_jobs : joblib workers; chunk_size : candidates per task (fixed, so that results do not
         depend on n_jobs).
@@ -167,7 +172,7 @@ class CandidateEvaluator:
     def __init__(self, data: SearchData, mode: str = 'per_colour', n_repeats: int = 400,
                  test_fraction: float = 0.25, inner_classifier: str = 'ridge',
                  alpha: float = 0.5, C: float = 1.0, seed: int = 0, n_jobs: int = 1,
-                 chunk_size: int = 32):
+                 chunk_size: int = 32, inner_groups: str = 'auto'):
         images_per_column(mode)
         self.data = data
         self.mode = mode
@@ -179,8 +184,9 @@ class CandidateEvaluator:
         self.chunk_size = chunk_size
         params = {'alpha': alpha} if inner_classifier == 'ridge' else {'C': C}
         self.scorer = make_scorer(inner_classifier, **params)
-        self.test_masks = pose_splits(data.pose_index, n_repeats, test_fraction,
-                                      np.random.default_rng([self.seed, 2 ** 31]))
+        self.test_masks, self.inner_ = inner_splits(
+            data.labels, data.pose_index, data.instance, n_repeats, test_fraction,
+            np.random.default_rng([self.seed, 2 ** 31]), inner_groups)
         self.n_classes = len(data.class_names)
 
     @property

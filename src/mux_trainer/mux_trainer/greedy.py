@@ -78,8 +78,9 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         the accuracy by more than `tol`), or a fixed number of columns to select.
     max_patterns : upper bound on the columns in early-termination mode.
     tol : minimum improvement of the mean accuracy that counts as an improvement.
-    scoring : `search_params.SplitScoring`, how candidates are scored: random pose splits
-        (the paper: 400, 0.25) and the screening classifier (None or 'ridge': the fast
+    scoring : `search_params.SplitScoring`, how candidates are scored: random inner splits
+        by physical sample or by pose (`inner_groups`; the paper: 400 pose splits, 0.25)
+        and the screening classifier (None or 'ridge': the fast
         screen; the SVMs 'squared_hinge' or 'linear_svm' score every candidate exactly,
         without refinement); its C also serves the refinement.
     refinement : `search_params.Refinement`, with the 'ridge' screen: the exact linear SVM

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 # gradient steps on the light from each start descended (`learned`'s fine_tune: the random
 # start, greedy's columns and the best raking split; every `eval_every` steps a snapshot is
-# scored by the inner pose splits, the best kept). 0: the starts are scored and the best
+# scored by the inner splits, the best kept). 0: the starts are scored and the best
 # kept, no descent. Why 0 by default (docs/LEARNED.md, round 9): with the cross-image
 # statistics no snapshot of 200 steps from any of the three was kept on the 16-class mix, at
 # 17 min per descent; the starts alone are at least round 4's descents on every capture

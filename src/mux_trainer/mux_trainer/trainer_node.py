@@ -6,7 +6,10 @@ candidates' scoring tasks (one per worker) and when it is chosen (the learned me
 each of its starts is begun and scored, greedy's progress while its start is made, each
 gradient snapshot); a cancel request stops the search at the next of these.
 Empty/zero goal fields take the
-paper's defaults (greedy, per-colour, Sigma3, 8 columns, 400 splits). With the
+paper's defaults (greedy, per-colour, Sigma3, 8 columns, 400 splits); the `inner_groups`
+parameter says what the inner splits hold out (default auto: whole physical samples where
+the capture has two or more of every class), and the result's message gives the inner
+estimate and how it was made. With the
 `dask_scheduler` parameter set, the candidates are evaluated on that Dask cluster; a
 scheduler that cannot be reached or is lost aborts the goal with the reason.
 """
@@ -32,6 +35,7 @@ from .cluster import DEFAULT_TIMEOUT_S
 from .greedy import REFINE_TOP
 from .learned_method import progress_text
 from .learned_schedule import DEFAULT_STEPS, MAX_STEPS
+from .splits import INNER_GROUPS, describe_inner
 from .training import METHODS, train_from_capture
 
 SITE_CANDIDATES = n_site_subsets()  # per-colour mode: patterns with 1..7 of 8 sites lit
@@ -60,6 +64,12 @@ PARAMETERS = {
     'learned_steps': (DEFAULT_STEPS, integer(
         'learned: gradient steps on the LED levels from each start descended (the random '
         'one, greedy\'s columns and the best raking split); 0: the starts alone', 0, MAX_STEPS)),
+    'inner_groups': ('auto', string(
+        'what the inner splits that choose and score every method hold out: instances '
+        '(whole physical samples: an estimate for objects never seen in training), poses '
+        '(the paper\'s rule: it holds only for the objects trained on) or auto (physical '
+        'samples where the capture has two or more of every class, else poses); a bad '
+        'value aborts the goal', constraints=', '.join(INNER_GROUPS))),
     'learned_binary': (False, boolean(
         'learned: on/off LED levels (boards with pwm_bits 0) instead of graded ones')),
     'dask_scheduler': ('', string(
@@ -138,6 +148,7 @@ class TrainerNode(Node):
             options = goal_options(goal, int(self.p('n_jobs')), int(self.p('refine_top')),
                                    str(self.p('features')))
             options.update(self._method_options(goal))
+            options['inner_groups'] = str(self.p('inner_groups'))
             cluster = dict(dask_scheduler=str(self.p('dask_scheduler')).strip(),
                            dask_timeout_s=float(self.p('dask_timeout_s')))
             total = SITE_CANDIDATES if options['mode'] == 'per_colour' else 0
@@ -200,8 +211,13 @@ class TrainerNode(Node):
         result.artifact_path = summary['artifact']
         result.accuracy_by_images = [float(accuracy[k]) for k in sorted(accuracy, key=int)]
         result.elapsed_s = time.perf_counter() - t0
-        result.message = (f'{summary["method"]}: {len(summary["patterns"][0]) if summary["patterns"] else 0} '
-                          f'pattern column(s), best at {summary["best_n_images"]}')
+        per = int(summary.get('images_per_pattern', 1))
+        columns = len(summary['patterns'][0]) if summary['patterns'] else 0
+        inner = summary.get('inner_estimate')
+        result.message = (f'{summary["method"]}: {columns} pattern column(s) of '
+                          f'{per} exposure(s) each; best at {summary["best_n_images"]} '
+                          f'column(s) = {summary["best_n_images"] * per} exposure(s)'
+                          + (f'; {describe_inner(inner, inner["accuracy"])}' if inner else ''))
         goal_handle.succeed()
         self.get_logger().info(f'wrote {result.artifact_path} ({result.message})')
         return result
