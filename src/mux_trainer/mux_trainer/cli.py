@@ -19,6 +19,7 @@ from .data import NOISE_HELP, resolve_noise
 from .greedy import REFINE_TOP
 from .holdout import HOLDOUT_BY
 from .report import DEFAULT_METHODS, METHODS
+from .splits import INNER_GROUPS, describe_inner
 
 
 def _hog_config(args):
@@ -35,9 +36,17 @@ def _common(p: argparse.ArgumentParser, capture_optional: bool = False) -> None:
                    help='capture folder (holds rig.yaml)'
                         + ('; omit it with --from-results' if capture_optional else ''))
     p.add_argument('--repeats', type=int, default=400,
-                   help='random 75/25 pose splits per candidate (default: 400, the paper)')
+                   help='random 75/25 inner splits per candidate (default: 400, the paper)')
+    p.add_argument('--inner-groups', choices=INNER_GROUPS, default='auto',
+                   help='what the inner splits that choose and score every method hold out: '
+                        'whole physical samples ("instances": an estimate for objects never '
+                        'seen in training), pose indices ("poses", the paper\'s rule: it holds '
+                        'only for the objects trained on) or "auto" (default: physical samples '
+                        'where the capture has two or more of every class, else poses)')
     p.add_argument('--max-images', type=int, default=8,
-                   help='most pattern columns to select (default: 8)')
+                   help='most pattern columns to select (greedy, SNR-optimal: 4 exposures '
+                        'each per colour; learned: its exposures, one image per pattern; '
+                        'default: 8)')
     p.add_argument('--seed', type=int, default=0, help='seed of splits and noise (default: 0)')
     p.add_argument('--jobs', type=jobs_type, default=usable_cores(),
                    help='joblib workers for candidate evaluation (default: the cores this process '
@@ -240,7 +249,7 @@ def train_main(argv: list[str] | None = None) -> int:
                 inner_classifier=args.inner_classifier, final_classifier=args.classifier,
                 beam_width=args.beam_width, refine_top=args.refine_top, progress=not args.quiet,
                 features=features, count_rule=args.count_rule, force=args.force,
-                **learned)
+                inner_groups=args.inner_groups, **learned)
         except ValueError as exc:
             raise SystemExit(f'lightstage train: {exc}') from None
         except ArtifactNotWritten as exc:  # the result is printed all the same
@@ -249,9 +258,8 @@ def train_main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(doc))
     elif not args.quiet or not_written:
-        print(f'{"kept" if not_written else "wrote"} {out}: {len(doc["patterns"][0])} pattern '
-              f'column(s), split accuracy by image count {doc["accuracy_by_images"]}, best at '
-              f'{doc["best_n_images"]}; {seconds:.1f} s')
+        print(f'{"kept" if not_written else "wrote"} {out} ({seconds:.1f} s)')
+        print(train_text(doc))
     if not_written:
         print(f'lightstage train: {not_written}', file=sys.stderr)
         return 1
@@ -333,7 +341,7 @@ def eval_main(argv: list[str] | None = None) -> int:
                                      hog_config=hog_config, beam_width=args.beam_width,
                                      joint_max_images=args.joint_max_images, quiet=args.quiet,
                                      progress=not args.quiet, holdout_by=args.holdout_by,
-                                     count_rule=args.count_rule,
+                                     count_rule=args.count_rule, inner_groups=args.inner_groups,
                                      learned_options=learned_options)
         except ValueError as exc:
             raise SystemExit(f'lightstage eval: {exc}') from None
@@ -341,7 +349,7 @@ def eval_main(argv: list[str] | None = None) -> int:
     results['settings'] = {'repeats': args.repeats, 'max_images': args.max_images,
                            'joint_max_images': args.joint_max_images or args.max_images,
                            'holdout': args.holdout, 'holdout_by': args.holdout_by,
-                           'count_rule': args.count_rule,
+                           'count_rule': args.count_rule, 'inner_groups': args.inner_groups,
                            'renders': args.renders, 'seed': args.seed,
                            'methods': methods, 'noise': noises, 'features': features,
                            'dimmer': DEFAULT_DIMMER}
@@ -354,7 +362,7 @@ def eval_main(argv: list[str] | None = None) -> int:
                 held = (f'test samples {r["test_instances"]} of every class, all poses'
                         if r.get('test_instances') is not None
                         else f'test poses {r["test_poses"]}')
-                print(f'noise {noise}, features {feature}: held-out accuracy ({held})')
+                print(f'noise {noise}: held-out accuracy ({held})')
                 _print_methods(r['methods'])
         sys.stdout.flush()
     if args.out:
@@ -371,8 +379,81 @@ def eval_main(argv: list[str] | None = None) -> int:
 
 def _print_methods(methods: dict) -> None:
     for name, m in methods.items():
-        types = ', '.join(f'{t} {100 * a:.1f}' for t, a in m['accuracy_by_type'].items())
-        print(f'  {name:<13} {100 * m["accuracy"]:6.2f} %  at {m["n_images"]} image(s)  [{types}]')
+        print(f'  {method_row(name, m)}')
+
+
+def _count(n: int, word: str) -> str:
+    return f'{n} {word}' + ('' if n == 1 else 's')
+
+
+def exposures_text(n_columns: int, per_column: int = 1) -> str:
+    """A size in exposures (images taken), with its pattern columns where one column takes
+    several exposures (per colour: R, G, B and NIR)."""
+    n_exp = int(n_columns) * int(per_column)
+    if int(per_column) == 1:
+        return _count(n_exp, 'exposure')
+    return (f'{_count(n_exp, "exposure")} ({_count(int(n_columns), "pattern column")} x '
+            f'{int(per_column)})')
+
+
+def features_text(m: dict) -> str:
+    """The features a result's classifier uses, in words."""
+    name = str(m.get('features', '?'))
+    if name == 'bow_dense_hog':
+        return 'bag of words on dense HOG'
+    return name + (' + cross-image statistics' if m.get('cross_image_stats') else '')
+
+
+def method_row(name: str, m: dict) -> str:
+    """One method's line of `lightstage eval`: held-out accuracy, exposures (and pattern
+    columns), its own features, per object type."""
+    types = ', '.join(f'{t} {100 * a:.1f}' for t, a in m['accuracy_by_type'].items())
+    extra = ''
+    if m.get('mode') == 'learned':
+        extra = f', {m.get("levels", "graded")} levels'
+    inner = m.get('inner_estimate')
+    if inner:
+        extra += (f', inner estimate {100 * inner["accuracy"]:.1f} % by '
+                  f'{inner["held_out"]}')
+    size = exposures_text(m['n_images'], m.get('images_per_pattern', 1))
+    return (f'{name:<13} {100 * m["accuracy"]:6.2f} %  at {size}, features '
+            f'{features_text(m)}{extra}  [{types}]')
+
+
+def train_text(doc: dict) -> str:
+    """What `lightstage train` kept, in plain words: the method, its exposures and pattern
+    columns, its features, the inner accuracy by exposure count, the inner estimate and how
+    it was made; for the learned method also graded or on/off and which candidate it kept."""
+    lines = []
+    per = int(doc.get('images_per_pattern', 1))
+    if doc['method'] == 'learned':
+        from .learned_method import describe_choice
+        lines.append(f'learned: {exposures_text(doc["best_n_images"])}, one learned pattern '
+                     f'each; features '
+                     f'{features_text(doc)}; head '
+                     + ('gated by object type' if doc.get('head') == 'by_type' else 'one linear SVM'))
+        asked = 'on/off' if doc.get('binary') else 'graded'
+        kept = doc.get('levels', asked)
+        note = ('; graded levels were allowed, the kept candidate has none'
+                if kept == 'on/off' and asked == 'graded' else '')
+        lines.append(f'LED levels: {kept} (' + ('every LED fully on or off' if kept == 'on/off'
+                                               else 'LEDs dimmed between off and full') + f'{note})')
+        lines.append(f'kept {describe_choice(doc["chosen"], doc.get("max_steps", 0))}')
+    else:
+        columns = len(doc['patterns'][0]) if doc['patterns'] else 0
+        colours = ' (R, G, B, NIR)' if per == 4 else ''
+        lines.append(f'{doc["method"]}: {_count(columns, "pattern column")} of '
+                     f'{doc["mode"].replace("_", "-")} patterns, {_count(per, "exposure")} per '
+                     f'column{colours}; features {features_text(doc)}')
+        lines.append(f'best: the first {exposures_text(doc["best_n_images"], per)}, by the '
+                     'inner accuracy (the artifact holds a classifier for each column count)')
+    acc = ', '.join(f'{_count(int(k) * per, "exposure")} {100 * v:.1f} %'
+                    for k, v in sorted(doc['accuracy_by_images'].items(), key=lambda kv: int(kv[0])))
+    lines.append(f'inner accuracy by exposures: {acc}')
+    inner = doc.get('inner_estimate')
+    if inner:
+        lines.append(describe_inner(inner, inner['accuracy']))
+    return '\n'.join(lines)
 
 
 def _outputs_from_results(p: argparse.ArgumentParser, args) -> int:

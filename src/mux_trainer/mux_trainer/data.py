@@ -89,7 +89,8 @@ def search_data(modelset, noise='sigma3', *, hog_config: HogConfig | None = None
     return SearchData.from_models(
         modelset.models, modelset.labels, modelset.pose_index, modelset.class_names,
         dimmer=dimmer, noise_a=a, noise_b=b, max_level=float(modelset.max_level),
-        noise_name=name, noise_model=model, hog_config=hog_config, features=features)
+        noise_name=name, noise_model=model, hog_config=hog_config, features=features,
+        instance=modelset.instance)
 
 
 def noise_dict(name: str, model: NoiseModel | None) -> dict:

@@ -34,7 +34,7 @@ from .cluster import ArraySized, active_cluster
 from .rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
                         image_features, scoring_features, standard_normal, standardise_columns)
 from .split_scoring import make_scorer
-from .splits import pose_splits
+from .splits import inner_splits
 
 MODES = ('per_colour', 'joint')
 
@@ -159,6 +159,8 @@ class CandidateEvaluator:
         linear SVM in kernel form) or 'linear_svm' (one LinearSVC per split, slowest). See
         `split_scoring`; timings in docs/SEARCH.md.
     alpha, C : ridge penalty / the linear SVM's C.
+    inner_groups : 'auto' | 'poses' | 'instances': what the splits hold out
+        (`splits.inner_splits`; `SplitScoring.inner_groups`); `inner_` describes them.
     seed : seeds splits and noise.
     n_jobs : joblib workers; chunk_size : candidates per task (fixed, so that results do not
         depend on n_jobs).
@@ -167,7 +169,7 @@ class CandidateEvaluator:
     def __init__(self, data: SearchData, mode: str = 'per_colour', n_repeats: int = 400,
                  test_fraction: float = 0.25, inner_classifier: str = 'ridge',
                  alpha: float = 0.5, C: float = 1.0, seed: int = 0, n_jobs: int = 1,
-                 chunk_size: int = 32):
+                 chunk_size: int = 32, inner_groups: str = 'auto'):
         images_per_column(mode)
         self.data = data
         self.mode = mode
@@ -179,8 +181,9 @@ class CandidateEvaluator:
         self.chunk_size = chunk_size
         params = {'alpha': alpha} if inner_classifier == 'ridge' else {'C': C}
         self.scorer = make_scorer(inner_classifier, **params)
-        self.test_masks = pose_splits(data.pose_index, n_repeats, test_fraction,
-                                      np.random.default_rng([self.seed, 2 ** 31]))
+        self.test_masks, self.inner_ = inner_splits(
+            data.labels, data.pose_index, data.instance, n_repeats, test_fraction,
+            np.random.default_rng([self.seed, 2 ** 31]), inner_groups)
         self.n_classes = len(data.class_names)
 
     @property

@@ -113,6 +113,8 @@ def method_summary(model, test_data: SearchData, n_renders: int = 4, seed: int =
         'accuracy_by_images': {str(c): a for c, a in res['accuracy_by_images'].items()},
         'search_accuracy_by_images': {str(c): float(a) for c, a in model.accuracy_by_images_.items()},
         'mode': model.mode,
+        'features': str(model.rendering.features),
+        'inner_estimate': model.inner_estimate_,
         'patterns': np.asarray(model.patterns_).astype(int).tolist(),
         'infer_ms_per_sample': res['infer_ms_per_sample'][k],
     }

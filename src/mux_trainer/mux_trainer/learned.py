@@ -69,6 +69,7 @@ from .rendering import SearchData, clean_led_images, image_features, standard_no
 from .rendering import add_noise as add_noise_images
 from .search_params import SplitScoring
 from .split_scoring import SCORERS
+from .splits import check_inner_groups, resolve_inner_groups
 
 # criteria for the light's gradient steps (docs/LEARNED.md, round 3): the pose-held-out
 # ridge classifier's squared hinge (default), the shrunk Fisher criterion (round 2),
@@ -345,6 +346,30 @@ def pose_folds(pose_index: np.ndarray, n_folds: int) -> np.ndarray:
     return np.stack([fold_of == f for f in range(n_folds)])
 
 
+def instance_folds(labels: np.ndarray, instance: np.ndarray, n_folds: int) -> np.ndarray:
+    """Boolean (folds, n) masks holding out whole physical samples: each class's samples
+    dealt round-robin into at most `n_folds` folds (at least 2, at most the most samples a
+    class has), so every fold holds out at most one sample per class in turn where
+    n_folds reaches it, and every sample is held out once: the loss asks for light that
+    tells new objects apart, not other poses of the ones fitted on."""
+    labels, instance = np.asarray(labels), np.asarray(instance)
+    per_class = [np.unique(instance[labels == c]) for c in np.unique(labels)]
+    n_folds = max(2, min(int(n_folds), max(ids.size for ids in per_class)))
+    fold_of = np.empty(labels.size, np.int64)
+    for c, ids in zip(np.unique(labels), per_class):
+        for i, sample in enumerate(ids):
+            fold_of[(labels == c) & (instance == sample)] = i % n_folds
+    return np.stack([fold_of == f for f in range(n_folds)])
+
+
+def inner_folds(data: SearchData, n_folds: int, inner_groups: str = 'auto') -> np.ndarray:
+    """The loss's folds: `instance_folds` where `splits.resolve_inner_groups` says
+    'instances', else `pose_folds`."""
+    if resolve_inner_groups(inner_groups, data.labels, data.instance) == 'instances':
+        return instance_folds(data.labels, data.instance, n_folds)
+    return pose_folds(data.pose_index, n_folds)
+
+
 def cv_ridge_loss(F: jnp.ndarray, onehot: jnp.ndarray, held_out: jnp.ndarray,
                   ridge: float, class_power: float = 1.0) -> jnp.ndarray:
     """The pose-held-out loss of the classifier greedy's inner splits imitate, in closed
@@ -441,13 +466,17 @@ class LearnedIlluminationClassifier:
       the best scored of its splits. Each descent draws
       from a stream of its own, so one never changes another's. A perfect inner score
       ends the fit early (nothing after it could be kept: a tie keeps the earlier).
-    - objective: 'cv_ridge' (`cv_ridge_loss` over `pose_folds(n_folds)`, ridge, class_power;
+    - objective: 'cv_ridge' (`cv_ridge_loss` over `inner_folds(n_folds)`, ridge, class_power;
       no head during training), 'fisher' (`fisher_loss`, fisher_shrinkage) or 'cross_entropy'
       (a head of n_hidden units, lr_head, weight_decay, trained together with the light).
     - max_steps, eval_every (a snapshot of the levels every so many steps), batch_size
       (samples per step; all of them when it is at least their number), lr_patterns (Adam
       on the logits).
-    - n_repeats, test_fraction, split_classifier: the inner pose splits that score every
+    - inner_groups: 'auto' (default), 'poses' or 'instances': what the inner splits and the
+      loss's folds hold out (`SplitScoring.inner_groups`: whole physical samples where the
+      data has two or more of every class, with 'auto'; `splits.inner_splits`,
+      `inner_folds`); the greedy start is searched on the same splits.
+    - n_repeats, test_fraction, split_classifier: the inner splits that score every
       start and snapshot (`evaluation.CandidateEvaluator` in the joint mode: greedy's split
       scoring and its noise streams) and their classifier: 'squared_hinge' (default: the
       exact linear SVM, the head's kind; it ranks lights more nearly as their held-out
@@ -484,7 +513,8 @@ class LearnedIlluminationClassifier:
     head as one linear layer), classifiers_ {k: model_}, best_n_patterns_ = k,
     accuracy_by_images_ {k: the chosen candidate's inner split accuracy},
     candidate_scores_ {name: inner split accuracy}, chosen_ (its name), best_step_ (0: a
-    start was kept), history_, train_seconds_.
+    start was kept), inner_estimate_ (the chosen candidate's inner accuracy and how the
+    splits were made, `splits.inner_splits`), history_, train_seconds_.
     """
 
     method_name = 'learned'
@@ -499,7 +529,7 @@ class LearnedIlluminationClassifier:
                  class_power=1.0, fisher_shrinkage=1.0, n_hidden=0, lr_head=0.01, weight_decay=1e-3,
                  n_repeats=400, test_fraction=0.25, split_classifier='squared_hinge',
                  final_C=1.0, head_renders=6, head='by_type', inner_draws=1,
-                 site_positions_mm=None, ratio_stats=True,
+                 site_positions_mm=None, ratio_stats=True, inner_groups='auto',
                  noise='sigma3',
                  dimmer=None, hog_config=None, seed=0, progress=False, callback=None):
         self.n_images = n_images
@@ -528,6 +558,7 @@ class LearnedIlluminationClassifier:
         self.inner_draws = inner_draws
         self.site_positions_mm = site_positions_mm
         self.ratio_stats = ratio_stats
+        self.inner_groups = inner_groups
         self.noise = noise
         self.dimmer = dimmer
         self.hog_config = hog_config
@@ -561,6 +592,7 @@ class LearnedIlluminationClassifier:
             raise ValueError(f'class_power must be a number >= 1, got {self.class_power}')
         if self.head not in HEADS:
             raise ValueError(f"head must be one of {', '.join(HEADS)}, got {self.head!r}")
+        check_inner_groups(self.inner_groups)
         if self.split_classifier not in SCORERS:
             raise ValueError(f"split_classifier must be one of {', '.join(sorted(SCORERS))}, "
                              f"got {self.split_classifier!r}")
@@ -612,7 +644,8 @@ class LearnedIlluminationClassifier:
             greedy = GreedyPatternSelector(
                 mode='per_colour', n_patterns=k // data.n_channels, seed=int(self.seed),
                 scoring=SplitScoring(n_repeats=int(self.n_repeats),
-                                     test_fraction=float(self.test_fraction)),
+                                     test_fraction=float(self.test_fraction),
+                                     inner_groups=self.inner_groups),
                 callback=None if self.callback is None else self._greedy_progress)
             makers.append(('greedy', lambda: site_to_led_patterns(
                 greedy.fit(data).patterns_, data.n_channels)))
@@ -641,14 +674,16 @@ class LearnedIlluminationClassifier:
         t_start = time.perf_counter()
         data = self._data(X)
         self._site_positions_ = self._site_positions(X)
-        if np.unique(data.pose_index).size < 2:
+        by = resolve_inner_groups(self.inner_groups, data.labels, data.instance)
+        if by == 'poses' and np.unique(data.pose_index).size < 2:
             raise ValueError('learned illumination needs at least 2 training poses per class '
                              '(the inner splits hold poses out); capture more poses')
         k = int(self.n_images)
         rng = np.random.default_rng([int(self.seed), 26])
         evaluators = [CandidateEvaluator(data, mode='joint', n_repeats=int(self.n_repeats),
                                          test_fraction=float(self.test_fraction), seed=s,
-                                         inner_classifier=self.split_classifier, n_jobs=1)
+                                         inner_classifier=self.split_classifier, n_jobs=1,
+                                         inner_groups=self.inner_groups)
                       for s in inner_seeds(self.seed, self.inner_draws)]
         ev = evaluators[0]   # the head's first draw is the first inner draw's
         history = []
@@ -720,6 +755,9 @@ class LearnedIlluminationClassifier:
         self.best_n_patterns_ = k
         self.accuracy_by_images_ = {k: scores[chosen]}
         self.candidate_scores_ = scores
+        self.inner_estimate_ = {'accuracy': float(scores[chosen]), 'n_images': k,
+                                **ev.inner_,
+                                'n_repeats': int(self.n_repeats) * int(self.inner_draws)}
         self.chosen_ = chosen
         self.best_step_ = int(steps[chosen])
         self.history_ = history
@@ -756,7 +794,9 @@ class LearnedIlluminationClassifier:
         if self.progress:
             text = ', '.join(f'{n} {s:.3f}' for n, s in scores.items())
             extra = '' if loss is None else f' (loss {loss:.3f})'
-            print(f'[learned k={k}{" binary" if self.binary else ""}] {what}: inner {text}{extra}',
+            levels = 'on/off' if self.binary else 'graded'
+            what = 'the starts' if what == 'starts' else what
+            print(f'[learned, {k} exposures, {levels}] inner accuracy of {what}: {text}{extra}',
                   flush=True)
 
     def _descend(self, data: SearchData, P0: np.ndarray, rng):
@@ -770,7 +810,7 @@ class LearnedIlluminationClassifier:
         shape, a, b, top = data.image_shape, data.noise_a, data.noise_b, data.max_level
         wd, shrink = float(self.weight_decay), float(self.fisher_shrinkage)
         objective, ridge, power = self.objective, float(self.ridge), float(self.class_power)
-        folds = pose_folds(data.pose_index, int(self.n_folds))
+        folds = inner_folds(data, int(self.n_folds), self.inner_groups)
         offset = self._ratio_offset(data)
 
         def loss_fn(params, idx, eps):

@@ -73,6 +73,12 @@ def head_name(model) -> str:
     return 'flat' if model.model_.class_groups is None else 'by_type'
 
 
+def level_kind(patterns) -> str:
+    """'on/off' when every LED level of the patterns is 0 or 1, else 'graded'."""
+    P = np.asarray(patterns, dtype=np.float64)
+    return 'on/off' if bool(np.all((P == 0) | (P == 1))) else 'graded'
+
+
 def pattern_levels(patterns) -> list:
     """LED levels as JSON (rounded to 1/1000: a graded board has 1/255 steps)."""
     return np.round(np.asarray(patterns, dtype=np.float64), 3).tolist()
@@ -87,7 +93,9 @@ def learned_artifact(model, provenance: dict | None = None):
             'max_steps': int(model.max_steps), 'best_step': int(model.best_step_),
             'chosen': str(model.chosen_),
             'head': head_name(model),
+            'levels': level_kind(model.patterns_),
             'n_repeats': int(model.n_repeats),
+            'inner_estimate': dict(model.inner_estimate_),
             'accuracy_by_patterns': {str(k): float(v)
                                      for k, v in model.accuracy_by_images_.items()},
             'best_n_patterns': int(model.best_n_patterns_)}
@@ -123,6 +131,9 @@ def learned_summary(models: dict, test_data, n_renders: int = 4, seed: int = 0,
         'accuracy_by_images': {str(k): r['accuracy'] for k, r in results.items()},
         'search_accuracy_by_images': {str(k): a for k, a in sorted(search.items())},
         'mode': 'learned', 'binary': bool(chosen.binary), 'head': head_name(chosen),
+        'levels': level_kind(chosen.patterns_), 'features': 'intensity_stats',
+        'cross_image_stats': bool(chosen.model_.ratio_offset),
+        'inner_estimate': dict(chosen.inner_estimate_),
         'patterns': pattern_levels(chosen.patterns_),
         'infer_ms_per_sample': float(infer_ms),
         'best_step_by_images': {str(k): int(m.best_step_) for k, m in sorted(models.items())},

@@ -27,7 +27,7 @@ def _fit(classifier, X, y):
 class PatternModelMixin(GroupedParamsMixin):
     """Needs `mode`, `seed`, `count_rule` and the setting groups (`search_params`) `scoring`,
     `rendering`, `final_classifier`, `execution`; after fit: `patterns_`, `classifiers_`,
-    `accuracy_by_images_`, `class_names_`, `evaluator_` and
+    `accuracy_by_images_`, `class_names_`, `evaluator_`, `inner_estimate_` and
     `noise_` (the noise setting the fit rendered with, as an artifact stores it)."""
 
     method_name = 'patterns'
@@ -57,7 +57,8 @@ class PatternModelMixin(GroupedParamsMixin):
         return CandidateEvaluator(data, mode=self.mode, n_repeats=s.n_repeats,
                                   test_fraction=s.test_fraction,
                                   inner_classifier=self.split_classifier, alpha=s.alpha, C=s.C,
-                                  seed=self.seed, n_jobs=n_jobs, chunk_size=chunk_size)
+                                  seed=self.seed, n_jobs=n_jobs, chunk_size=chunk_size,
+                                  inner_groups=s.inner_groups)
 
     def _data(self, X) -> SearchData:
         """The search's data: X itself, or a ModelSet rendered as `rendering` says (noise,
@@ -94,6 +95,15 @@ class PatternModelMixin(GroupedParamsMixin):
                                    rule=self.count_rule,
                                    test_fraction=float(self.scoring.test_fraction))
 
+    @property
+    def inner_estimate_(self) -> dict:
+        """The inner estimate of the kept column count and how it was made: {'accuracy',
+        'n_images' (columns), plus `splits.inner_splits`' description (held out by physical
+        sample or by pose, groups per class, repeats)}."""
+        k = int(self.best_n_patterns_)
+        return {'accuracy': float(self.accuracy_by_images_[k]), 'n_images': k,
+                **self.evaluator_.inner_}
+
     def predict_features(self, X: np.ndarray, n_patterns: int) -> np.ndarray:
         """Class indices from features of the first `n_patterns` columns' images."""
         clf = self.classifiers_[int(n_patterns)]
@@ -112,7 +122,8 @@ class PatternModelMixin(GroupedParamsMixin):
                 'accuracy_by_patterns': {str(i): float(self.accuracy_by_images_[i])
                                          for i in range(1, k + 1)},
                 'best_n_patterns': int(self.best_n_patterns_),
-                'count_rule': str(self.count_rule)}
+                'count_rule': str(self.count_rule),
+                'inner_estimate': self.inner_estimate_}
         prov.update(provenance or {})
         noise = self.noise_
         if self.mode == 'per_colour':

@@ -39,6 +39,10 @@ class SearchData(ArraySized):
     (None without noise), for the artifact.
     features: the feature extractor the search scores with (`mux_classifier.features`);
     hog_config is the HOG grid's configuration and sets the image size of every extractor.
+    instance: int `(n_samples,)`, each sample's physical sample number within its class
+    (`ModelSet.instance`), or None (unknown: one physical sample per class). With two or more
+    per class, every method's inner splits hold out whole physical samples
+    (`SplitScoring.inner_groups`, `splits.inner_splits`).
     """
 
     basis: np.ndarray
@@ -53,6 +57,7 @@ class SearchData(ArraySized):
     noise_model: object = None
     hog_config: HogConfig = field(default_factory=HogConfig)
     features: str = DEFAULT_EXTRACTOR
+    instance: np.ndarray | None = None
 
     def __post_init__(self):
         self.basis = np.ascontiguousarray(self.basis, dtype=np.float32)
@@ -64,6 +69,10 @@ class SearchData(ArraySized):
         if self.labels.shape != (n,) or self.pose_index.shape != (n,):
             raise ValueError(f'{n} samples in basis but labels {self.labels.shape} and '
                              f'pose_index {self.pose_index.shape}')
+        if self.instance is not None:
+            self.instance = np.asarray(self.instance, dtype=np.int64)
+            if self.instance.shape != (n,):
+                raise ValueError(f'{n} samples in basis but instance {self.instance.shape}')
         H, W = self.image_shape
         if H * W != self.basis.shape[3]:
             raise ValueError(f'image_shape {self.image_shape} does not match {self.basis.shape[3]} pixels')
@@ -104,7 +113,8 @@ class SearchData(ArraySized):
         """The same data restricted to some samples (for held-out evaluation)."""
         index = np.asarray(index)
         return replace(self, basis=self.basis[:, :, index], labels=self.labels[index],
-                       pose_index=self.pose_index[index])
+                       pose_index=self.pose_index[index],
+                       instance=None if self.instance is None else self.instance[index])
 
 
 def clean_site_images(data: SearchData, W: np.ndarray) -> np.ndarray:

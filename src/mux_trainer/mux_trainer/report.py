@@ -53,17 +53,18 @@ def _naive_bow_summary(naive, train_data, test_data, n_renders, seed, n_jobs):
     return {
         'accuracy': acc, 'n_images': 1, 'images_per_pattern': 1, 'n_exposures': 1,
         'accuracy_by_type': accuracy_by_type(test_data, correct),
-        'accuracy_by_images': {'1': acc}, 'mode': 'naive',
+        'accuracy_by_images': {'1': acc}, 'mode': 'naive', 'features': 'bow_dense_hog',
         'patterns': np.asarray(naive.patterns_).astype(int).tolist(),
         'train_seconds': float(train_s), 'n_words': model.n_words_,
     }
 
 
 def _learned_result(train, test, noise, *, n_renders, seed, hog_config, quiet, progress,
-                    n_repeats=400, exposures=None, steps=None, binary=False) -> dict:
+                    n_repeats=400, exposures=None, steps=None, binary=False,
+                    inner_groups='auto') -> dict:
     """Learned illumination: one model per exposure count (`learned_method`), trained on
-    `train` (chosen by greedy's inner pose splits within it, n_repeats of them, as every
-    method's), tested like every method."""
+    `train` (chosen by the inner splits within it, n_repeats of them, by physical sample or
+    pose as `inner_groups` says, as every method's), tested like every method."""
     import contextlib
 
     from .learned_method import build_learned, learned_summary
@@ -74,7 +75,7 @@ def _learned_result(train, test, noise, *, n_renders, seed, hog_config, quiet, p
         _log(f'[{noise}] learned: training {k} exposures on {train.n_samples} samples', quiet)
         model = build_learned(k, binary=binary, steps=steps, noise=noise,
                               hog_config=hog_config, seed=seed, progress=progress,
-                              n_repeats=n_repeats)
+                              n_repeats=n_repeats, inner_groups=inner_groups)
         with contextlib.redirect_stdout(sys.stderr):  # stdout: only the results (--json)
             models[int(k)] = model.fit(train)
     return learned_summary(models, test, n_renders, seed, train_seconds=time.perf_counter() - t0)
@@ -85,7 +86,7 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
                            n_jobs=1, hog_config=None, beam_width=1, joint_max_images=None,
                            quiet=False, progress=False, features='hog_grid',
                            naive_bow=None, holdout_by='poses', count_rule='max',
-                           learned=None, learned_options=None) -> dict:
+                           learned=None, learned_options=None, inner_groups='auto') -> dict:
     """All requested methods at one noise setting; returns {'methods': {...}, ...}.
 
     joint_max_images: pattern columns of 'greedy_joint' (one exposure each; default
@@ -95,6 +96,9 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     training it again (it does not depend on `features`).
     holdout_by: 'poses' (the paper's rule: pose indices held out, their objects seen in
     other poses) or 'instances' (physical samples held out with all their poses).
+    inner_groups: what every method's inner splits hold out on the training part
+    (`search_params.SplitScoring`: 'auto', physical samples where it has two or more of
+    every class, else poses).
     count_rule: how each method's column count is chosen from its split accuracies
     (`column_count`); every method's result also reports what each rule would keep.
     learned: an earlier run's 'learned' result for this noise, reused (it classifies with
@@ -110,7 +114,7 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     instance = np.asarray(modelset.instance) if holdout_by == 'instances' else None
     train_idx, test_idx = holdout_split(data, holdout_fraction, seed, instance)
     train, test = data.subset(train_idx), data.subset(test_idx)
-    common = dict(scoring=SplitScoring(n_repeats=n_repeats), seed=seed,
+    common = dict(scoring=SplitScoring(n_repeats=n_repeats, inner_groups=inner_groups), seed=seed,
                   execution=Execution(n_jobs=n_jobs, progress=progress), count_rule=count_rule)
     results: dict = {}
     models: dict = {}
@@ -123,9 +127,10 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
         if name == 'learned':
             results[name] = learned or _learned_result(
                 train, test, noise, n_renders=n_renders, seed=seed, hog_config=hog_config,
-                quiet=quiet, progress=progress, n_repeats=n_repeats, **(learned_options or {}))
+                quiet=quiet, progress=progress, n_repeats=n_repeats, inner_groups=inner_groups,
+                **(learned_options or {}))
             _log(f'[{noise}] learned: held-out accuracy {results[name]["accuracy"]:.4f} at '
-                 f'{results[name]["n_images"]} image(s)', quiet)
+                 f'{results[name]["n_exposures"]} exposure(s)', quiet)
             continue
         _log(f'[{noise}, {features}] {name}: training on {train.n_samples} samples '
              f'({len(np.unique(train.pose_index))} poses per class)', quiet)
@@ -147,8 +152,9 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
         else:
             results[name] = method_summary(model, test, n_renders, seed, train_seconds=train_s)
             models[name] = model
-        _log(f'[{noise}, {features}] {name}: held-out accuracy {results[name]["accuracy"]:.4f} '
-             f'at {results[name]["n_images"]} image(s) ({time.perf_counter() - t0:.1f} s)', quiet)
+        _log(f'[{noise}, {results[name]["features"]}] {name}: held-out accuracy '
+             f'{results[name]["accuracy"]:.4f} at {results[name]["n_exposures"]} exposure(s) '
+             f'({time.perf_counter() - t0:.1f} s)', quiet)
     return {'noise': noise, 'features': features,
             'n_train': int(train.n_samples), 'n_test': int(test.n_samples),
             'test_poses': sorted(int(p) for p in np.unique(test.pose_index)),

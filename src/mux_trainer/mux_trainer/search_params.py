@@ -2,7 +2,7 @@
 
 Each group is a small frozen dataclass given to the estimator as one parameter (like
 scikit-learn's `estimator=` parameters): `scoring` (how a pattern matrix is scored: repeated
-pose splits and the split classifier), `refinement` (the greedy search's SVM race),
+inner splits, by physical sample or by pose, and the split classifier), `refinement` (the greedy search's SVM race),
 `rendering` (how a ModelSet becomes training images and features), `final_classifier` (the
 kept classifiers) and `execution` (how the work is spread; never what is searched for).
 What defines a method's own search (mode, column counts, beam, count rule) and the seed stay
@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 from lightstage_physics.rig import DEFAULT_DIMMER
 from mux_classifier.features import DEFAULT_EXTRACTOR
+
+from .splits import check_inner_groups
 
 __all__ = ['ParamGroup', 'SplitScoring', 'Refinement', 'Rendering', 'FinalClassifier',
            'Execution', 'GroupedParamsMixin', 'check_group']
@@ -50,15 +52,25 @@ class SplitScoring(ParamGroup):
     linear SVM) or 'linear_svm' (one LinearSVC per split); None: the method's own (the
     greedy search: the ridge screen, refined by the exact SVM; the baselines, which score
     one matrix per image count: the exact SVM). `alpha` is the ridge penalty (0.5 =
-    1 / (2 C): the SVM's first Newton step), `C` the linear SVM's."""
+    1 / (2 C): the SVM's first Newton step), `C` the linear SVM's.
+
+    `inner_groups`: what a split holds out (`splits.inner_splits`): 'instances' whole
+    physical samples, `test_fraction` of every class's with all their poses, every sample
+    in turn (the inner estimate is then one for objects never seen in training, the
+    product's use: pose splits overstate it where a classifier can recognise the sample
+    rather than the class); 'poses' pose indices (the paper's rule); 'auto' (default)
+    'instances' where the data says each sample's physical sample (`SearchData.instance`)
+    and every class has two or more, else 'poses'."""
 
     n_repeats: int = 400
     test_fraction: float = 0.25
     classifier: str | None = None
     alpha: float = 0.5
     C: float = 1.0
+    inner_groups: str = 'auto'
 
     def check(self) -> None:
+        check_inner_groups(self.inner_groups)
         if int(self.n_repeats) < 1:
             raise ValueError(f'scoring.n_repeats must be >= 1, got {self.n_repeats}')
         if not 0 < float(self.test_fraction) < 1:

@@ -41,8 +41,9 @@ def check_seed(seed: int) -> None:
 
 
 def check_options(method: str, mode: str, noise: str, max_images: int, repeats: int,
-                  seed: int = 0) -> None:
+                  seed: int = 0, inner_groups: str = 'auto') -> None:
     """Raise ValueError naming the first bad option and the allowed values."""
+    from .splits import check_inner_groups
     if method not in METHODS:
         raise ValueError(f'unknown method {method!r}; use one of {", ".join(METHODS)}')
     if mode not in MODES:
@@ -52,6 +53,7 @@ def check_options(method: str, mode: str, noise: str, max_images: int, repeats: 
         raise ValueError(f'max_images must be >= 1, got {max_images}')
     check_repeats(repeats)
     check_seed(seed)
+    check_inner_groups(inner_groups)
 
 
 class ArtifactNotWritten(OSError):
@@ -119,9 +121,11 @@ def check_features(features: str) -> None:
 def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8, repeats=400,
                 seed=0, n_jobs=1, hog_config=None, fixed_count=False, inner_classifier=None,
                 final_classifier='linear_svm', beam_width=1, progress=False, callback=None,
-                refine_top=None, features='hog_grid', count_rule='max'):
+                refine_top=None, features='hog_grid', count_rule='max', inner_groups='auto'):
     """The unfitted estimator for these options (greedy search or a baseline).
 
+    inner_groups: what the inner splits hold out ('auto': physical samples where the capture
+    has two or more of every class, else poses; `search_params.SplitScoring`).
     inner_classifier: the classifier of the split accuracies; None = the method's default
     (greedy: the ridge screen with `refine_top` candidates re-scored by the exact SVM;
     baselines, which score one matrix per image count: the exact SVM). refine_top: greedy
@@ -133,10 +137,11 @@ def build_model(method='greedy', mode='per_colour', noise='sigma3', max_images=8
     from .search_params import (Execution, FinalClassifier, Refinement, Rendering,
                                 SplitScoring)
 
-    check_options(method, mode, noise, max_images, repeats)
+    check_options(method, mode, noise, max_images, repeats, inner_groups=inner_groups)
     check_jobs(n_jobs)
     check_features(features)
-    common = dict(scoring=SplitScoring(n_repeats=repeats, classifier=inner_classifier),
+    common = dict(scoring=SplitScoring(n_repeats=repeats, classifier=inner_classifier,
+                                       inner_groups=inner_groups),
                   rendering=Rendering(noise=noise, hog_config=hog_config, features=features),
                   final_classifier=FinalClassifier(estimator=final_classifier), seed=seed,
                   execution=Execution(n_jobs=n_jobs, progress=progress), count_rule=count_rule)
@@ -177,7 +182,8 @@ def train_from_capture(capture_dir, out_path, *, image_size: int = 120, dask_sch
         image_size = hog_config.image_size
     check_options(options.get('method', 'greedy'), options.get('mode', 'per_colour'),
                   options.get('noise', 'sigma3'), options.get('max_images', 8),
-                  options.get('repeats', 400), options.get('seed', 0))
+                  options.get('repeats', 400), options.get('seed', 0),
+                  options.get('inner_groups', 'auto'))
     check_jobs(options.get('n_jobs', 1))
     check_features(options.get('features', 'hog_grid'))
     check_artifact_path(out_path)
@@ -215,6 +221,8 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **o
         'images_per_pattern': int(model.images_per_pattern),
         'accuracy_by_images': {str(k): float(v) for k, v in model.accuracy_by_images_.items()},
         'best_n_images': int(model.best_n_patterns_),
+        'n_exposures': int(model.best_n_patterns_ * model.images_per_pattern),
+        'inner_estimate': model.inner_estimate_,
         'train_seconds': seconds,
     }
     if hasattr(model, 'improved_'):
@@ -225,19 +233,20 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **o
 
 def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8, seed=0,
                    repeats=400, hog_config=None, progress=False, binary=False, steps=None,
-                   callback=None, **_search_options) -> dict:
+                   callback=None, inner_groups='auto', **_search_options) -> dict:
     """`train_modelset` for method 'learned' (`learned_method`): ``max_images`` exposures,
     one learned pattern each, graded or on/off (``binary``), at most ``steps`` steps,
-    candidates scored on ``repeats`` inner pose splits (as the search's). The search's other
+    candidates scored on ``repeats`` inner splits (as the search's, by physical sample or by
+    pose as ``inner_groups`` says). The search's other
     options (mode, features, n_jobs, ...) do not apply: a learned model classifies with its
     own statistics (intensity_stats). Its progress goes to stderr."""
     import contextlib
     import sys
 
-    from .learned_method import build_learned, learned_artifact, pattern_levels
+    from .learned_method import build_learned, learned_artifact, level_kind, pattern_levels
     model = build_learned(max_images, binary=binary, steps=steps, noise=noise,
                           hog_config=hog_config, seed=seed, progress=progress, callback=callback,
-                          n_repeats=int(repeats))
+                          n_repeats=int(repeats), inner_groups=inner_groups)
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(sys.stderr):  # stdout: only the result (--json)
         model.fit(modelset)
@@ -257,10 +266,15 @@ def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8
         'artifact': str(out),
         'class_names': list(artifact.class_names),
         'patterns': pattern_levels(model.patterns_),
+        # what the kept patterns are: 'graded' or 'on/off' (a graded search may keep an
+        # on/off start)
+        'levels': level_kind(model.patterns_),
         'images_per_pattern': 1,
         'accuracy_by_images': {str(k): float(v) for k, v in model.accuracy_by_images_.items()},
         'best_n_images': int(model.best_n_patterns_),
-        'best_step': int(model.best_step_),
+        'n_exposures': int(model.best_n_patterns_),
+        'inner_estimate': model.inner_estimate_,
+        'best_step': int(model.best_step_), 'max_steps': int(model.max_steps),
         'train_seconds': seconds,
     }
     _save_artifact(artifact, out, summary)
