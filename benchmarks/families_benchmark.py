@@ -8,9 +8,10 @@ px (cached under --cache) and loaded at its size with Sigma3 noise and `--featur
 hold out physical samples: fold f holds out sample number f of every class with all its
 poses (the grouping of `holdout.holdout_split(..., instance=...)`, one group per fold instead
 of a random subset), so with --folds equal to --samples every sample is held out once. Each
-method is trained on the rest (its own inner splits: pose splits of the training samples as
-the product makes them, or with --inner-groups samples the training samples' numbers as the
-split groups, so the inner splits hold out whole samples too) and scored on the held-out
+method is trained on the rest (its own inner splits as `SplitScoring.inner_groups` /
+the learned method's `inner_groups` make them: --inner-groups auto, the product's default,
+holds out whole training samples, every one in turn; poses holds out pose numbers, the
+paper's rule) and scored on the held-out
 samples with `holdout.evaluate_heldout` / `learned.evaluate_learned_heldout` (fresh noise,
 --n-renders draws):
 - naive: `NaiveClassifier` (all LEDs on, one image; the same figure at 4 and 8 exposures);
@@ -18,8 +19,9 @@ samples with `holdout.evaluate_heldout` / `learned.evaluate_learned_heldout` (fr
 - greedy: `GreedyPatternSelector(mode='per_colour', n_patterns=2)`, 1 / 2 columns;
 - learned: `LearnedIlluminationClassifier(n_images=4)` and `(n_images=8)`, its defaults, with
   this fold's greedy columns as its greedy start (the same search, not run twice).
-The inner estimate of a method is its own figure for the kept light (`accuracy_by_images_`:
-greedy's and the baselines' split accuracy, learned's chosen candidate's inner score).
+The inner estimate of a method is its own figure for the kept light (`inner_estimate_` /
+`accuracy_by_images_`: greedy's and the baselines' split accuracy, learned's chosen
+candidate's inner score) and says how its splits were made.
 
 Prints per family (fold means) and per method: the mean and the worst family at 4 and 8
 exposures, the mean inner-minus-held-out gap, and the share of families where learned is
@@ -32,7 +34,6 @@ they finish, and a rerun with the same file skips the families it holds.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -79,16 +80,9 @@ def family_capture(args, seed: int) -> Path:
     return path
 
 
-def grouped_by_sample(train, train_instance):
-    """The training data with its pose numbers replaced by its physical sample numbers: the
-    methods' inner splits then hold out whole samples."""
-    _, groups = np.unique(train_instance, return_inverse=True)
-    return dataclasses.replace(train, pose_index=groups.astype(np.int64))
-
-
 def run_fold(train, test, args) -> dict:
     """{method: {'4': held-out, '8': held-out, 'inner4', 'inner8', 'seconds'}} of one fold."""
-    scoring = SplitScoring(n_repeats=args.n_repeats)
+    scoring = SplitScoring(n_repeats=args.n_repeats, inner_groups=args.inner_groups)
     out = {}
     t0 = time.perf_counter()
     greedy_columns = None
@@ -110,7 +104,7 @@ def run_fold(train, test, args) -> dict:
         cols = {4: 1, 8: 1} if name == 'naive' else {4: 1, 8: 2}
         out[name] = {**{str(e): float(held[c]) for e, c in cols.items()},
                      **{f'inner{e}': float(inner[c]) for e, c in cols.items()},
-                     'seconds': seconds}
+                     'seconds': seconds, 'inner_held_out': model.inner_estimate_['held_out']}
         if name == 'greedy':
             greedy_columns = model.patterns_
     if 'learned' in args.methods:
@@ -124,12 +118,14 @@ def run_fold(train, test, args) -> dict:
                                                         train.n_channels)
             model = LearnedIlluminationClassifier(n_images=e, seed=args.seed, starts=builtin,
                                                   start_patterns=starts,
-                                                  n_repeats=args.n_repeats).fit(train)
+                                                  n_repeats=args.n_repeats,
+                                                  inner_groups=args.inner_groups).fit(train)
             res[str(e)] = evaluate_learned_heldout(model, test, args.n_renders,
                                                    args.seed)['accuracy']
             res[f'inner{e}'] = float(model.accuracy_by_images_[e])
             res[f'chosen{e}'] = model.chosen_
             res['seconds'] += model.train_seconds_
+            res['inner_held_out'] = model.inner_estimate_['held_out']
         out['learned'] = res
     if 'greedy' not in args.methods:
         out.pop('greedy', None)
@@ -151,15 +147,15 @@ def run_family(seed: int, args) -> dict:
         te = np.flatnonzero(instance == f)
         tr = np.flatnonzero(instance != f)
         train, test = data.subset(tr), data.subset(te)
-        if args.inner_groups == 'samples':
-            train = grouped_by_sample(train, instance[tr])
         per_fold.append(run_fold(train, test, args))
     family = draw_family(seed)
     row = {'seed': seed, 'kind': family.kind, 'cues': list(family.cues), 'folds': len(folds),
            'render_seconds': render_s, 'seconds': time.perf_counter() - t0, 'methods': {}}
     for name in per_fold[0]:
-        keys = [k for k in per_fold[0][name] if not k.startswith('chosen')]
+        keys = [k for k in per_fold[0][name] if not k.startswith(('chosen', 'inner_held'))]
         row['methods'][name] = {k: float(np.mean([p[name][k] for p in per_fold])) for k in keys}
+        row['methods'][name]['inner_held_out'] = sorted({p[name]['inner_held_out']
+                                                         for p in per_fold})
         row['methods'][name]['by_fold'] = [{k: p[name][k] for k in ('4', '8')} for p in per_fold]
         if name == 'learned':
             row['methods'][name]['chosen'] = [[p[name][f'chosen{e}'] for e in EXPOSURES]
@@ -186,6 +182,9 @@ def summarise(rows: list[dict], methods) -> str:
     lines.append('')
     lines.append(f'over {len(rows)} families: held-out % (mean, worst family), inner estimate '
                  '% and mean gap inner - held-out (points)')
+    held = sorted({h for r in rows for m in methods
+                   for h in r['methods'][m].get('inner_held_out', [])})
+    lines.append(f'(the inner splits held out: {", ".join(held) or "?"})')
     lines.append(f'{"method":12s} {"mean 4":>7s} {"mean 8":>7s} {"worst 4":>8s} {"worst 8":>8s}'
                  f' {"inner 4":>8s} {"inner 8":>8s} {"gap 4":>6s} {"gap 8":>6s}')
     for m in methods:
@@ -238,9 +237,10 @@ def main(argv=None) -> int:
     p.add_argument('--folds', type=int, default=None,
                    help='folds (fold f holds out sample f of every class; default: --samples, '
                         'every sample held out once)')
-    p.add_argument('--inner-groups', default='poses', choices=('poses', 'samples'),
-                   help="what the methods' inner splits hold out on the training part: pose "
-                        "numbers (the methods' own) or physical samples")
+    p.add_argument('--inner-groups', default='auto', choices=('auto', 'poses', 'instances'),
+                   help="what the methods' inner splits hold out on the training part: auto "
+                        "(the product's default: physical samples where every class has two "
+                        "or more), poses (pose numbers, the paper's rule) or instances")
     p.add_argument('--n-repeats', type=int, default=100,
                    help="inner splits of greedy, SNR-optimal, naive and learned (default 100)")
     p.add_argument('--n-renders', type=int, default=4, help='noise draws of the test images')
