@@ -181,12 +181,14 @@ def summarise(rows: list[dict], methods) -> str:
         lines.append(f'{r["seed"]:>5} {r["kind"]:12s} {",".join(r["cues"]):22s}{cells}')
     lines.append('')
     lines.append(f'over {len(rows)} families: held-out % (mean, worst family), inner estimate '
-                 '% and mean gap inner - held-out (points)')
+                 '% and the gap inner - held-out (points: mean, and mean of its size per '
+                 'family)')
     held = sorted({h for r in rows for m in methods
                    for h in r['methods'][m].get('inner_held_out', [])})
     lines.append(f'(the inner splits held out: {", ".join(held) or "?"})')
     lines.append(f'{"method":12s} {"mean 4":>7s} {"mean 8":>7s} {"worst 4":>8s} {"worst 8":>8s}'
-                 f' {"inner 4":>8s} {"inner 8":>8s} {"gap 4":>6s} {"gap 8":>6s}')
+                 f' {"inner 4":>8s} {"inner 8":>8s} {"gap 4":>6s} {"gap 8":>6s}'
+                 f' {"|gap| 4":>8s} {"|gap| 8":>8s}')
     for m in methods:
         a4 = np.array([r['methods'][m]['4'] for r in rows]) * 100
         a8 = np.array([r['methods'][m]['8'] for r in rows]) * 100
@@ -194,7 +196,8 @@ def summarise(rows: list[dict], methods) -> str:
         i8 = np.array([r['methods'][m]['inner8'] for r in rows]) * 100
         lines.append(f'{m:12s} {a4.mean():7.1f} {a8.mean():7.1f} {a4.min():8.1f} {a8.min():8.1f}'
                      f' {i4.mean():8.1f} {i8.mean():8.1f} {(i4 - a4).mean():+6.1f}'
-                     f' {(i8 - a8).mean():+6.1f}')
+                     f' {(i8 - a8).mean():+6.1f} {np.abs(i4 - a4).mean():8.1f}'
+                     f' {np.abs(i8 - a8).mean():8.1f}')
     if 'learned' in methods:
         lines.append('')
         for e in ('4', '8'):
@@ -249,6 +252,10 @@ def main(argv=None) -> int:
     p.add_argument('--cache', default='out/families_cache', help='where the captures go')
     p.add_argument('--results', help='JSON lines file: one line per family, appended as they '
                                      'finish; families already there are skipped')
+    p.add_argument('--summary-only', action='store_true',
+                   help='print the summary of the families --results holds for these settings '
+                        'and seeds; run nothing (e.g. after workers on parts of the seeds wrote '
+                        'files that were concatenated)')
     p.add_argument('--quick', action='store_true',
                    help='a few minutes: 3 families, 2 folds, 40 inner splits')
     args = p.parse_args(argv)
@@ -267,8 +274,10 @@ def main(argv=None) -> int:
             if row.get('settings') == settings(args) and row['seed'] in args.seeds:
                 rows.append(row)
                 done.add(row['seed'])
+    if args.summary_only and not rows:
+        p.error('--summary-only: --results holds no family for these settings and seeds')
     for seed in args.seeds:
-        if seed in done:
+        if seed in done or args.summary_only:
             continue
         row = run_family(seed, args)
         row['settings'] = settings(args)
@@ -284,7 +293,8 @@ def main(argv=None) -> int:
     rows.sort(key=lambda r: args.seeds.index(r['seed']))
     print()
     print('settings: ' + ', '.join(f'{k}={v}' for k, v in settings(args).items())
-          + f'; seeds {args.seeds[0]}..{args.seeds[-1]} ({len(rows)} families)')
+          + f'; seeds {args.seeds[0]}..{args.seeds[-1]}: {len(rows)} families '
+          f'({", ".join(str(r["seed"]) for r in rows)})')
     print(summarise(rows, [m for m in METHODS if m in args.methods]))
     return 0
 
