@@ -588,6 +588,14 @@ def _write_job(out_dir: Path, job: SampleJob, rig: Rig, strength: float, model_n
                rig.bit_depth, compress_level)
 
 
+def capture_rig(image_size: int) -> Rig:
+    """The rig a synthetic capture is stated at: gray levels at the noise model's reference
+    setting (15 dB, 30 ms); the simulated capture averaged 64 frames, hence the small
+    `model_noise`."""
+    return replace(Rig.paper_default(image_size), frames_averaged=64, exposure_us=30000.0,
+                   gain_db=15.0)
+
+
 def generate(out_dir, image_size: int = DEFAULT_SIZE, n_samples_per_class: int = DEFAULT_SAMPLES,
              n_poses: int = DEFAULT_POSES, seed: int = DEFAULT_SEED,
              object_types=OBJECT_TYPES, n_jobs: int = 2, strength: float = 1.0,
@@ -620,10 +628,7 @@ def generate(out_dir, image_size: int = DEFAULT_SIZE, n_samples_per_class: int =
         raise ValueError(f"{out_dir} is not empty; choose a new folder or pass overwrite "
                          "(--force)")
     out_dir.mkdir(parents=True, exist_ok=True)
-    rig = Rig.paper_default(image_size)
-    # Gray levels are stated at the noise model's reference setting (15 dB, 30 ms); the
-    # simulated capture averaged 64 frames, hence the small `model_noise`.
-    rig = replace(rig, frames_averaged=64, exposure_us=30000.0, gain_db=15.0)
+    rig = capture_rig(image_size)
     rig.save_yaml(out_dir / "rig.yaml")
     jobs = plan(object_types, n_samples_per_class, n_poses, seed)
     runner = Parallel(n_jobs=n_jobs, return_as="generator", batch_size=4)
@@ -679,6 +684,18 @@ def main(argv: list[str] | None = None) -> int:
                              "calibration-target/s0/p00, a reflectance ramp; for `lightstage "
                              "calibrate` on the simulated stage; --size is its width, 3/4 of it "
                              "its height)")
+    parser.add_argument("--family", type=int, metavar="SEED",
+                        help="write one procedural object family instead "
+                             "(lightstage_physics.families): the seed draws a shape and two "
+                             "class materials (family-a, family-b) that differ in 1-3 optical "
+                             "properties, the difference scaled by --strength (0 = one material, "
+                             "the chance-level control); --samples physical samples per class, "
+                             "each with its own size, shape, material jitter, tint and gain, in "
+                             "--poses free placements (--types and --placement do not apply)")
+    parser.add_argument("--sample-spread", type=float, default=None,
+                        help="with --family: how much samples of one class differ in material "
+                             "(default 0.05: albedo per colour +-5 %%, relief, gloss and mottle "
+                             "x exp(N(0, 0.1)))")
     parser.add_argument("--dimmer", type=float, default=DEFAULT_DIMMER,
                         help="with --calibration-target: the sim camera's dimmer, so that all "
                              "LEDs bring the target's brightest pixel to 1.1 x the camera's "
@@ -696,6 +713,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {out} (calibration target {CALIBRATION_TARGET_NAME}, "
                   f"{args.size}x{max(4, args.size * 3 // 4)} px)")
         return 0
+    if args.family is not None:
+        return _family_main(args)
+    if args.sample_spread is not None:
+        parser.error("--sample-spread needs --family")
     types = [t.strip() for t in args.types.split(",") if t.strip()]
     unknown = [t for t in types if t not in ALL_OBJECT_TYPES]
     if unknown:
@@ -719,6 +740,33 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {out} ({len(types) * 2} classes x {args.samples} samples x {args.poses} "
               f"poses, {args.placement} placement, {_dir_size(out) / 1e6:.0f} MB) in "
               f"{time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _family_main(args) -> int:
+    """`lightstage synth OUT --family SEED`: one procedural family as a capture folder."""
+    from .families import DEFAULT_SAMPLE_SPREAD, draw_family, generate_family
+    spread = DEFAULT_SAMPLE_SPREAD if args.sample_spread is None else args.sample_spread
+    start = time.perf_counter()
+
+    def progress(done, total):
+        if not args.quiet and (done == total or done % 10 == 0):
+            print(f"\r{done}/{total} poses rendered", end="" if done < total else "\n",
+                  file=sys.stderr, flush=True)
+
+    try:
+        out = generate_family(args.out_dir, args.family, args.strength, args.samples,
+                              args.poses, args.size, sample_spread=spread, n_jobs=args.jobs,
+                              overwrite=args.force, progress=progress)
+    except ValueError as exc:
+        print(f"lightstage synth: {exc}", file=sys.stderr)
+        return 2
+    if not args.quiet:
+        family = draw_family(args.family)
+        print(f"wrote {out} (family {args.family}: {family.kind} shape, cues "
+              f"{', '.join(family.cues)}, strength {args.strength:g}; 2 classes x "
+              f"{args.samples} samples x {args.poses} poses, free placement, "
+              f"{_dir_size(out) / 1e6:.1f} MB) in {time.perf_counter() - start:.1f} s")
     return 0
 
 
