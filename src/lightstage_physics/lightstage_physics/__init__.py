@@ -16,6 +16,8 @@ Images under any light:
     calibration_target  the simulated calibration chart and its frames
 Synthetic captures and plots:
     synth               relightable models of real and fake fruit, rendered (`lightstage synth`)
+    families            procedural object families: two class materials apart by a strength,
+                        several physical samples per class (`lightstage synth --family`)
     flat_objects        flat and low-relief objects: coins, banknote-like prints, seals
     camera_plots        the noise characteristic and a sample relit by a few patterns
 
@@ -24,4 +26,4 @@ Importing the package imports none of them (`render_jax` is the one that loads J
 
 __all__ = ['rig', 'capture_format', 'scene_models', 'errors', 'output_files', 'workers',
            'render', 'render_jax', 'noise', 'noise_fit', 'calibration_target', 'synth',
-           'flat_objects', 'camera_plots']
+           'families', 'flat_objects', 'camera_plots']
