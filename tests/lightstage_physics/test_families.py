@@ -10,7 +10,8 @@ from scipy import stats
 
 from lightstage_physics import families
 from lightstage_physics.capture_format import load_capture
-from lightstage_physics.synth import CHANNEL_POWER, main as synth_main
+from lightstage_physics.synth import CHANNEL_POWER
+from lightstage_physics.synth_cli import main as synth_main
 
 
 def test_a_family_seed_draws_the_same_family_and_seeds_draw_many_kinds_and_cues():

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from lightstage_physics import synth
+from lightstage_physics import synth, synth_cli
 from lightstage_physics.calibration_target import simulate_calibration_frames
 from lightstage_physics.camera_plots import plot_noise_characteristic, plot_relit_sample
 from lightstage_physics.capture_format import load_capture
@@ -66,17 +66,17 @@ def test_fake_and_real_differ_but_match_under_all_leds():
 
 
 def test_synth_cli(tmp_path, capsys):
-    assert synth.main([str(tmp_path / "d"), "--size", "24", "--poses", "1", "--samples", "1",
+    assert synth_cli.main([str(tmp_path / "d"), "--size", "24", "--poses", "1", "--samples", "1",
                        "--types", "grape", "--jobs", "1"]) == 0
     assert "wrote" in capsys.readouterr().out
     assert len(load_capture(tmp_path / "d", cache=False)) == 2
     with pytest.raises(SystemExit):
-        synth.main([str(tmp_path / "e"), "--types", "kiwi"])
+        synth_cli.main([str(tmp_path / "e"), "--types", "kiwi"])
     args = [str(tmp_path / "d"), "--size", "24", "--poses", "1", "--samples", "1",
             "--types", "grape", "--jobs", "1", "--quiet"]
-    assert synth.main(args) == 2  # refuses to write into a non-empty folder
+    assert synth_cli.main(args) == 2  # refuses to write into a non-empty folder
     assert "not empty" in capsys.readouterr().err
-    assert synth.main(args + ["--force"]) == 0
+    assert synth_cli.main(args + ["--force"]) == 0
 
 
 def test_plots_write_pngs(tiny_synth, tmp_path):

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from lightstage_physics import synth
+from lightstage_physics import synth, synth_cli
 from lightstage_physics.capture_format import load_capture
 from lightstage_physics.rig import Rig
 
@@ -152,12 +152,12 @@ def test_note_inks_differ_only_in_nir():
 
 def test_cli_takes_placement_and_flat_types(tmp_path, capsys):
     out = tmp_path / "flat"
-    assert synth.main([str(out), "--size", "24", "--samples", "1", "--poses", "1",
+    assert synth_cli.main([str(out), "--size", "24", "--samples", "1", "--poses", "1",
                        "--types", "coin,note,seal", "--placement", "free", "--jobs", "1"]) == 0
     assert "free placement" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == [
         "coin-fake", "coin-real", "note-fake", "note-real", "seal-fake", "seal-real"]
     with pytest.raises(SystemExit):
-        synth.main([str(tmp_path / "x"), "--placement", "sideways"])
+        synth_cli.main([str(tmp_path / "x"), "--placement", "sideways"])
     with pytest.raises(SystemExit):
-        synth.main([str(tmp_path / "y"), "--types", "coin,pebble"])
+        synth_cli.main([str(tmp_path / "y"), "--types", "coin,pebble"])

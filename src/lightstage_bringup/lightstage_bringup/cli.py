@@ -30,7 +30,7 @@ VERBS: dict[str, tuple[str, str, str]] = {
     'bag': ('lightstage_recording.bag_cli', 'bag_main',
             'bag info (summary like `ros2 bag info`) / bag recover (complete copy of a damaged bag) / '
             'bag export (a copy rosbags and mcap_ros2 read)'),
-    'synth': ('lightstage_physics.synth', 'main',
+    'synth': ('lightstage_physics.synth_cli', 'main',
               'write the synthetic light-stage dataset (a capture folder)'),
     'capture': ('lightstage_bringup.acquisition_cli', 'capture_main',
                 'capture relightable models of the sample on the stage into a capture folder'),

@@ -15,7 +15,8 @@ Images under any light:
     noise_fit           fitting that model to frames of a target under several lights
     calibration_target  the simulated calibration chart and its frames
 Synthetic captures and plots:
-    synth               relightable models of real and fake fruit, rendered (`lightstage synth`)
+    synth               relightable models of real and fake fruit, rendered
+    synth_cli           `lightstage synth`: the dataset, a procedural family or a calibration target
     families            procedural object families: two class materials apart by a strength,
                         several physical samples per class (`lightstage synth --family`)
     flat_objects        flat and low-relief objects: coins, banknote-like prints, seals
@@ -26,4 +27,4 @@ Importing the package imports none of them (`render_jax` is the one that loads J
 
 __all__ = ['rig', 'capture_format', 'scene_models', 'errors', 'output_files', 'workers',
            'render', 'render_jax', 'noise', 'noise_fit', 'calibration_target', 'synth',
-           'families', 'flat_objects', 'camera_plots']
+           'families', 'synth_cli', 'flat_objects', 'camera_plots']

@@ -279,10 +279,17 @@ def test_output_files_are_not_replaced_unless_asked(tmp_path):
 
 
 def test_goal_fields_fall_back_to_the_node_parameters():
-    from lightstage_camera.acquisition_node import _or_default
+    from types import SimpleNamespace
+
+    from lightstage_camera.acquisition_node import _gain_or_default, _or_default
     assert _or_default(0, 30000) == 30000 and _or_default(5000, 30000) == 5000
-    assert _or_default(float('nan'), 15.0) == 15.0
-    assert _or_default(0.0, 15.0) == 0.0  # 0 dB is a gain the camera has
+
+    def goal(gain_db, gain_db_set):
+        return SimpleNamespace(gain_db=gain_db, gain_db_set=gain_db_set)
+    assert _gain_or_default(goal(float('nan'), False), 15.0) == 15.0
+    assert _gain_or_default(goal(0.0, False), 15.0) == 15.0  # left out, as the ros2 CLI sends it
+    assert _gain_or_default(goal(0.0, True), 15.0) == 0.0  # 0 dB is a gain the camera has
+    assert _gain_or_default(goal(6.0, False), 15.0) == 6.0
 
 
 def _failing_once(monkeypatch):

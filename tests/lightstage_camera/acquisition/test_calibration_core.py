@@ -168,12 +168,12 @@ def test_calibration_outputs_are_written_and_not_replaced_unless_asked(tmp_path,
 
 
 def test_synth_writes_a_calibration_target_folder(tmp_path):
-    from lightstage_physics import synth
-    assert synth.main([str(tmp_path / 't'), '--calibration-target', '--size', '16',
+    from lightstage_physics import synth_cli
+    assert synth_cli.main([str(tmp_path / 't'), '--calibration-target', '--size', '16',
                        '--dimmer', '1.0', '--quiet']) == 0
     ms = load_capture(tmp_path / 't', cache=False)
     assert ms.sample_names == [ctarget.CALIBRATION_TARGET_NAME] and ms.image_shape == (12, 16)
-    assert synth.main([str(tmp_path / 't'), '--calibration-target', '--quiet']) == 2  # not empty
+    assert synth_cli.main([str(tmp_path / 't'), '--calibration-target', '--quiet']) == 2  # not empty
 
 
 def test_output_paths_are_checked_before_anything_is_lit(tmp_path):
