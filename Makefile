@@ -1,19 +1,27 @@
 # The two commands of the quick start: `make demo` and `make test`. Both set up .venv first
-# (scripts/bootstrap.sh: Debian packages, pinned wheels, the interface build, the firmware).
-.PHONY: demo test bootstrap bench clean-venv
+# (scripts/bootstrap.sh): `make demo` only what the demo and the nodes need (the runtime),
+# `make test` that and every extra (cameras, Dask, test tools, chromium, the AVR toolchain,
+# simavr, the firmware). `make camera` adds the real cameras' SDKs to the runtime.
+.PHONY: demo test bootstrap bootstrap-test camera bench clean-venv
 
 PYTEST_ARGS ?=
 
 bootstrap:
 	@bash scripts/bootstrap.sh
 
+bootstrap-test:
+	@bash scripts/bootstrap.sh --with test
+
+camera:
+	@bash scripts/bootstrap.sh --with camera
+
 demo: bootstrap
 	@ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST .venv/bin/lightstage demo
 
-test: bootstrap
+test: bootstrap-test
 	@bash scripts/run_tests.sh $(PYTEST_ARGS)
 
-bench: bootstrap
+bench: bootstrap-test
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; .venv/bin/python $$b || exit 1; done
 
 clean-venv:

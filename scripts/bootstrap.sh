@@ -1,5 +1,13 @@
 #!/usr/bin/env bash
-# Create or reuse .venv and install everything the workspace needs, idempotently.
+# Create or reuse .venv and install what the workspace needs, idempotently.
+#
+#   bash scripts/bootstrap.sh                     the runtime: nodes, `lightstage`, `make demo`
+#   bash scripts/bootstrap.sh --with camera       + real cameras (pypylon; Aravis and PyGObject)
+#   bash scripts/bootstrap.sh --with cluster      + the trainer on a Dask cluster
+#   bash scripts/bootstrap.sh --with test         + the test suite: every extra above, the test
+#                                                   tools, Debian's chromium, the AVR toolchain,
+#                                                   simavr and the firmware build (`make test`)
+# Extras combine (`--with camera,cluster`) and stay installed; LIGHTSTAGE_EXTRAS=test does the same.
 #
 # Steps run only when their inputs changed (a hash stamp per step in .venv/.stamps), so a
 # second run finishes in seconds. Details go to .cache/bootstrap.log; the terminal gets one
@@ -16,17 +24,32 @@ LOG="$LOG_DIR/bootstrap.log"
 mkdir -p "$LOG_DIR"
 : > "$LOG"
 
-# Debian packages: the interface build (cmake, ninja, g++), the AVR firmware build
-# (gcc-avr, binutils-avr, avr-libc), the simavr harness it is tested in (libsimavr-dev,
-# libelf-dev), strace, with which a test checks that ROS traffic stays on loopback, and
-# iproute2, with which scripts/run_tests.sh brings up loopback in the tests' network namespace;
-# Aravis (GenICam cameras) and its GObject introspection data, and the headers PyGObject and
-# pycairo are built against (libgirepository1.0-dev, libcairo2-dev); Debian's chromium, in
-# which the tests drive the operator's page headless (no browser download).
-APT_PACKAGES=(cmake ninja-build gcc g++ make pkg-config gcc-avr binutils-avr avr-libc
-              libsimavr-dev libelf-dev strace iproute2
-              libaravis-0.8-0 gir1.2-aravis-0.8 libgirepository1.0-dev libcairo2-dev
-              chromium)
+EXTRAS=",${LIGHTSTAGE_EXTRAS:-},"
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --with) [ $# -ge 2 ] || { echo "bootstrap.sh: --with needs camera, cluster or test" >&2; exit 2; }
+            EXTRAS="$EXTRAS$2,"; shift 2 ;;
+    --with=*) EXTRAS="$EXTRAS${1#--with=},"; shift ;;
+    -h|--help) sed -n '2,10p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "bootstrap.sh: unknown argument $1 (--with camera|cluster|test)" >&2; exit 2 ;;
+  esac
+done
+for extra in ${EXTRAS//,/ }; do
+  case "$extra" in camera|cluster|test) ;; *) echo "bootstrap.sh: unknown extra '$extra' (camera, cluster, test)" >&2; exit 2 ;; esac
+done
+with() { case "$EXTRAS" in *",$1,"*) return 0 ;; esac; [ "$1" != test ] && case "$EXTRAS" in *",test,"*) return 0 ;; esac; return 1; }
+
+# Debian packages. The runtime: the interface build (cmake, ninja, g++, pkg-config).
+# camera: Aravis (GenICam cameras) and its GObject introspection data, and the headers
+# PyGObject and pycairo are built against (libgirepository1.0-dev, libcairo2-dev).
+# test: the AVR firmware build (gcc-avr, binutils-avr, avr-libc), the simavr harness it is
+# tested in (libsimavr-dev, libelf-dev), strace, with which a test checks that ROS traffic
+# stays on loopback, iproute2, with which scripts/run_tests.sh brings up loopback in the
+# tests' network namespace, and Debian's chromium, in which the tests drive the operator's
+# page headless (no browser download).
+APT_PACKAGES=(cmake ninja-build gcc g++ make pkg-config)
+with camera && APT_PACKAGES+=(libaravis-0.8-0 gir1.2-aravis-0.8 libgirepository1.0-dev libcairo2-dev)
+with test && APT_PACKAGES+=(gcc-avr binutils-avr avr-libc libsimavr-dev libelf-dev strace iproute2 chromium)
 PROJECT_PACKAGES=(lightstage_graph lightstage_physics lightstage_camera lightstage_driver mux_classifier mux_trainer lightstage_recording lightstage_bringup)
 
 step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }
@@ -76,14 +99,21 @@ if [ ! -x "$VENV/bin/python" ]; then
 fi
 PIP=("$VENV/bin/python" -m pip --disable-pip-version-check)
 
-# 3. pinned Python dependencies
-h=$(tree_hash requirements.txt constraints.txt)
-if ! stamp_ok requirements "$h"; then
-  step "installing pinned Python dependencies (ROS 2 Jazzy wheels, numpy, scikit-learn, ...)"
-  "${PIP[@]}" install -q 'pip==26.3' 'setuptools==79.0.1' 'wheel==0.48.0' >> "$LOG" 2>&1 || fail "pip upgrade"
-  "${PIP[@]}" install -q -r requirements.txt -c constraints.txt >> "$LOG" 2>&1 || fail "pip install -r requirements.txt"
-  stamp_set requirements "$h"
-fi
+# 3. pinned Python dependencies: the runtime set, then each extra asked for (one pin set,
+#    constraints.txt, for all of them)
+pip_requirements() {  # STAMP FILE WHAT
+  local h; h=$(tree_hash requirements*.txt constraints.txt)
+  if ! stamp_ok "$1" "$h"; then
+    step "installing pinned Python dependencies: $3"
+    "${PIP[@]}" install -q 'pip==26.3' 'setuptools==79.0.1' 'wheel==0.48.0' >> "$LOG" 2>&1 || fail "pip upgrade"
+    "${PIP[@]}" install -q -r "$2" -c constraints.txt >> "$LOG" 2>&1 || fail "pip install -r $2"
+    stamp_set "$1" "$h"
+  fi
+}
+pip_requirements requirements requirements.txt "the runtime (ROS 2 Jazzy wheels, numpy, scikit-learn, jax, ...)"
+with camera && pip_requirements requirements-camera requirements-camera.txt "cameras (pypylon, PyGObject)"
+with cluster && pip_requirements requirements-cluster requirements-cluster.txt "Dask (distributed)"
+with test && pip_requirements requirements-test requirements-test.txt "tests (pytest, hypothesis, rosbags, ...)"
 
 # 4. the interface package (rosidl, built with cmake against the wheels)
 if [ -f src/lightstage_interfaces/pyproject.toml ]; then
@@ -96,8 +126,9 @@ if [ -f src/lightstage_interfaces/pyproject.toml ]; then
   fi
 fi
 
-# 5. the firmware (AVR) and its simavr harness
-if [ -f src/lightstage_driver/firmware/Makefile ]; then
+# 5. the firmware (AVR) and its simavr harness: for the tests (the demo's stage runs the
+#    Python firmware simulator)
+if with test && [ -f src/lightstage_driver/firmware/Makefile ]; then
   h=$(tree_hash src/lightstage_driver/firmware)
   if ! stamp_ok firmware "$h" || [ ! -d src/lightstage_driver/firmware/build ]; then
     step "building the AVR firmware and the simavr harness"

@@ -13,7 +13,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', ['config/lightstage.yaml', 'config/real_rig.yaml',
+        ('share/' + package_name + '/config', ['config/lightstage.yaml', 'config/real_rig.yaml', 'config/acquisition_sim.yaml',
                                                'config/foxglove_layout.json']),
         ('share/' + package_name + '/launch', ['launch/lightstage.launch.py']),
     ],

@@ -83,8 +83,8 @@ class Browser:
     async def start(self, timeout_s: float = 30.0) -> None:
         import aiohttp
         # not a skip: the bootstrap installs it, and a page left untested must not pass unseen
-        assert chromium_path(), ('Debian\'s chromium is not installed: run scripts/bootstrap.sh '
-                                 '(its APT_PACKAGES install it)')
+        assert chromium_path(), ('Debian\'s chromium is not installed: run `bash scripts/bootstrap.sh --with test` '
+                                 '(`make test` does)')
         self.profile.mkdir(parents=True, exist_ok=True)
         (self.profile / 'DevToolsActivePort').unlink(missing_ok=True)  # a previous browser's
         self.proc = subprocess.Popen([chromium_path(), *CHROMIUM_FLAGS,

@@ -12,8 +12,9 @@
    and classify it through `/lightstage/classify`, with the greedy patterns, the naive one
    and the learned ones (the simulated firmware has graded levels, pwm_bits 8).
 4. Print accuracy, images used and timings per method; write them to `OUT/demo_results.json`;
-   print the commands that replay the bag into a classifier that only observes
-   (`classify_observed`), which gives the greedy calls' labels again.
+   write `OUT/stage_params.yaml`, the demo's stage for `lightstage up`; print the commands
+   that replay the bag into a classifier that only observes (`classify_observed`), which
+   gives the greedy calls' labels again.
 
 Steps 1 and 2 are cached in OUT (delete it or pass --fresh to redo them).
 """
@@ -209,16 +210,34 @@ def _params_file(path: Path, sections: dict) -> Path:
     return path
 
 
+# graded levels (pwm_bits 8) for the learned patterns; on/off ones light the same
+SIM_DRIVER = {'port': 'sim://?pwm_bits=8'}
+STAGE_PARAMS = 'stage_params.yaml'  # the demo's stage for `lightstage up` (the README's)
+
+
 def _write_params(out: Path, capture: Path, artifact: str, first_sample: str,
                   recorder: dict, seed: int) -> Path:
     return _params_file(out / 'demo_params.yaml', {
-        # graded levels (pwm_bits 8) for the learned patterns; on/off ones light the same
-        'driver': {'port': 'sim://?pwm_bits=8'},
+        'driver': SIM_DRIVER,
         # a seeded camera: the same demo gives the same frames, so the same figures
         'camera': {'backend': 'sim', 'capture_dir': str(capture.resolve()),
                    'sample': first_sample, 'noise': 'auto', 'seed': seed},
         'classifier': {'artifact_path': str(Path(artifact).resolve())},
         RECORDER: recorder,
+    })
+
+
+def write_stage_params(out: Path, capture: Path, artifact: str, sample: str) -> Path:
+    """OUT/stage_params.yaml: the demo's stage for `lightstage up driver camera classifier
+    acquisition --params` (the README's next step): the simulated firmware with graded
+    levels, the simulated camera on the demo's capture with `sample` (a held-out one) on the
+    stage and fresh noise, the classifier with `artifact`. No recorder section: `lightstage up`
+    records to out/bags/ (or --no-record), never over the demo's own bag."""
+    return _params_file(out / STAGE_PARAMS, {
+        'driver': SIM_DRIVER,
+        'camera': {'backend': 'sim', 'capture_dir': str(capture.resolve()), 'sample': sample,
+                   'noise': 'auto'},
+        'classifier': {'artifact_path': str(Path(artifact).resolve())},
     })
 
 
@@ -350,6 +369,7 @@ def main(argv: list[str] | None = None) -> int:
         capture = _dataset(out, args)
         summary, held_out = _train(out, capture, args)
         samples = _choose_on_stage(held_out, args.per_class)
+        stage_params = write_stage_params(out, capture, summary['greedy']['artifact'], samples[0])
         results = _on_stage(out, capture, summary, samples, domain_id, seed=args.seed)
     except (RuntimeError, ValueError, OSError) as exc:  # a GraphTimeout is an OSError
         print(f'lightstage demo: {exc}', file=sys.stderr)
@@ -358,6 +378,8 @@ def main(argv: list[str] | None = None) -> int:
     path = out / 'demo_results.json'
     path.write_text(json.dumps({'noise': NOISE, 'training': summary, 'on_stage': report}, indent=2))
     _say(f'done in {time.perf_counter() - t0:.0f} s; results in {path}')
+    _say(f'the demo\'s stage, to classify on yourself (README, "On the demo\'s stage"): '
+         f'lightstage up driver camera classifier acquisition --params {stage_params}')
     return 0
 
 

@@ -40,7 +40,7 @@ def _aravis():
         from gi.repository import Aravis
     except (ImportError, ValueError) as exc:
         raise CameraError(f'Aravis is not available ({exc}): install the Debian packages '
-                          'libaravis-0.8-0 gir1.2-aravis-0.8 and PyGObject (scripts/bootstrap.sh '
+                          'libaravis-0.8-0 gir1.2-aravis-0.8 and PyGObject (`make camera` '
                           'does both)') from exc
     return Aravis
 

@@ -32,7 +32,7 @@ def _pylon():
         from pypylon import genicam, pylon
     except ImportError as exc:
         raise CameraError(f'pypylon is not installed ({exc}); `pip install pypylon` '
-                          '(scripts/bootstrap.sh installs it)') from exc
+                          '(`make camera` installs it: requirements-camera.txt)') from exc
     return pylon, genicam
 
 

@@ -102,9 +102,10 @@ class DaskCluster:
             raise ValueError(f'the Dask timeout must be > 0 s, got {timeout_s}')
         try:
             from distributed import Client
-        except ImportError as exc:  # pragma: no cover - distributed is a pinned requirement
+        except ImportError as exc:  # the optional extra requirements-cluster.txt
             raise ClusterUnavailable(f'cannot use the Dask scheduler {address}: the '
-                                     f'`distributed` package is missing ({exc})') from None
+                                     f'`distributed` package is missing ({exc}); install it with '
+                                     '`bash scripts/bootstrap.sh --with cluster` (requirements-cluster.txt)') from None
         self.address = address
         self.timeout_s = float(timeout_s)
         # before a Client exists: a Client that fails in its constructor still closes itself
