@@ -22,6 +22,7 @@ ROSDEP_KEYS = {
     'skimage': 'python3-skimage', 'yaml': 'python3-yaml', 'serial': 'python3-serial',
     'aiohttp': 'python3-aiohttp', 'matplotlib': 'python3-matplotlib', 'PIL': 'python3-pil',
     'joblib': 'python3-joblib', 'numba': 'python3-numba', 'tqdm': 'python3-tqdm',
+    'lz4': 'python3-lz4', 'zstandard': 'python3-zstandard',
 }
 # import name -> pip distribution, for the libraries rosdep has no key for
 PIP_ONLY = {'jax': 'jax', 'mcap': 'mcap', 'threadpoolctl': 'threadpoolctl'}

@@ -3,7 +3,7 @@ rebuilt; `synth --strength` and `--size` out of range are refused before any wor
 import numpy as np
 import pytest
 
-from lightstage_physics import synth
+from lightstage_physics import synth, synth_cli
 from lightstage_physics.capture_format import load_capture, write_capture
 
 from helpers.camera import make_modelset
@@ -38,13 +38,13 @@ def test_a_strength_that_makes_no_material_is_refused(tmp_path, strength, messag
 
 
 def test_the_cli_refuses_a_negative_strength(tmp_path, capsys):
-    assert synth.main([str(tmp_path / "cap"), "--size", "16", "--strength", "-3",
+    assert synth_cli.main([str(tmp_path / "cap"), "--size", "16", "--strength", "-3",
                        "--types", "banana"]) == 2
     assert "lightstage synth: strength must be 0 .. 10" in capsys.readouterr().err
 
 
 def test_a_size_that_cannot_be_rendered_in_memory_is_refused_with_the_estimate(tmp_path, capsys):
-    assert synth.main([str(tmp_path / "cap"), "--size", "100000", "--types", "banana"]) == 2
+    assert synth_cli.main([str(tmp_path / "cap"), "--size", "100000", "--types", "banana"]) == 2
     err = capsys.readouterr().err
     assert "lightstage synth: size 100000 px needs about" in err and "use a size up to" in err
     assert not (tmp_path / "cap").exists()

@@ -17,6 +17,7 @@ from helpers.suite import lightstage_command
 from test_reader_recipes import _check  # every decoded message equal to rclpy's decoding
 
 BUNDLED = REPO / 'bags' / 'sim_session'  # recorded by `lightstage record` with its defaults
+BAG_MESSAGES = BagReader(BUNDLED).info().message_count
 EVENT_TOPIC = '/lightstage/classify/_service_event'
 
 
@@ -33,13 +34,13 @@ def exported(tmp_path_factory):
 
 def test_the_recorded_bag_does_not_open_in_anyreader_and_the_export_does(exported):
     from rosbags.highlevel import AnyReader
-    with pytest.raises(KeyError, match='lightstage_interfaces/srv/Classify_Event'):
+    with pytest.raises(KeyError, match=r'lightstage_interfaces/srv/\w+_Event'):
         with AnyReader([BUNDLED]):
             pass
     with AnyReader([exported]) as reader:
         decoded = [(c.topic, t, reader.deserialize(raw, c.msgtype))
                    for c, t, raw in reader.messages()]
-    assert len(decoded) == 131
+    assert len(decoded) == BAG_MESSAGES
     assert _check(decoded, BUNDLED) == 16  # the service events among them
 
 
@@ -50,7 +51,7 @@ def test_rosbags_convert_converts_every_message_of_the_export(exported, tmp_path
     assert p.returncode == 0, p.stdout + p.stderr
     from rosbags.rosbag1 import Reader
     with Reader(tmp_path / 'x.bag') as reader:
-        assert reader.message_count == 131
+        assert reader.message_count == BAG_MESSAGES
         assert {c.topic for c in reader.connections} == set(BagReader(BUNDLED).info().topics)
     p = subprocess.run([str(convert), '--src', str(BUNDLED), '--dst', str(tmp_path / 'y.bag')],
                        capture_output=True, text=True, timeout=300)
@@ -66,7 +67,7 @@ def test_mcap_ros2_decodes_every_message_of_the_export(exported):
             for _, channel, message, msg in make_reader(
                     f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
                 decoded.append((channel.topic, message.log_time, msg))
-    assert len(decoded) == 131
+    assert len(decoded) == BAG_MESSAGES
     assert _check(decoded, BUNDLED) == 16
 
 

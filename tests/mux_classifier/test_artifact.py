@@ -4,6 +4,7 @@ import os
 import re
 import stat
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -168,7 +169,8 @@ def test_a_format_1_file_loads_with_the_dimmer_every_earlier_training_used(artif
 
 
 def test_the_bundled_format_1_artifact_still_loads():
-    bundled = REPO / "bags" / "sim_session_classifier.npz"
+    # the classifier bags/sim_session once carried, kept as written then (format 1, no dimmer)
+    bundled = Path(__file__).parent / "data" / "format1_classifier.npz"
     with np.load(bundled, allow_pickle=False) as npz:
         assert json.loads(npz["header"].tobytes().decode())["format_version"] == 1
     art = TrainedArtifact.load(bundled)
