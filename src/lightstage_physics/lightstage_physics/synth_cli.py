@@ -15,6 +15,15 @@ from .synth import (ALL_OBJECT_TYPES, DEFAULT_POSES, DEFAULT_SAMPLES, DEFAULT_SE
 from .workers import jobs_type
 
 
+def _progress(quiet: bool):
+    """A progress callback (done, total) that counts rendered poses on stderr."""
+    def progress(done, total):
+        if not quiet and (done == total or done % 10 == 0):
+            print(f"\r{done}/{total} poses rendered", end="" if done < total else "\n",
+                  file=sys.stderr, flush=True)
+    return progress
+
+
 def _dir_size(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*.png"))
 
@@ -97,11 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"unknown object type(s) {unknown}; choose from "
                      f"{', '.join(ALL_OBJECT_TYPES)}")
     start = time.perf_counter()
-
-    def progress(done, total):
-        if not args.quiet and (done == total or done % 10 == 0):
-            print(f"\r{done}/{total} poses rendered", end="" if done < total else "\n",
-                  file=sys.stderr, flush=True)
+    progress = _progress(args.quiet)
 
     try:
         out = generate(args.out_dir, args.size, args.samples, args.poses, args.seed, types,
@@ -121,11 +126,7 @@ def _family_main(args) -> int:
     """`lightstage synth OUT --family SEED`: one procedural family as a capture folder."""
     spread = DEFAULT_SAMPLE_SPREAD if args.sample_spread is None else args.sample_spread
     start = time.perf_counter()
-
-    def progress(done, total):
-        if not args.quiet and (done == total or done % 10 == 0):
-            print(f"\r{done}/{total} poses rendered", end="" if done < total else "\n",
-                  file=sys.stderr, flush=True)
+    progress = _progress(args.quiet)
 
     try:
         out = generate_family(args.out_dir, args.family, args.strength, args.samples,
