@@ -70,12 +70,14 @@ def test_a_call_stuck_tearing_its_client_down_has_printed_the_answer_and_ends_wi
     assert 'still shutting down its ROS client (the answer above is complete)' in p.stderr
 
 
-ROUNDS = int(os.environ.get('LIGHTSTAGE_CLASSIFY_ROUNDS', 20))
+# 3 rounds in the suite (about a minute and a half: 20 took 576 s of the suite's 15 minutes);
+# LIGHTSTAGE_CLASSIFY_ROUNDS=20 runs the whole probe (240 calls, none stuck when last run)
+ROUNDS = int(os.environ.get('LIGHTSTAGE_CLASSIFY_ROUNDS', 3))
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(60 * 30)
-def test_twelve_calls_started_at_once_all_end_with_a_message_twenty_times(
+def test_twelve_calls_started_at_once_all_end_with_a_message_round_after_round(
         stage_capture, stage_artifact_path, tmp_path):
     domain_id = fresh_domain_id()
     params = write_params(tmp_path / 'params.yaml',

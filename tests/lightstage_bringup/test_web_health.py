@@ -182,7 +182,9 @@ def test_a_frozen_driver_s_status_turns_stale_and_is_never_shown_ok(base, nodes)
     async def steps(page):
         await _page_ready(page)
         await page.wait_for(DRIVER_OK, 30, 'the driver active and OK')
-        os.kill(driver.pid, signal.SIGSTOP)   # still in the graph, silent
+        # silent; after the DDS lease (5 s, the project's profile) it also leaves the graph,
+        # so the status turns STALE for either reason, whichever the page sees first
+        os.kill(driver.pid, signal.SIGSTOP)
         try:
             frozen = time.monotonic()
             await page.wait_for(f"{DRIVER_DIAG}.classList.contains('STALE')", 30, 'the status shown STALE')
@@ -194,7 +196,8 @@ def test_a_frozen_driver_s_status_turns_stale_and_is_never_shown_ok(base, nodes)
         return text
 
     text = _in_browser(base, steps)
-    assert text.startswith('STALE') and 'no update for more than 5 s (last report OK' in text
+    assert text.startswith('STALE') and '(last report OK' in text
+    assert ('no update for more than 5 s' in text) or ('the driver node is not running' in text)
 
 
 class _OtherSite:
