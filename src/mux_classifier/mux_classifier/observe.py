@@ -9,6 +9,13 @@ and classifies them exactly as `inference.classify_on_stage` would have. `Sequen
 runs that on a worker thread, skipping the sequences its own node lit through the Classify
 service (those are classified there already).
 
+A calibrated artifact's anytime calls light one pattern column per request: a request that
+lights the artifact's patterns j..k right after one of the same driver that ended at image j
+continues that sequence. The observer decides after each request with the artifact's own
+rule (`TrainedArtifact.decide`, the trained target) and publishes once it stops, so a replay
+gives the labels and image counts the live calls gave (calls that asked for another
+``target_probability`` are decided with the trained one).
+
 One lost image fails its own sequence only, and at once: a sequence's images are claimed in
 the matcher as soon as its trigger states are complete (however far behind the worker is,
 they are not evicted), and the wait for a missing image ends as soon as a later image has
@@ -62,6 +69,7 @@ class ObservedSequence:
     n_images: int
     first_arrival_ns: int
     source: str = ''
+    first_image: int = 0  # > 0: it continues an anytime sequence that ended at this image
 
 
 def pattern_matches(observed: np.ndarray, expected: np.ndarray,
@@ -82,14 +90,15 @@ def pattern_matches(observed: np.ndarray, expected: np.ndarray,
 
 
 def artifact_image_count(patterns: Sequence[np.ndarray], artifact: TrainedArtifact,
-                         tolerance: float = DEFAULT_TOLERANCE) -> int:
-    """k if ``patterns`` are the artifact's first k LED patterns and it has a classifier for
-    k images; else 0."""
-    k = len(patterns)
+                         tolerance: float = DEFAULT_TOLERANCE, first_image: int = 0) -> int:
+    """k if ``patterns`` are the artifact's LED patterns ``first_image`` .. k-1 and it has a
+    classifier for k images; else 0."""
+    k = int(first_image) + len(patterns)
     if k not in artifact.n_images:
         return 0
     expected = artifact.led_patterns
-    if all(pattern_matches(patterns[i], expected[:, i], tolerance) for i in range(k)):
+    if all(pattern_matches(p, expected[:, first_image + i], tolerance)
+           for i, p in enumerate(patterns)):
         return k
     return 0
 
@@ -132,15 +141,23 @@ class SequenceAssembler:
 
 
 def observed_sequence(states: Sequence[TriggerState], artifact: TrainedArtifact,
-                      tolerance: float = DEFAULT_TOLERANCE) -> ObservedSequence | None:
+                      tolerance: float = DEFAULT_TOLERANCE,
+                      continues_at: int = 0) -> ObservedSequence | None:
     """The sequence to classify if ``states`` (a complete request) lit the artifact's first
-    k patterns; None for any other request (other patterns, other count)."""
-    k = artifact_image_count([s.intensities for s in states], artifact, tolerance)
+    k patterns, or (``continues_at`` j > 0: the images its driver's last artifact request
+    ended at) its patterns j .. k-1; None for any other request (other patterns, other
+    count)."""
+    patterns = [s.intensities for s in states]
+    first = 0
+    k = artifact_image_count(patterns, artifact, tolerance)
+    if not k and continues_at > 0 and artifact.calibrated:
+        k = artifact_image_count(patterns, artifact, tolerance, first_image=continues_at)
+        first = continues_at if k else 0
     if not k:
         return None
     return ObservedSequence(states[0].request_id, [s.stamp_ns for s in states],
                             [s.sequence for s in states], k,
-                            min(s.arrival_ns for s in states), states[0].source)
+                            min(s.arrival_ns for s in states), states[0].source, first)
 
 
 def classify_observed(artifact: TrainedArtifact, seq: ObservedSequence, matcher: ImageMatcher,
@@ -156,6 +173,20 @@ def classify_observed(artifact: TrainedArtifact, seq: ObservedSequence, matcher:
                                               since_ns=seq.first_arrival_ns)
     return classify_collected(artifact, frames, bit_depth, list(seq.sequences), seq.stamps_ns[0],
                               max(0.0, (last_arrival_ns - seq.first_arrival_ns) / 1e6))
+
+
+@dataclass
+class _OpenSequence:
+    """An anytime sequence the rule has not stopped yet: its images so far."""
+    seq: ObservedSequence
+    frames: list
+    stamps_ns: list
+    sequences: list
+
+
+def _collect(seq: ObservedSequence, matcher: ImageMatcher, timeout_s: float):
+    return matcher.collect(seq.stamps_ns, timeout_s, seq.sequences,
+                           since_ns=seq.first_arrival_ns)
 
 
 @dataclass
@@ -208,6 +239,8 @@ class SequenceObserver:
         self.max_pending = int(max_pending)
         self._queue: queue.Queue = queue.Queue()
         self._assemble_lock = threading.Lock()
+        self._ended_at: dict[str, int] = {}     # per driver: image its last artifact request ended at
+        self._open: dict[str, _OpenSequence] = {}  # worker only: anytime sequences not stopped
         self._thread = threading.Thread(target=self._run, name='sequence-observer', daemon=True)
         self._thread.start()
 
@@ -233,10 +266,13 @@ class SequenceObserver:
             artifact = self._artifact()
             if artifact is None:
                 return  # no classifier loaded: nothing to classify
-            seq = observed_sequence(states, artifact, self.tolerance)
+            seq = observed_sequence(states, artifact, self.tolerance,
+                                    self._ended_at.get(states[0].source, 0))
             if seq is None:
+                self._ended_at.pop(states[0].source, None)
                 self.stats.not_artifact += 1
                 return
+            self._ended_at[seq.source] = seq.n_images
             if self._queue.unfinished_tasks >= self.max_pending:
                 self.stats.behind += 1
                 self._error(f'observed request {seq.request_id} ({seq.n_images} images) not '
@@ -284,17 +320,57 @@ class SequenceObserver:
             own = self._is_own(seq)
         if own:
             self.stats.own_skipped += 1
+            self._open.pop(seq.source, None)
             return
         try:
-            result = classify_observed(artifact, seq, self.matcher, float(self._timeout_s()),
-                                       int(self._bit_depth()))
+            if artifact.calibrated:
+                result = self._decide(seq, artifact)
+                if result is None:
+                    return  # the rule goes on: wait for the sequence's next request
+            else:
+                result = classify_observed(artifact, seq, self.matcher,
+                                           float(self._timeout_s()), int(self._bit_depth()))
         except StageError as exc:  # InferenceError or MissingImagesError
+            self._open.pop(seq.source, None)
             self.stats.failed += 1
             self._error(f'observed request {seq.request_id} ({seq.n_images} images) not '
                         f'classified: {exc}')
             return
         self.stats.classified += 1
         self._publish(result)
+
+    def _decide(self, seq: ObservedSequence, artifact: TrainedArtifact):
+        """One step of an anytime sequence: its images so far decided with the artifact's
+        rule; the Classification once it stops, else None (the sequence stays open)."""
+        from .inference import InferenceError, _classification, decide_frames
+        opened = self._open.pop(seq.source, None)
+        if seq.first_image:
+            if opened is None or len(opened.frames) != seq.first_image:
+                raise InferenceError(f'it continues an anytime sequence at image '
+                                     f'{seq.first_image} whose start was not observed')
+        else:
+            if opened is not None:
+                self.stats.failed += 1
+                self._error(f'observed request {opened.seq.request_id} '
+                            f'({len(opened.frames)} images) not classified: its anytime '
+                            'sequence stopped before the rule did')
+            opened = _OpenSequence(seq, [], [], [])
+        frames, last_arrival_ns = _collect(seq, self.matcher, float(self._timeout_s()))
+        opened.frames += list(frames)
+        opened.stamps_ns += list(seq.stamps_ns)
+        opened.sequences += list(seq.sequences)
+        steps = artifact.anytime_steps()
+        start = time.perf_counter()
+        decision, stack = decide_frames(artifact, opened.frames, int(self._bit_depth()),
+                                        final=seq.n_images >= steps[-1])
+        compute_ms = (time.perf_counter() - start) * 1e3
+        if not decision.stop:
+            self._open[seq.source] = opened
+            return None
+        first = opened.seq
+        return _classification(artifact, decision, stack, opened.sequences, first.stamps_ns[0],
+                               max(0.0, (last_arrival_ns - first.first_arrival_ns) / 1e6),
+                               compute_ms, steps[-1])
 
     def _error(self, message: str) -> None:
         self.stats.last_error = message
