@@ -252,3 +252,22 @@ def test_an_anytime_sequence_lit_column_by_column_is_decided_as_the_service_deci
     assert r.images_used == used and r.images_budget == 8 and r.calibrated
     assert r.label == expected.label and r.decision == expected.decision
     assert r.sequences == list(range(100, 100 + used)) and r.first_stamp_ns == STAMP0
+
+
+def test_an_anytime_sequence_its_caller_cut_short_is_decided_on_the_images_it_has(
+        stage_artifact, frames):
+    """A call with max_images 4 stops after one column whatever the rule says; no next
+    request comes, and the observer decides it on its 4 images (unsure) after waiting."""
+    artifact = _with_confidence(stage_artifact, 0.9, 1e3)
+    published, errors = [], []
+    observer, matcher = _observer(artifact, published, errors)
+    try:
+        for s, f in zip(_states(artifact.led_patterns[:, :4]), frames[:4]):
+            matcher.add(s.stamp_ns, f)
+            observer.on_trigger(s)
+        assert observer.join_idle(10.0)
+    finally:
+        observer.close()
+    assert not errors
+    (r,) = published
+    assert (r.images_used, r.images_budget, r.decision) == (4, 4, 'unsure')

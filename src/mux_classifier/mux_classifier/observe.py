@@ -14,7 +14,9 @@ lights the artifact's patterns j..k right after one of the same driver that ende
 continues that sequence. The observer decides after each request with the artifact's own
 rule (`TrainedArtifact.decide`, the trained target) and publishes once it stops, so a replay
 gives the labels and image counts the live calls gave (calls that asked for another
-``target_probability`` are decided with the trained one).
+``target_probability`` are decided with the trained one). A sequence the rule would go on
+with but whose driver lights something else next, or nothing for `CONTINUATION_S`, was cut
+short by its caller (``max_images``): it is decided on the images it has.
 
 One lost image fails its own sequence only, and at once: a sequence's images are claimed in
 the matcher as soon as its trigger states are complete (however far behind the worker is,
@@ -45,6 +47,10 @@ from .inference import Classification, ImageMatcher, classify_collected
 # boards report 0/1 for what was lit. Half a step plus float32 slack matches a graded drive to
 # its request; distinct patterns differ by whole steps.
 DEFAULT_TOLERANCE = 0.5 / 255.0 + 1e-6
+# How long an anytime sequence the rule would go on with waits for its next request before it
+# is decided on the images it has: a live call asks for the next column within milliseconds
+# of its decision; a replay at a tenth of the speed still well within this.
+CONTINUATION_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -179,9 +185,11 @@ def classify_observed(artifact: TrainedArtifact, seq: ObservedSequence, matcher:
 class _OpenSequence:
     """An anytime sequence the rule has not stopped yet: its images so far."""
     seq: ObservedSequence
+    artifact: TrainedArtifact
     frames: list
-    stamps_ns: list
     sequences: list
+    last_arrival_ns: int = 0
+    waiting_since: float = 0.0
 
 
 def _collect(seq: ObservedSequence, matcher: ImageMatcher, timeout_s: float):
@@ -287,17 +295,23 @@ class SequenceObserver:
         self._thread.join(timeout_s)
 
     def join_idle(self, timeout_s: float = 10.0) -> bool:
-        """Wait until every queued sequence is handled (tests)."""
+        """Wait until every queued sequence is handled and no anytime sequence waits for its
+        next request (tests)."""
         deadline = time.monotonic() + timeout_s
-        while self._queue.unfinished_tasks and time.monotonic() < deadline:
+        while (self._queue.unfinished_tasks or self._open) and time.monotonic() < deadline:
             time.sleep(0.005)
-        return not self._queue.unfinished_tasks
+        return not self._queue.unfinished_tasks and not self._open
 
     def _run(self) -> None:
         while True:
-            item = self._queue.get()
+            try:
+                item = self._queue.get(timeout=CONTINUATION_S / 4)
+            except queue.Empty:
+                self._close_waiting(CONTINUATION_S)
+                continue
             try:
                 if item is None:
+                    self._close_waiting(0.0)
                     return
                 self._handle(item)
             except Exception as exc:  # noqa: BLE001 - the worker must survive any one sequence
@@ -342,35 +356,60 @@ class SequenceObserver:
     def _decide(self, seq: ObservedSequence, artifact: TrainedArtifact):
         """One step of an anytime sequence: its images so far decided with the artifact's
         rule; the Classification once it stops, else None (the sequence stays open)."""
-        from .inference import InferenceError, _classification, decide_frames
+        from .inference import InferenceError
         opened = self._open.pop(seq.source, None)
         if seq.first_image:
             if opened is None or len(opened.frames) != seq.first_image:
                 raise InferenceError(f'it continues an anytime sequence at image '
                                      f'{seq.first_image} whose start was not observed')
         else:
-            if opened is not None:
-                self.stats.failed += 1
-                self._error(f'observed request {opened.seq.request_id} '
-                            f'({len(opened.frames)} images) not classified: its anytime '
-                            'sequence stopped before the rule did')
-            opened = _OpenSequence(seq, [], [], [])
-        frames, last_arrival_ns = _collect(seq, self.matcher, float(self._timeout_s()))
+            if opened is not None:  # its caller stopped it (max_images): decide it as it is
+                self._publish_closed(opened)
+            opened = _OpenSequence(seq, artifact, [], [])
+        frames, opened.last_arrival_ns = _collect(seq, self.matcher, float(self._timeout_s()))
         opened.frames += list(frames)
-        opened.stamps_ns += list(seq.stamps_ns)
         opened.sequences += list(seq.sequences)
-        steps = artifact.anytime_steps()
+        result = self._decided(opened, final=seq.n_images >= artifact.anytime_steps()[-1])
+        if result is None:
+            opened.waiting_since = time.monotonic()
+            self._open[seq.source] = opened
+        return result
+
+    def _decided(self, opened: _OpenSequence, final: bool):
+        """The Classification of an open sequence if the rule stops it (or ``final``)."""
+        from .inference import _classification, decide_frames
+        artifact = opened.artifact
         start = time.perf_counter()
         decision, stack = decide_frames(artifact, opened.frames, int(self._bit_depth()),
-                                        final=seq.n_images >= steps[-1])
+                                        final=final)
         compute_ms = (time.perf_counter() - start) * 1e3
         if not decision.stop:
-            self._open[seq.source] = opened
             return None
         first = opened.seq
+        budget = artifact.anytime_steps()[-1] if not final or len(opened.frames) >= \
+            artifact.anytime_steps()[-1] else len(opened.frames)
         return _classification(artifact, decision, stack, opened.sequences, first.stamps_ns[0],
-                               max(0.0, (last_arrival_ns - first.first_arrival_ns) / 1e6),
-                               compute_ms, steps[-1])
+                               max(0.0, (opened.last_arrival_ns - first.first_arrival_ns) / 1e6),
+                               compute_ms, budget)
+
+    def _publish_closed(self, opened: _OpenSequence) -> None:
+        try:
+            result = self._decided(opened, final=True)
+        except StageError as exc:
+            self.stats.failed += 1
+            self._error(f'observed request {opened.seq.request_id} not classified: {exc}')
+            return
+        self.stats.classified += 1
+        self._publish(result)
+
+    def _close_waiting(self, after_s: float) -> None:
+        """Decide the anytime sequences that waited ``after_s`` for a next request that did
+        not come (their caller stopped them)."""
+        now = time.monotonic()
+        for source, opened in list(self._open.items()):
+            if now - opened.waiting_since >= after_s:
+                del self._open[source]
+                self._publish_closed(opened)
 
     def _error(self, message: str) -> None:
         self.stats.last_error = message
