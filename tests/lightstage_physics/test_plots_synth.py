@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from lightstage_physics import synth, synth_cli
+from lightstage_physics import fruit_render, synth, synth_cli
 from lightstage_physics.calibration_target import simulate_calibration_frames
 from lightstage_physics.camera_plots import plot_noise_characteristic, plot_relit_sample
 from lightstage_physics.capture_format import load_capture
@@ -43,7 +43,7 @@ def test_synth_is_deterministic(tiny_synth, tmp_path):
 def test_shadow_falls_away_from_the_light():
     z = np.zeros((40, 40))
     z[18:22, 18:22] = 30.0  # a post in the middle
-    vis = synth._shadow(z, azimuth=0.0, tan_elevation=1.0, px=1.0)  # light toward +x
+    vis = fruit_render._shadow(z, azimuth=0.0, tan_elevation=1.0, px=1.0)  # light toward +x
     assert vis[20, 10] < 0.1  # behind the post (towards -x) is dark
     assert vis[20, 30] == pytest.approx(1.0)  # in front is lit
     assert vis[5, 10] == pytest.approx(1.0)

@@ -15,7 +15,9 @@ Images under any light:
     noise_fit           fitting that model to frames of a target under several lights
     calibration_target  the simulated calibration chart and its frames
 Synthetic captures and plots:
-    synth               relightable models of real and fake fruit, rendered
+    synth               the synthetic dataset: planned samples and poses, rendered and written
+    materials           the real and fake materials of every object type, and their blending
+    fruit_render        one pose of an object lit by each LED: shapes, shading, shadows
     synth_cli           `lightstage synth`: the dataset, a procedural family or a calibration target
     families            procedural object families: two class materials apart by a strength,
                         several physical samples per class (`lightstage synth --family`)
@@ -27,4 +29,4 @@ Importing the package imports none of them (`render_jax` is the one that loads J
 
 __all__ = ['rig', 'capture_format', 'scene_models', 'errors', 'output_files', 'workers',
            'render', 'render_jax', 'noise', 'noise_fit', 'calibration_target', 'synth',
-           'families', 'synth_cli', 'flat_objects', 'camera_plots']
+           'materials', 'fruit_render', 'families', 'synth_cli', 'flat_objects', 'camera_plots']

@@ -184,7 +184,7 @@ def sample_draw(family: Family, class_index: int, sample: int, material: Materia
     the same distribution."""
     rng = _rng(family.seed, 1, class_index, sample)
     shape = (flat_objects.instance_params(family.kind, rng) if family.kind in FLAT_TYPES
-             else synth._instance_shape(family.kind, rng))
+             else synth.instance_shape(family.kind, rng))
     shape["scale"] = shape["scale"] * family.scale
     overall = rng.uniform(0.9, 1.1)
     shape["tint"] = tuple(overall * rng.uniform(0.95, 1.05, 4))

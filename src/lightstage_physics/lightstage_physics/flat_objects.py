@@ -24,7 +24,7 @@ grid), and each fake is a copy of the real sample with the same number (a forger
 specimen: the same design, size and tint; `synth._instance_seed`). So the two classes hold
 the same designs and a classifier must learn relief vs print or NIR ink, not which designs
 it saw. Geometry follows the pose (centre, in-plane rotation, scale), drawn apart for the
-copy and its original; materials are in `synth.MATERIALS`.
+copy and its original; materials are in `materials.MATERIALS`.
 """
 from __future__ import annotations
 

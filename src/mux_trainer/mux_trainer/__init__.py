@@ -25,6 +25,7 @@ Inside the search:
     reference           the straightforward (slow) candidate evaluation, for checks
 Training runs and evaluation:
     training            one training run: capture folder in, artifact out (CLI and node)
+    calibration         calibrated probabilities and the anytime target, from held-out answers
     holdout             held-out evaluation: train on some poses or samples, test on the others
     report              the paper's Table 1 and accuracy-vs-image-count figure
     evaluation_plots    the figures of an evaluation
@@ -38,5 +39,5 @@ Importing the package imports none of them (`learned` is the one that loads JAX)
 __all__ = ['greedy', 'learned', 'learned_method', 'learned_schedule', 'baselines', 'bow_baseline',
            'snr_optimal', 'pattern_model', 'search_params', 'candidate_patterns', 'data',
            'rendering', 'evaluation', 'split_scoring', 'splits', 'column_count', 'cluster',
-           'reference', 'training', 'holdout', 'report', 'evaluation_plots', 'cli',
+           'reference', 'training', 'calibration', 'holdout', 'report', 'evaluation_plots', 'cli',
            'trainer_node']
