@@ -39,3 +39,12 @@ def test_a_calibrated_stage_artifact_carries_its_rule_and_what_it_measured(
     assert est['anytime_accuracy'] >= est['full_accuracy'] - c.tolerance - 1e-9
     assert 4 <= est['anytime_mean_images'] <= 8 and est['answers'] > 0
     assert 0 <= est['calibration_error_full'] <= 1
+
+
+def test_train_says_what_it_calibrated_in_words(stage_calibrated_artifact_path):
+    from mux_trainer.cli import confidence_text
+    art = TrainedArtifact.load(stage_calibrated_artifact_path)
+    text = confidence_text(art.confidence.to_dict())
+    assert text.startswith('calibrated probabilities; anytime: stops after the first pattern')
+    assert f'{100 * art.confidence.stop_probability:.3g} %' in text
+    assert 'held-out answers (physical samples)' in text and 'calibration error' in text

@@ -453,7 +453,27 @@ def train_text(doc: dict) -> str:
     inner = doc.get('inner_estimate')
     if inner:
         lines.append(describe_inner(inner, inner['accuracy']))
+    confidence = doc.get('confidence')
+    if confidence:
+        lines.append(confidence_text(confidence))
+    elif doc['method'] == 'learned':
+        lines.append('uncalibrated: scores only, every exposure taken')
     return '\n'.join(lines)
+
+
+def confidence_text(confidence: dict) -> str:
+    """The calibration and the anytime rule a training fitted, in plain words."""
+    e = confidence.get('estimate', {})
+    target = 100 * float(confidence['stop_probability'])
+    text = (f'calibrated probabilities; anytime: stops after the first pattern column whose top '
+            f'class reaches {target:.3g} %')
+    if e:
+        text += (f'; on {e.get("answers", 0)} held-out answers ({e.get("held_out", "?")}) '
+                 f'{100 * e["anytime_accuracy"]:.1f} % at a mean of '
+                 f'{e["anytime_mean_images"]:.1f} exposures, against '
+                 f'{100 * e["full_accuracy"]:.1f} % at {e["full_images"]}; calibration error '
+                 f'{e["calibration_error_anytime"]:.3f}')
+    return text
 
 
 def _outputs_from_results(p: argparse.ArgumentParser, args) -> int:
