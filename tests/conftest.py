@@ -203,7 +203,7 @@ def stage_intensity_artifact_path(stage_capture, tmp_path_factory):
     return _train_stage_artifact(stage_capture, tmp_path_factory, 'intensity_stats')
 
 
-def _train_stage_artifact(stage_capture, tmp_path_factory, features):
+def _train_stage_artifact(stage_capture, tmp_path_factory, features, calibrate=False):
     from lightstage_physics.capture_format import load_capture
     from mux_trainer.baselines import FixedPatternClassifier
     from mux_trainer.search_params import Rendering, SplitScoring
@@ -214,8 +214,20 @@ def _train_stage_artifact(stage_capture, tmp_path_factory, features):
                                    rendering=Rendering(noise='sigma3', features=features)
                                    ).fit(modelset)
     path = tmp_path_factory.mktemp('artifact') / f'classifier_{features}.npz'
-    model.to_artifact().save(path)
+    artifact = model.to_artifact()
+    if calibrate:
+        from dataclasses import replace
+        from mux_trainer.calibration import calibrate_pattern_model
+        artifact = replace(artifact, confidence=calibrate_pattern_model(model))
+    artifact.save(path)
     return path
+
+
+@pytest.fixture(scope='session')
+def stage_calibrated_artifact_path(stage_capture, tmp_path_factory):
+    """The stage artifact with calibrated probabilities and its anytime rule
+    (`mux_trainer.calibration`, as `lightstage train` fits them)."""
+    return _train_stage_artifact(stage_capture, tmp_path_factory, 'hog_grid', calibrate=True)
 
 
 @pytest.fixture(scope='session')

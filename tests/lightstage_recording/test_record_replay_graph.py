@@ -28,9 +28,12 @@ RECORDED = ['/illumination', '/camera/image_raw', '/lightstage/result',
 
 
 @pytest.fixture(scope='module')
-def session(stage_capture, stage_artifact_path, tmp_path_factory):
+def session(stage_capture, stage_calibrated_artifact_path, tmp_path_factory):
     """Record a graph (driver on the sim firmware, sim camera, classifier) classifying four
-    samples; the classifier also observes, so a sequence classified twice would show."""
+    samples; the classifier also observes, so a sequence classified twice would show. The
+    classifier is calibrated: its calls are anytime, one pattern column per driver request,
+    stopping where its rule says."""
+    stage_artifact_path = stage_calibrated_artifact_path
     tmp = tmp_path_factory.mktemp('session')
     bag = tmp / 'session'
     domain_id = fresh_domain_id()
@@ -97,9 +100,11 @@ def test_sigterm_closes_a_complete_bag_and_reports_it(session):
     assert n_images <= counts['/camera/image_raw'] <= n_images + 4
     # one result per call: the observing mode did not classify the node's own calls again
     assert len(SAMPLES) <= counts['/lightstage/result'] <= calls
-    # request received + response sent per call, for both services
+    # request received + response sent per call, for both services (an anytime call asks
+    # the driver once per pattern column it takes: 4 images each)
     assert 2 * len(SAMPLES) <= counts['/lightstage/classify/_service_event'] <= 2 * calls
-    assert 2 * len(SAMPLES) <= counts['/lightstage/apply_patterns/_service_event'] <= 2 * calls
+    columns = sum(a.images_used // 4 for a in session['answers'])
+    assert 2 * columns <= counts['/lightstage/apply_patterns/_service_event'] <= 2 * columns + 4
     # every trigger and image of the counted calls is in the bag
     reader = BagReader(bag)
     triggers = {t.sequence: _stamp(t) for t in (deserialize_message(m.data, IlluminationState)
@@ -131,8 +136,10 @@ def test_the_bag_holds_the_service_calls_and_the_results(session):
     np.testing.assert_allclose([list(p.scores) for p in responses[-4:]], [list(a.scores) for a in answers])
 
 
-def test_replay_into_an_observing_classifier_reproduces_the_labels(session, stage_artifact_path,
-                                                                   tmp_path):
+def test_replay_into_an_observing_classifier_reproduces_the_labels(
+        session, stage_calibrated_artifact_path, tmp_path):
+    """The same labels, decisions and image counts: the observer decides each anytime
+    sequence column by column with the artifact's rule, as the live calls did."""
     from lightstage_interfaces.msg import IlluminationState
     from sensor_msgs.msg import Image
     bag = session['bag']
@@ -156,11 +163,15 @@ def test_replay_into_an_observing_classifier_reproduces_the_labels(session, stag
     offset_s = max(0.0, (start_ns - reader.info().start_ns) / 1e9)
     assert not [t for t in log_times[False] if t > start_ns]  # the warm-up is over by then
     n_played = 2 * sum(r.images_used for r in recorded)
-    replayed, p = replay_into_observing_classifier(bag, stage_artifact_path, tmp_path, len(recorded),
+    replayed, p = replay_into_observing_classifier(bag, stage_calibrated_artifact_path, tmp_path,
+                                                   len(recorded),
                                                    '--start-offset-s', f'{offset_s:.6f}', '--rate', '4')
     assert f'played {n_played} messages on 2 topics' in p.stdout, p.stdout
     for r, again in assert_replayed_results_match(recorded, replayed, rtol=1e-5, atol=1e-6):
         assert again.header.stamp == r.header.stamp
+        assert again.decision == r.decision
+        assert r.calibrated and again.calibrated and len(r.probabilities) == 4
+        np.testing.assert_allclose(again.probabilities, r.probabilities, rtol=1e-5, atol=1e-6)
 
 
 def test_the_recording_exported_opens_in_rosbags_and_mcap_ros2(session, tmp_path):

@@ -99,7 +99,7 @@ def test_other_version_is_refused(artifact, tmp_path):
     with pytest.raises(ArtifactError, match=rf"version {FORMAT_VERSION + 1}.*reads version {FORMAT_VERSION}.*Retrain"):
         TrainedArtifact.load(tmp_path / "b.npz")
     rewrite_artifact(tmp_path / "a.npz", tmp_path / "c.npz", change_header=lambda h: h.update(format_version=0))
-    with pytest.raises(ArtifactError, match=r"version 0; .*reads version 6 and the older 1, 2, 3, 4, 5\."):
+    with pytest.raises(ArtifactError, match=r"version 0; .*reads version 7 and the older 1, 2, 3, 4, 5, 6\."):
         TrainedArtifact.load(tmp_path / "c.npz")
 
 

@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from mux_classifier.artifact import FORMAT_VERSION, ArtifactError, TrainedArtifact
-from mux_classifier.artifact_format import LEARNED_PREFIX
+from mux_classifier.artifact_format import GROUPS_SINCE, LEARNED_PREFIX
 from mux_classifier.estimator import LearnedModelClassifier
 from mux_classifier.learned_model import LearnedModel
 
@@ -236,7 +236,7 @@ def test_a_head_gated_by_type_round_trips_and_its_scores_pick_its_class(toy_stac
     TrainedArtifact.from_learned(gated, noise=SIGMA3).save(tmp_path / "g.npz")
     # format 6: a release that reads 5 refuses it by its version
     with np.load(tmp_path / "g.npz", allow_pickle=False) as npz:
-        assert json.loads(npz["header"].tobytes().decode())["format_version"] == 6 == FORMAT_VERSION
+        assert json.loads(npz["header"].tobytes().decode())["format_version"] == 6 == GROUPS_SINCE
     loaded = TrainedArtifact.load(tmp_path / "g.npz")
     np.testing.assert_array_equal(loaded.learned.class_groups, groups)
     assert "gated by object type" in loaded.describe()

@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from mux_classifier.inference import ImageMatcher, classify_frames
+from mux_classifier.inference import ImageMatcher, classify_frames, mono16_to_gray
 from mux_classifier.observe import (SequenceAssembler, SequenceObserver, TriggerState,
                                     artifact_image_count, observed_sequence, pattern_matches)
 
@@ -213,3 +213,61 @@ def test_a_graded_boards_rounded_drive_matches_its_request_and_not_the_next_step
     one_step_up = applied.copy()
     one_step_up[5] += np.float32(1 / 255)
     assert not pattern_matches(one_step_up, applied)
+
+
+def _with_confidence(artifact, stop, temperature):
+    from dataclasses import replace
+
+    from mux_classifier.confidence import Confidence
+    return replace(artifact, confidence=Confidence(
+        temperatures={k: temperature for k in artifact.n_images}, stop_probability=stop))
+
+
+@pytest.mark.parametrize('temperature, used', [(1e-3, 4), (1e3, 8)], ids=['sure', 'unsure'])
+def test_an_anytime_sequence_lit_column_by_column_is_decided_as_the_service_decided_it(
+        stage_artifact, frames, temperature, used):
+    """The anytime calls light one column per request; the observer joins a request that
+    continues its driver's last one and stops where the artifact's rule stops."""
+    artifact = _with_confidence(stage_artifact, 0.9, temperature)
+    published, errors = [], []
+    observer, matcher = _observer(artifact, published, errors)
+    try:
+        first = _states(artifact.led_patterns[:, :4], request_id=5)
+        for s, f in zip(first, frames[:4]):
+            matcher.add(s.stamp_ns, f)
+            observer.on_trigger(s)
+        if used == 8:  # the live call went on: its next request lights columns 4..7
+            second = _states(artifact.led_patterns[:, 4:8], request_id=6,
+                             stamp0=STAMP0 + 10**9, seq0=104)
+            for s, f in zip(second, frames[4:]):
+                matcher.add(s.stamp_ns, f)
+                observer.on_trigger(s)
+        assert observer.join_idle(10.0)
+    finally:
+        observer.close()
+    assert not errors
+    (r,) = published
+    expected = artifact.decide(np.stack([mono16_to_gray(f) for f in frames[:used]]),
+                               final=used == 8)
+    assert r.images_used == used and r.images_budget == 8 and r.calibrated
+    assert r.label == expected.label and r.decision == expected.decision
+    assert r.sequences == list(range(100, 100 + used)) and r.first_stamp_ns == STAMP0
+
+
+def test_an_anytime_sequence_its_caller_cut_short_is_decided_on_the_images_it_has(
+        stage_artifact, frames):
+    """A call with max_images 4 stops after one column whatever the rule says; no next
+    request comes, and the observer decides it on its 4 images (unsure) after waiting."""
+    artifact = _with_confidence(stage_artifact, 0.9, 1e3)
+    published, errors = [], []
+    observer, matcher = _observer(artifact, published, errors)
+    try:
+        for s, f in zip(_states(artifact.led_patterns[:, :4]), frames[:4]):
+            matcher.add(s.stamp_ns, f)
+            observer.on_trigger(s)
+        assert observer.join_idle(10.0)
+    finally:
+        observer.close()
+    assert not errors
+    (r,) = published
+    assert (r.images_used, r.images_budget, r.decision) == (4, 4, 'unsure')

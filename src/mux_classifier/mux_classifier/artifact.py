@@ -23,6 +23,8 @@ from sklearn.utils.validation import check_is_fitted
 from .artifact_format import (FORMAT_NAME, FORMAT_VERSION, LEARNED_MODE, MAX_IMAGES,
                               MAX_LEARNED_WIDTH, MODES, READABLE_VERSIONS, UNRECORDED_DIMMER,
                               ArtifactError, read_artifact, write_artifact)
+from .confidence import (ACCEPTED, UNSURE, Confidence, ConfidenceError, Decision,
+                         check_target_probability)
 from .estimator import LearnedModelClassifier, MuxClassifier
 from .features import DEFAULT_EXTRACTOR, check_stacks, searchable_extractor
 from .hog import HogConfig
@@ -34,7 +36,7 @@ LEARNED_FEATURES = "intensity_stats"
 __all__ = [
     "LinearStage", "Prediction", "TrainedArtifact", "ArtifactError", "DimmerMismatch",
     "FORMAT_NAME", "FORMAT_VERSION", "READABLE_VERSIONS", "UNRECORDED_DIMMER", "noise_to_dict",
-    "check_dimmer", "LEARNED_FEATURES",
+    "check_dimmer", "LEARNED_FEATURES", "Decision",
 ]
 
 class DimmerMismatch(ArtifactError):
@@ -122,6 +124,9 @@ class TrainedArtifact:
     ``learned``: a learned-illumination model (`LearnedModel`, or its `to_arrays()` dict),
     with ``mode == "learned"``, no linear ``stages``, its patterns as ``led_patterns`` (None:
     taken from it) and its own classifier for its k images.
+    ``confidence``: the calibration of the classifiers' scores and the anytime stop rule
+    (`confidence.Confidence`, or its dict), fitted at training time; None (every file before
+    format 7): uncalibrated, scores only, every image taken.
     Prediction is the estimator's: `classifier` (a fitted `MuxClassifier` per image count, or
     the learned model's `LearnedModelClassifier`).
     """
@@ -138,10 +143,16 @@ class TrainedArtifact:
     dimmer_recorded: bool = True
     features: str = DEFAULT_EXTRACTOR
     learned: LearnedModel | None = None
+    confidence: Confidence | None = None
 
     def __post_init__(self):
         if self.learned is not None and not isinstance(self.learned, LearnedModel):
             self.learned = _learned_model(self.learned)
+        if self.confidence is not None and not isinstance(self.confidence, Confidence):
+            try:
+                self.confidence = Confidence.from_dict(self.confidence)
+            except ConfidenceError as exc:
+                raise ArtifactError(str(exc)) from None
         # the LED patterns the site patterns give (the one expansion of a construction)
         from_sites = None
         if self.site_patterns is not None:
@@ -233,6 +244,7 @@ class TrainedArtifact:
                                 "with one")
         if self.learned is not None:
             self._validate_learned()
+            self._validate_confidence()
             return
         if not self.stages:
             raise ArtifactError("the artifact holds no classifier")
@@ -264,6 +276,16 @@ class TrainedArtifact:
                                                   hog_config=self.hog_config,
                                                   features=self.features)
             for s in self.stages}
+        self._validate_confidence()
+
+    def _validate_confidence(self):
+        """A calibration covers only image counts the artifact has a classifier for."""
+        if self.confidence is None:
+            return
+        extra = sorted(set(self.confidence.counts) - set(self.n_images))
+        if extra:
+            raise ArtifactError(f"the calibration names image counts {extra} that have no "
+                                f"classifier (it has {self.n_images})")
 
     def _validate_learned(self):
         """A learned model's arrays are finite and sized as the artifact says; it is the
@@ -314,8 +336,11 @@ class TrainedArtifact:
             mode = f"learned {levels} patterns ({len(self.learned.layers)}-layer head{gated})"
         features = self.features + (" + cross-image relief"
                                     if self.learned is not None and self.learned.ratio_offset else "")
+        calibrated = ("calibrated, anytime stop at "
+                      f"{100 * self.confidence.stop_probability:.0f} %"
+                      if self.confidence is not None else "uncalibrated")
         return (f"{len(self.class_names)} classes, {mode}, {features} "
-                f"features, classifiers for {self.n_images} images, noise "
+                f"features, classifiers for {self.n_images} images ({calibrated}), noise "
                 f"{self.noise.get('name')}, {dimmer}")
 
     @property
@@ -380,6 +405,56 @@ class TrainedArtifact:
         scores = self.decision_function(arr[None])[0]
         i = int(np.argmax(scores))
         return Prediction(self.class_names[i], i, scores, arr.shape[0])
+
+    # --- calibrated answers (`confidence`)
+    @property
+    def calibrated(self) -> bool:
+        """True when the artifact carries calibrated probabilities (format 7 on)."""
+        return self.confidence is not None
+
+    def anytime_steps(self, max_images: int = 0) -> list[int]:
+        """The image counts at which a calibrated answer may stop, increasing; the last is
+        the budget (the largest count <= ``max_images``, 0 = all). Uncalibrated: [budget]."""
+        usable = [k for k in self.n_images if max_images <= 0 or k <= max_images]
+        if not usable:
+            raise self._no_classifier(max_images)
+        budget = usable[-1]
+        if self.confidence is None:
+            return [budget]
+        steps = [k for k in usable if k in self.confidence.temperatures]
+        return steps if steps and steps[-1] == budget else [*steps, budget]
+
+    def decide(self, images, target_probability: float | None = None,
+               final: bool = False) -> Decision:
+        """The answer from one sample's images (k, H, W) under the first k patterns.
+
+        Calibrated: probabilities of the classifier for k images; the decision is accepted
+        when the top class reaches the target (``target_probability``; None or >= 1: the
+        trained one), else unsure; ``stop`` when it is accepted (unless
+        ``target_probability`` >= 1: every image) or when ``final`` (the budget is spent).
+        Uncalibrated: no probabilities; it stops only when ``final`` and accepts the label.
+        """
+        prediction = self.predict_stack(images)
+        k = prediction.n_images
+        if self.confidence is None or k not in self.confidence.temperatures:
+            return Decision(prediction.label, prediction.index, prediction.scores,
+                            np.empty(0, dtype=np.float64), ACCEPTED, math.nan, bool(final), k)
+        fixed = target_probability is not None and float(target_probability) >= 1.0
+        target = (self.confidence.stop_probability if target_probability is None or fixed
+                  else float(target_probability))
+        probabilities = self.confidence.probabilities(prediction.scores, k)[0]
+        reached = bool(probabilities[prediction.index] >= target)
+        return Decision(prediction.label, prediction.index, prediction.scores, probabilities,
+                        ACCEPTED if reached else UNSURE, math.nan,
+                        (reached and not fixed) or bool(final), k)
+
+    @staticmethod
+    def check_target_probability(value) -> float | None:
+        """A requested target: 0 -> None (the trained rule); ArtifactError outside 0 .. 1."""
+        try:
+            return check_target_probability(value)
+        except ConfidenceError as exc:
+            raise ArtifactError(str(exc)) from None
 
 
     # --- file (`artifact_format`)

@@ -30,6 +30,9 @@ __all__ = ["ArtifactError", "FORMAT_NAME", "FORMAT_VERSION", "READABLE_VERSIONS"
            "read_artifact", "write_artifact", "written_version"]
 
 FORMAT_NAME = "lightstage.mux_classifier"
+# 7: the header carries "confidence" (calibrated probabilities and the anytime stop rule,
+# `confidence.Confidence`); a release that reads 6 would ignore it and answer without
+# probabilities, so such a file says 7. A file without one is still written as 4, 5 or 6.
 # 6: a learned model whose head is gated by object type (its "learned_class_groups"): a
 # release that reads 5 would take the types' scores for classes' and refuse the file as
 # mis-sized, so such a file says 6.
@@ -42,14 +45,15 @@ FORMAT_NAME = "lightstage.mux_classifier"
 # 2: the header records the dimmer the training rendered with. 1: it did not; every
 # training that wrote version 1 rendered at the authors' dimmer, `UNRECORDED_DIMMER` (should
 # DEFAULT_DIMMER ever change, this must keep its old value).
-FORMAT_VERSION = 6   # the newest this release reads and writes
-READABLE_VERSIONS = (1, 2, 3, 4, 5, 6)
+FORMAT_VERSION = 7   # the newest this release reads and writes
+READABLE_VERSIONS = (1, 2, 3, 4, 5, 6, 7)
 UNRECORDED_DIMMER = DEFAULT_DIMMER
 LEARNED_MODE = "learned"
 MODES = ("per_colour", "joint", "naive", LEARNED_MODE)
 LEARNED_SINCE = 4  # the first format version with learned models
 RATIO_SINCE = 5    # ... and with learned models' cross-image statistics
 GROUPS_SINCE = 6   # ... and with learned models' heads gated by object type
+CONFIDENCE_SINCE = 7  # ... and with calibrated probabilities and the anytime rule
 LEARNED_PREFIX = "learned_"
 MAX_IMAGES = 4096  # images of one classification: far beyond any search (16 in the paper)
 MAX_LEARNED_WIDTH = 4096  # hidden units of a learned model's layer (the trainer's: 0 .. 64)
@@ -61,10 +65,13 @@ class ArtifactError(ValueError):
 
 
 def written_version(artifact) -> int:
-    """The format version a file of `artifact` says: the lowest that holds it (`GROUPS_SINCE`
+    """The format version a file of `artifact` says: the lowest that holds it
+    (`CONFIDENCE_SINCE` for a calibrated artifact, `GROUPS_SINCE`
     for a learned model gated by type, `RATIO_SINCE` for one with cross-image statistics,
     else `LEARNED_SINCE`), so that an older release refuses only what it would misread."""
     learned = artifact.learned
+    if getattr(artifact, "confidence", None) is not None:
+        return CONFIDENCE_SINCE
     if learned is not None and learned.class_groups is not None:
         return GROUPS_SINCE
     return RATIO_SINCE if learned is not None and learned.ratio_offset else LEARNED_SINCE
@@ -83,6 +90,8 @@ def _header(artifact) -> dict:
         "provenance": artifact.provenance,
         "dimmer": artifact.dimmer,
         "features": artifact.features,
+        **({"confidence": artifact.confidence.to_dict()}
+           if getattr(artifact, "confidence", None) is not None else {}),
     }
 
 
@@ -125,7 +134,8 @@ def read_artifact(path, build):
 
     ``fields`` are TrainedArtifact's: led_patterns, class_names, stages (tuples n_images,
     coef, intercept), noise, hog_config, mode, site_patterns, provenance, dimmer,
-    dimmer_recorded, features, learned (None, or a learned model's named arrays). Whatever else ``path`` holds (nothing, a directory, another
+    dimmer_recorded, features, learned (None, or a learned model's named arrays), confidence
+    (None, or the calibration's dict). Whatever else ``path`` holds (nothing, a directory, another
     kind of file, an archive whose members are not .npy arrays, a malformed header or
     arrays), and any ArtifactError of ``build``, raises ArtifactError saying what is wrong.
     """
@@ -206,6 +216,9 @@ def _fields(header: dict, arrays: dict) -> dict:
         dimmer_recorded=recorded,
         features=features,
         learned=learned,
+        confidence=(field_of("confidence", dict, "an object (the calibration)")
+                    if header["format_version"] >= CONFIDENCE_SINCE and "confidence" in header
+                    else None),
     )
 
 

@@ -259,6 +259,7 @@ class ClassifierNode(Node):
         deadline = time.monotonic() + remaining_s
         with self._busy:
             try:
+                target = artifact.check_target_probability(float(request.target_probability))
                 # driver and camera there (the clearest errors first), dimmer checked, then light
                 self.stage.wait_ready(remaining_s)
                 left_s = deadline - time.monotonic()
@@ -270,20 +271,18 @@ class ClassifierNode(Node):
                                          'give a longer timeout_s')
                 result = classify_on_stage(artifact, self._apply, self.stage.matcher,
                                            max_images=request.max_images, timeout_s=left_s,
-                                           bit_depth=self.p('camera_bit_depth'))
+                                           bit_depth=self.p('camera_bit_depth'),
+                                           target_probability=target)
             except (StageError, ArtifactError) as exc:  # InferenceError, MissingImagesError, DimmerMismatch
                 self.get_logger().warning(f'classify failed: {exc}')
                 return self._failed(response, str(exc))
         response.success = True
-        response.message = f'{result.label} from {result.images_used} images'
-        response.label = result.label
-        response.class_names = list(result.class_names)
-        response.scores = [float(s) for s in result.scores]
-        response.images_used = result.images_used
-        response.acquisition_ms = float(result.acquisition_ms)
-        response.compute_ms = float(result.compute_ms)
+        response.message = f'{result.label} ({result.decision}) from {result.images_used} of ' \
+                           f'{result.images_budget} images'
+        _fill(response, result)
         self._publish_result(result)
-        self.get_logger().info(f'classified: {result.label} ({result.images_used} images, '
+        self.get_logger().info(f'classified: {result.label}, {result.decision} '
+                               f'({result.images_used} of {result.images_budget} images, '
                                f'acquisition {result.acquisition_ms:.1f} ms, compute '
                                f'{result.compute_ms:.1f} ms)')
         return response
@@ -304,15 +303,25 @@ class ClassifierNode(Node):
     def _publish_result(self, result) -> None:
         msg = ClassificationResult()
         msg.header.stamp = ns_to_stamp(result.first_stamp_ns)
-        msg.label = result.label
-        msg.class_names = list(result.class_names)
-        msg.scores = [float(s) for s in result.scores]
-        msg.images_used = result.images_used
+        _fill(msg, result)
         msg.sequences = [int(s) for s in result.sequences]
-        msg.acquisition_ms = float(result.acquisition_ms)
-        msg.compute_ms = float(result.compute_ms)
         self._result_readers.wait()
         self._result_pub.publish(msg)
+
+
+def _fill(msg, result) -> None:
+    """The answer's fields a Classify response and a ClassificationResult share."""
+    msg.label = result.label
+    msg.class_names = list(result.class_names)
+    msg.scores = [float(s) for s in result.scores]
+    msg.images_used = int(result.images_used)
+    msg.acquisition_ms = float(result.acquisition_ms)
+    msg.compute_ms = float(result.compute_ms)
+    msg.probabilities = [float(p) for p in result.probabilities]
+    msg.decision = str(result.decision)
+    msg.novelty = float(result.novelty)
+    msg.images_budget = int(result.images_budget or result.images_used)
+    msg.calibrated = bool(result.calibrated)
 
 
 def main(argv: list[str] | None = None) -> int:

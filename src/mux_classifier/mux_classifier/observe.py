@@ -9,6 +9,15 @@ and classifies them exactly as `inference.classify_on_stage` would have. `Sequen
 runs that on a worker thread, skipping the sequences its own node lit through the Classify
 service (those are classified there already).
 
+A calibrated artifact's anytime calls light one pattern column per request: a request that
+lights the artifact's patterns j..k right after one of the same driver that ended at image j
+continues that sequence. The observer decides after each request with the artifact's own
+rule (`TrainedArtifact.decide`, the trained target) and publishes once it stops, so a replay
+gives the labels and image counts the live calls gave (calls that asked for another
+``target_probability`` are decided with the trained one). A sequence the rule would go on
+with but whose driver lights something else next, or nothing for `CONTINUATION_S`, was cut
+short by its caller (``max_images``): it is decided on the images it has.
+
 One lost image fails its own sequence only, and at once: a sequence's images are claimed in
 the matcher as soon as its trigger states are complete (however far behind the worker is,
 they are not evicted), and the wait for a missing image ends as soon as a later image has
@@ -38,6 +47,10 @@ from .inference import Classification, ImageMatcher, classify_collected
 # boards report 0/1 for what was lit. Half a step plus float32 slack matches a graded drive to
 # its request; distinct patterns differ by whole steps.
 DEFAULT_TOLERANCE = 0.5 / 255.0 + 1e-6
+# How long an anytime sequence the rule would go on with waits for its next request before it
+# is decided on the images it has: a live call asks for the next column within milliseconds
+# of its decision; a replay at a tenth of the speed still well within this.
+CONTINUATION_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -62,6 +75,7 @@ class ObservedSequence:
     n_images: int
     first_arrival_ns: int
     source: str = ''
+    first_image: int = 0  # > 0: it continues an anytime sequence that ended at this image
 
 
 def pattern_matches(observed: np.ndarray, expected: np.ndarray,
@@ -82,14 +96,15 @@ def pattern_matches(observed: np.ndarray, expected: np.ndarray,
 
 
 def artifact_image_count(patterns: Sequence[np.ndarray], artifact: TrainedArtifact,
-                         tolerance: float = DEFAULT_TOLERANCE) -> int:
-    """k if ``patterns`` are the artifact's first k LED patterns and it has a classifier for
-    k images; else 0."""
-    k = len(patterns)
+                         tolerance: float = DEFAULT_TOLERANCE, first_image: int = 0) -> int:
+    """k if ``patterns`` are the artifact's LED patterns ``first_image`` .. k-1 and it has a
+    classifier for k images; else 0."""
+    k = int(first_image) + len(patterns)
     if k not in artifact.n_images:
         return 0
     expected = artifact.led_patterns
-    if all(pattern_matches(patterns[i], expected[:, i], tolerance) for i in range(k)):
+    if all(pattern_matches(p, expected[:, first_image + i], tolerance)
+           for i, p in enumerate(patterns)):
         return k
     return 0
 
@@ -132,15 +147,23 @@ class SequenceAssembler:
 
 
 def observed_sequence(states: Sequence[TriggerState], artifact: TrainedArtifact,
-                      tolerance: float = DEFAULT_TOLERANCE) -> ObservedSequence | None:
+                      tolerance: float = DEFAULT_TOLERANCE,
+                      continues_at: int = 0) -> ObservedSequence | None:
     """The sequence to classify if ``states`` (a complete request) lit the artifact's first
-    k patterns; None for any other request (other patterns, other count)."""
-    k = artifact_image_count([s.intensities for s in states], artifact, tolerance)
+    k patterns, or (``continues_at`` j > 0: the images its driver's last artifact request
+    ended at) its patterns j .. k-1; None for any other request (other patterns, other
+    count)."""
+    patterns = [s.intensities for s in states]
+    first = 0
+    k = artifact_image_count(patterns, artifact, tolerance)
+    if not k and continues_at > 0 and artifact.calibrated:
+        k = artifact_image_count(patterns, artifact, tolerance, first_image=continues_at)
+        first = continues_at if k else 0
     if not k:
         return None
     return ObservedSequence(states[0].request_id, [s.stamp_ns for s in states],
                             [s.sequence for s in states], k,
-                            min(s.arrival_ns for s in states), states[0].source)
+                            min(s.arrival_ns for s in states), states[0].source, first)
 
 
 def classify_observed(artifact: TrainedArtifact, seq: ObservedSequence, matcher: ImageMatcher,
@@ -156,6 +179,22 @@ def classify_observed(artifact: TrainedArtifact, seq: ObservedSequence, matcher:
                                               since_ns=seq.first_arrival_ns)
     return classify_collected(artifact, frames, bit_depth, list(seq.sequences), seq.stamps_ns[0],
                               max(0.0, (last_arrival_ns - seq.first_arrival_ns) / 1e6))
+
+
+@dataclass
+class _OpenSequence:
+    """An anytime sequence the rule has not stopped yet: its images so far."""
+    seq: ObservedSequence
+    artifact: TrainedArtifact
+    frames: list
+    sequences: list
+    last_arrival_ns: int = 0
+    waiting_since: float = 0.0
+
+
+def _collect(seq: ObservedSequence, matcher: ImageMatcher, timeout_s: float):
+    return matcher.collect(seq.stamps_ns, timeout_s, seq.sequences,
+                           since_ns=seq.first_arrival_ns)
 
 
 @dataclass
@@ -208,6 +247,8 @@ class SequenceObserver:
         self.max_pending = int(max_pending)
         self._queue: queue.Queue = queue.Queue()
         self._assemble_lock = threading.Lock()
+        self._ended_at: dict[str, int] = {}     # per driver: image its last artifact request ended at
+        self._open: dict[str, _OpenSequence] = {}  # worker only: anytime sequences not stopped
         self._thread = threading.Thread(target=self._run, name='sequence-observer', daemon=True)
         self._thread.start()
 
@@ -233,10 +274,13 @@ class SequenceObserver:
             artifact = self._artifact()
             if artifact is None:
                 return  # no classifier loaded: nothing to classify
-            seq = observed_sequence(states, artifact, self.tolerance)
+            seq = observed_sequence(states, artifact, self.tolerance,
+                                    self._ended_at.get(states[0].source, 0))
             if seq is None:
+                self._ended_at.pop(states[0].source, None)
                 self.stats.not_artifact += 1
                 return
+            self._ended_at[seq.source] = seq.n_images
             if self._queue.unfinished_tasks >= self.max_pending:
                 self.stats.behind += 1
                 self._error(f'observed request {seq.request_id} ({seq.n_images} images) not '
@@ -251,17 +295,23 @@ class SequenceObserver:
         self._thread.join(timeout_s)
 
     def join_idle(self, timeout_s: float = 10.0) -> bool:
-        """Wait until every queued sequence is handled (tests)."""
+        """Wait until every queued sequence is handled and no anytime sequence waits for its
+        next request (tests)."""
         deadline = time.monotonic() + timeout_s
-        while self._queue.unfinished_tasks and time.monotonic() < deadline:
+        while (self._queue.unfinished_tasks or self._open) and time.monotonic() < deadline:
             time.sleep(0.005)
-        return not self._queue.unfinished_tasks
+        return not self._queue.unfinished_tasks and not self._open
 
     def _run(self) -> None:
         while True:
-            item = self._queue.get()
+            try:
+                item = self._queue.get(timeout=CONTINUATION_S / 4)
+            except queue.Empty:
+                self._close_waiting(CONTINUATION_S)
+                continue
             try:
                 if item is None:
+                    self._close_waiting(0.0)
                     return
                 self._handle(item)
             except Exception as exc:  # noqa: BLE001 - the worker must survive any one sequence
@@ -284,17 +334,82 @@ class SequenceObserver:
             own = self._is_own(seq)
         if own:
             self.stats.own_skipped += 1
+            self._open.pop(seq.source, None)
             return
         try:
-            result = classify_observed(artifact, seq, self.matcher, float(self._timeout_s()),
-                                       int(self._bit_depth()))
+            if artifact.calibrated:
+                result = self._decide(seq, artifact)
+                if result is None:
+                    return  # the rule goes on: wait for the sequence's next request
+            else:
+                result = classify_observed(artifact, seq, self.matcher,
+                                           float(self._timeout_s()), int(self._bit_depth()))
         except StageError as exc:  # InferenceError or MissingImagesError
+            self._open.pop(seq.source, None)
             self.stats.failed += 1
             self._error(f'observed request {seq.request_id} ({seq.n_images} images) not '
                         f'classified: {exc}')
             return
         self.stats.classified += 1
         self._publish(result)
+
+    def _decide(self, seq: ObservedSequence, artifact: TrainedArtifact):
+        """One step of an anytime sequence: its images so far decided with the artifact's
+        rule; the Classification once it stops, else None (the sequence stays open)."""
+        from .inference import InferenceError
+        opened = self._open.pop(seq.source, None)
+        if seq.first_image:
+            if opened is None or len(opened.frames) != seq.first_image:
+                raise InferenceError(f'it continues an anytime sequence at image '
+                                     f'{seq.first_image} whose start was not observed')
+        else:
+            if opened is not None:  # its caller stopped it (max_images): decide it as it is
+                self._publish_closed(opened)
+            opened = _OpenSequence(seq, artifact, [], [])
+        frames, opened.last_arrival_ns = _collect(seq, self.matcher, float(self._timeout_s()))
+        opened.frames += list(frames)
+        opened.sequences += list(seq.sequences)
+        result = self._decided(opened, final=seq.n_images >= artifact.anytime_steps()[-1])
+        if result is None:
+            opened.waiting_since = time.monotonic()
+            self._open[seq.source] = opened
+        return result
+
+    def _decided(self, opened: _OpenSequence, final: bool):
+        """The Classification of an open sequence if the rule stops it (or ``final``)."""
+        from .inference import _classification, decide_frames
+        artifact = opened.artifact
+        start = time.perf_counter()
+        decision, stack = decide_frames(artifact, opened.frames, int(self._bit_depth()),
+                                        final=final)
+        compute_ms = (time.perf_counter() - start) * 1e3
+        if not decision.stop:
+            return None
+        first = opened.seq
+        budget = artifact.anytime_steps()[-1] if not final or len(opened.frames) >= \
+            artifact.anytime_steps()[-1] else len(opened.frames)
+        return _classification(artifact, decision, stack, opened.sequences, first.stamps_ns[0],
+                               max(0.0, (opened.last_arrival_ns - first.first_arrival_ns) / 1e6),
+                               compute_ms, budget)
+
+    def _publish_closed(self, opened: _OpenSequence) -> None:
+        try:
+            result = self._decided(opened, final=True)
+        except StageError as exc:
+            self.stats.failed += 1
+            self._error(f'observed request {opened.seq.request_id} not classified: {exc}')
+            return
+        self.stats.classified += 1
+        self._publish(result)
+
+    def _close_waiting(self, after_s: float) -> None:
+        """Decide the anytime sequences that waited ``after_s`` for a next request that did
+        not come (their caller stopped them)."""
+        now = time.monotonic()
+        for source, opened in list(self._open.items()):
+            if now - opened.waiting_since >= after_s:
+                del self._open[source]
+                self._publish_closed(opened)
 
     def _error(self, message: str) -> None:
         self.stats.last_error = message

@@ -192,14 +192,16 @@ def train_from_capture(capture_dir, out_path, *, image_size: int = 120, dask_sch
         return train_modelset(modelset, out_path, capture=capture_dir, **options)
 
 
-def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **options) -> dict:
+def train_modelset(modelset, out_path, *, capture=None, force: bool = False,
+                   calibrate: bool = True, **options) -> dict:
     """Fit `build_model(**options)` on a ModelSet and save its artifact to `out_path`.
 
     Returns a JSON-ready summary: method, mode, noise, artifact path, class names, patterns,
     images per pattern, split accuracy by column count, best column count, seconds. The
     artifact path is checked first; an artifact that cannot be written at the end after all
     is kept in a rescue folder (ArtifactNotWritten, an OSError, says where). `force`: replace
-    an existing file that is not an artifact.
+    an existing file that is not an artifact. `calibrate`: fit calibrated probabilities and the
+    anytime stop rule on held-out inner answers (`calibration`; pattern models).
     """
     out = check_artifact_path(out_path, force)
     if options.get('method') == 'learned':
@@ -212,6 +214,15 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **o
     if capture is not None:
         provenance['capture'] = str(Path(capture).resolve())
     artifact = model.to_artifact(provenance=provenance)
+    confidence = None
+    if calibrate:
+        import dataclasses
+
+        from .calibration import calibrate_pattern_model
+        t1 = time.perf_counter()
+        confidence = calibrate_pattern_model(model)
+        artifact = dataclasses.replace(artifact, confidence=confidence)
+        seconds += time.perf_counter() - t1
     summary = {
         'method': options.get('method', 'greedy'), 'mode': model.mode,
         'noise': options.get('noise', 'sigma3'), 'features': model.rendering.features,
@@ -223,6 +234,7 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False, **o
         'best_n_images': int(model.best_n_patterns_),
         'n_exposures': int(model.best_n_patterns_ * model.images_per_pattern),
         'inner_estimate': model.inner_estimate_,
+        'confidence': None if confidence is None else confidence.to_dict(),
         'train_seconds': seconds,
     }
     if hasattr(model, 'improved_'):

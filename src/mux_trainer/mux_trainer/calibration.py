@@ -1,0 +1,130 @@
+"""Calibrated probabilities and the anytime stop rule, fitted on held-out inner answers.
+
+After a pattern model (greedy, SNR-optimal, naive) has chosen its patterns, its final
+classifier is refitted on the training side of some of its inner splits (held out by
+physical sample when the capture has two or more per class, else by pose: the splits the
+selection used, `splits.inner_splits`) and scores the held-out side, for every column count.
+Those held-out scores fit, per image count, the temperature of `confidence.Confidence`
+(softmax of scores / T, minimising the log loss), and choose the anytime rule's target: the
+lowest mean number of images whose accuracy stays within ``tolerance`` of the full count's.
+
+Why temperature scaling: the label never changes (it keeps the ranking of the scores), one
+parameter per image count fits on a few hundred held-out answers, and multi-class margins
+need no one-vs-rest recombination (scikit-learn's sigmoid / isotonic calibration calibrate
+each class apart and renormalise).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from joblib import Parallel, delayed
+from mux_classifier.confidence import (Confidence, anytime_outcomes, expected_calibration_error,
+                                       softmax)
+from scipy.optimize import minimize_scalar
+
+__all__ = ["DEFAULT_SPLITS", "DEFAULT_TOLERANCE", "calibrate_pattern_model", "choose_stop",
+           "fit_temperature", "held_out_scores"]
+
+DEFAULT_SPLITS = 8        # inner splits refitted per column count
+DEFAULT_TOLERANCE = 0.01  # accuracy the anytime rule may give up against the full count
+
+
+def fit_temperature(scores: np.ndarray, labels: np.ndarray) -> float:
+    """The temperature T minimising the log loss of softmax(scores / T) on (scores (n, C),
+    labels (n,) class indices), searched over log T in [-3, 3] (decades)."""
+    scores = np.asarray(scores, dtype=np.float64)
+    labels = np.asarray(labels, dtype=int)
+
+    def loss(log_t: float) -> float:
+        p = softmax(scores, 10.0 ** log_t)[np.arange(labels.size), labels]
+        return float(-np.log(np.clip(p, 1e-300, None)).mean())
+
+    best = minimize_scalar(loss, bounds=(-3.0, 3.0), method="bounded",
+                           options={"xatol": 1e-4})
+    return float(10.0 ** best.x)
+
+
+def _fit_and_score(make_classifier, X, y, test):
+    clf = make_classifier().fit_features(X[~test], y[~test])
+    return clf.decision_function_features(X[test])
+
+
+def held_out_scores(model, n_splits: int = DEFAULT_SPLITS) -> tuple[dict, np.ndarray, dict]:
+    """Scores of the held-out side of the model's first ``n_splits`` inner splits.
+
+    Returns ({image count: scores (m, n_classes)}, class indices (m,), the splits'
+    description). Row j is the same held-out answer at every count (the same splits), so the
+    anytime rule can be replayed on them.
+    """
+    ev = model.evaluator_
+    data = ev.data
+    labels = np.asarray(data.labels, dtype=int)
+    masks = [np.asarray(m, dtype=bool) for m in ev.test_masks[:max(1, int(n_splits))]]
+    masks = [m for m in masks if m.any() and len(np.unique(labels[~m])) == len(np.unique(labels))]
+    if not masks:
+        raise ValueError("no inner split keeps every class on its training side: cannot "
+                         "calibrate")
+    columns = model.patterns_
+    per_column = int(model.images_per_pattern)
+    counts = list(range(1, columns.shape[1] + 1))
+    features = {c: ev.features(columns[:, :c]) for c in counts}
+    jobs = [(c, i) for c in counts for i in range(len(masks))]
+    parts = Parallel(n_jobs=model.execution.n_jobs)(
+        delayed(_fit_and_score)(lambda: model._make_classifier(data), features[c], labels,
+                                masks[i]) for c, i in jobs)
+    by_count = {c: np.vstack([parts[jobs.index((c, i))] for i in range(len(masks))])
+                for c in counts}
+    y = np.concatenate([labels[m] for m in masks])
+    description = {**ev.inner_, 'calibration_splits': len(masks)}
+    return {c * per_column: s for c, s in by_count.items()}, y, description
+
+
+# The targets the anytime rule chooses from: a short grid keeps the choice stable on a few
+# hundred held-out answers and the target readable ("stops at 95 %").
+STOP_TARGETS = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999)
+
+
+def choose_stop(probabilities_by_step: list[np.ndarray], steps: list[int], labels: np.ndarray,
+                tolerance: float = DEFAULT_TOLERANCE) -> tuple[float, dict]:
+    """The anytime target: of `STOP_TARGETS`, the one with the fewest mean images whose
+    accuracy on these held-out answers stays within ``tolerance`` of the full count's (ties:
+    the higher target; none within: the highest, which stops early only when nearly sure).
+    Returns (target, what it measured)."""
+    labels = np.asarray(labels, dtype=int)
+    steps = np.asarray(steps)
+    full_accuracy = float((probabilities_by_step[-1].argmax(axis=1) == labels).mean())
+    chosen = None
+    for t in sorted(STOP_TARGETS, reverse=True):
+        stop, predicted, _ = anytime_outcomes(probabilities_by_step, t)
+        accuracy = float((predicted == labels).mean())
+        mean_images = float(steps[stop].mean())
+        if chosen is None or (accuracy >= full_accuracy - tolerance - 1e-12
+                              and mean_images < chosen[1] - 1e-12):
+            chosen = (t, mean_images, accuracy)
+    target, mean_images, accuracy = chosen
+    return target, {'full_images': int(steps[-1]), 'full_accuracy': full_accuracy,
+                    'anytime_accuracy': accuracy, 'anytime_mean_images': mean_images}
+
+
+def calibrate_pattern_model(model, n_splits: int = DEFAULT_SPLITS,
+                            tolerance: float = DEFAULT_TOLERANCE) -> Confidence:
+    """The `Confidence` of a fitted pattern model (greedy, SNR-optimal, naive): a temperature
+    per image count and the anytime target, from its held-out inner answers."""
+    if not 0.0 <= tolerance < 1.0 or math.isnan(tolerance):
+        raise ValueError(f"tolerance must be in 0 .. 1, got {tolerance}")
+    scores, labels, description = held_out_scores(model, n_splits)
+    steps = sorted(scores)
+    temperatures = {k: fit_temperature(scores[k], labels) for k in steps}
+    probabilities = [softmax(scores[k], temperatures[k]) for k in steps]
+    target, measured = choose_stop(probabilities, steps, labels, tolerance)
+    stop, predicted, _ = anytime_outcomes(probabilities, target)
+    at_stop = np.stack([probabilities[s][j] for j, s in enumerate(stop)])
+    estimate = {**measured, 'answers': int(labels.size),
+                'calibration_error_full': expected_calibration_error(probabilities[-1], labels),
+                'calibration_error_anytime': expected_calibration_error(at_stop, labels),
+                'held_out': description.get('held_out'),
+                'calibration_splits': int(description['calibration_splits']),
+                'note': 'temperatures fitted and scored on the same held-out answers'}
+    return Confidence(temperatures=temperatures, stop_probability=target, tolerance=tolerance,
+                      estimate=estimate)
