@@ -33,6 +33,12 @@ NOT_RUN = {
                                    '(each verb has its own tests)',
     'lightstage up driver camera classifier acquisition --params src/lightstage_bringup/config/real_rig.yaml':
         'needs the real rig (a camera and an Arduino on the serial port)',
+    'source /opt/ros/jazzy/setup.bash && source .venv/setup.bash':
+        'needs a ROS 2 Jazzy install for the ros2 CLI (not on PyPI); the nodes it starts are '
+        'the ones the terminal blocks start with `lightstage up`',
+    'lightstage up classifier --params out/demo/replay_params.yaml --domain-id 42':
+        "needs the demo's recorded stage session; tests/lightstage_recording/test_demo_bag.py "
+        'replays one into an observing classifier',
 }
 BLOCK_TIMEOUT_S = {'terminal 1': 120.0, 'terminal 2': 900.0}
 GRAPH_UP = re.compile(r'graph up')
