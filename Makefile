@@ -2,7 +2,7 @@
 # (scripts/bootstrap.sh): `make demo` only what the demo and the nodes need (the runtime),
 # `make test` that and every extra (cameras, Dask, test tools, chromium, the AVR toolchain,
 # simavr, the firmware). `make camera` adds the real cameras' SDKs to the runtime.
-.PHONY: demo test bootstrap bootstrap-test camera bench clean-venv
+.PHONY: demo test lint bootstrap bootstrap-test camera bench clean-venv
 
 PYTEST_ARGS ?=
 
@@ -18,8 +18,12 @@ camera:
 demo: bootstrap
 	@ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST .venv/bin/lightstage demo
 
-test: bootstrap-test
+test: bootstrap-test lint
 	@bash scripts/run_tests.sh $(PYTEST_ARGS)
+
+# ruff (pinned in requirements-test.txt; rules in ruff.toml): fails `make test` before any test runs
+lint: bootstrap-test
+	@.venv/bin/ruff check
 
 bench: bootstrap-test
 	@for b in benchmarks/bench_*.py; do echo "== $$b"; .venv/bin/python $$b || exit 1; done

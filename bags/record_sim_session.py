@@ -82,7 +82,7 @@ def _record(capture: Path, artifact: Path, bag: Path, domain_id: int, work: Path
                 print(f'{sample}: {answer.label} ({answer.images_used} images)', flush=True)
             client.spin_for(1.0)
         print(''.join(line + '\n' for line in out.getvalue().splitlines()
-                      if line.startswith('[recorder]') and not '[INFO]' in line))
+                      if line.startswith('[recorder]') and '[INFO]' not in line))
     finally:
         client.close()
     return answers

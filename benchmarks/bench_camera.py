@@ -28,7 +28,7 @@ import numpy as np
 
 os.environ.setdefault('PYLON_CAMEMU', '1')  # before pylon's transport layer is first created
 
-from lightstage_camera.camera_backend import Trigger  # noqa: E402
+from lightstage_camera.camera_backend import Trigger
 
 
 class Timed:

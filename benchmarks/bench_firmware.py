@@ -29,7 +29,7 @@ from lightstage_driver import protocol as p
 from lightstage_driver.sim_backend import PythonSimBackend
 from lightstage_driver.simavr_backend import SimavrBackend, missing_tools
 from lightstage_driver.stage import LightStage
-from bench_driver import timed  # noqa: E402  (the same per-call timer as the driver benchmark)
+from bench_driver import timed
 
 BAUD = 115200
 EXPOSURE_US = 20

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'tests'))  # the tests' helpers package
-from helpers.bringup import child_environment  # noqa: E402  (the tests' fake-node environment)
+from helpers.bringup import child_environment
 from lightstage_bringup.launcher import GraphWatcher, node_command
 from lightstage_bringup.supervisor import ProcessSpec, Supervisor
 

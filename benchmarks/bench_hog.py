@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "src", "mux_classifier"))
 
-from mux_classifier.hog import HogConfig, hog_batch, hog_batch_numpy, hog_reference  # noqa: E402
+from mux_classifier.hog import HogConfig, hog_batch, hog_batch_numpy, hog_reference
 
 FIRST_CALL = """
 import time, numpy as np

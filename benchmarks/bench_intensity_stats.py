@@ -21,8 +21,8 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "src", "mux_classifier"))
 
-from mux_classifier.hog import hog_batch  # noqa: E402
-from mux_classifier.intensity_stats import (N_BINS, intensity_stats_images,  # noqa: E402
+from mux_classifier.hog import hog_batch
+from mux_classifier.intensity_stats import (N_BINS, intensity_stats_images,
                                             intensity_stats_images_numpy)
 
 

@@ -23,8 +23,8 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "src", "mux_classifier"))
 
-from mux_classifier.artifact import TrainedArtifact  # noqa: E402
-from mux_classifier.inference import classify_frames  # noqa: E402
+from mux_classifier.artifact import TrainedArtifact
+from mux_classifier.inference import classify_frames
 
 
 def frames(k: int, size: int, rng) -> list[np.ndarray]:

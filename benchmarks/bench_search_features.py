@@ -22,14 +22,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_search import default_capture, fmt_breakdown  # noqa: E402
-from lightstage_physics.capture_format import load_capture  # noqa: E402
-from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
-from mux_trainer.data import search_data  # noqa: E402
-from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk  # noqa: E402
-from mux_trainer.greedy import GreedyPatternSelector  # noqa: E402
-from mux_trainer.search_params import Execution  # noqa: E402
-from mux_trainer.rendering import compile_kernels  # noqa: E402
+from bench_search import default_capture, fmt_breakdown
+from lightstage_physics.capture_format import load_capture
+from mux_trainer.candidate_patterns import site_pattern_candidates
+from mux_trainer.data import search_data
+from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk
+from mux_trainer.greedy import GreedyPatternSelector
+from mux_trainer.search_params import Execution
+from mux_trainer.rendering import compile_kernels
 
 
 def main(argv=None) -> int:

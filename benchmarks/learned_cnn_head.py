@@ -23,12 +23,12 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from learned_light_headroom import hand_patterns  # noqa: E402
-from learned_vs_greedy import split_capture  # noqa: E402
-from lightstage_physics.render_jax import add_noise, relight  # noqa: E402
-from lightstage_physics.rig import Rig  # noqa: E402
-from mux_trainer.holdout import test_images  # noqa: E402
-from mux_trainer.learned import (_adam_init, _adam_update, _logits_of, levels,  # noqa: E402
+from learned_light_headroom import hand_patterns
+from learned_vs_greedy import split_capture
+from lightstage_physics.render_jax import add_noise, relight
+from lightstage_physics.rig import Rig
+from mux_trainer.holdout import test_images
+from mux_trainer.learned import (_adam_init, _adam_update, _logits_of, levels,
                                  pose_folds, raking_sides_start)
 
 cap, hold, seed, light, steps, joint, out_json = (sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4],

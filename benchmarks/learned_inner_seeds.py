@@ -21,10 +21,10 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from learned_vs_greedy import split_capture  # noqa: E402
-from lightstage_physics.rig import Rig  # noqa: E402
-from mux_trainer.evaluation import CandidateEvaluator  # noqa: E402
-from mux_trainer.learned import (LearnedIlluminationClassifier, low_side_splits,  # noqa: E402
+from learned_vs_greedy import split_capture
+from lightstage_physics.rig import Rig
+from mux_trainer.evaluation import CandidateEvaluator
+from mux_trainer.learned import (LearnedIlluminationClassifier, low_side_splits,
                                  raking_name, raking_rng, raking_sides_start)
 
 

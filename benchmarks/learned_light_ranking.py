@@ -30,8 +30,8 @@ from mux_trainer.learned import (LearnedIlluminationClassifier, evaluate_learned
                                  raking_sides_start)
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from learned_light_headroom import hand_patterns  # noqa: E402
-from learned_vs_greedy import split_capture  # noqa: E402
+from learned_light_headroom import hand_patterns
+from learned_vs_greedy import split_capture
 
 SPLIT_CLASSIFIERS = ('ridge', 'squared_hinge')
 HEAD_RENDERS = (1, 6)

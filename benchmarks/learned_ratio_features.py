@@ -29,12 +29,12 @@ from sklearn.preprocessing import StandardScaler
 from sklearn.svm import LinearSVC
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from learned_vs_greedy import split_capture  # noqa: E402
-from lightstage_physics.render_jax import add_noise, relight  # noqa: E402
-from mux_classifier.intensity_stats import intensity_stats_images  # noqa: E402
-from mux_classifier.ratio_stats import OFFSET_FRACTION, ratio_stats  # noqa: E402
-from mux_trainer.holdout import test_images  # noqa: E402
-from mux_trainer.learned import (_adam_init, _adam_update, _logits_of, cv_ridge_loss, levels,  # noqa: E402
+from learned_vs_greedy import split_capture
+from lightstage_physics.render_jax import add_noise, relight
+from mux_classifier.intensity_stats import intensity_stats_images
+from mux_classifier.ratio_stats import OFFSET_FRACTION, ratio_stats
+from mux_trainer.holdout import test_images
+from mux_trainer.learned import (_adam_init, _adam_update, _logits_of, cv_ridge_loss, levels,
                                  pose_folds, stack_ratio_stats, stack_stats)
 
 cap, hold, seed, start_json, mode, steps, out_json = (sys.argv[1], sys.argv[2], int(sys.argv[3]),

@@ -35,8 +35,8 @@ from mux_trainer.holdout import test_features
 from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from learned_combine_descents import combine, learned_runs  # noqa: E402
-from learned_vs_greedy import split_capture  # noqa: E402
+from learned_combine_descents import combine, learned_runs
+from learned_vs_greedy import split_capture
 
 
 def capture_and_seed(key: str, run_args: dict) -> tuple[str, int]:

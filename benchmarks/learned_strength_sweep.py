@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from learned_vs_greedy import add_method_arguments, run_capture  # noqa: E402
+from learned_vs_greedy import add_method_arguments, run_capture
 
 METHODS = ('greedy', 'snr_optimal', 'learned')
 

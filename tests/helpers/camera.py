@@ -11,6 +11,6 @@ def make_modelset(n_per_class=2, size=24, n_classes=2, seed=0):
     class_names = [f"fruit{k}-{'fake' if k % 2 else 'real'}" for k in range(n_classes)]
     pose = np.tile(np.arange(n_per_class), n_classes)
     inst = pose // 2
-    names = [f"{class_names[l]}/s{i}/p{p:02d}" for l, i, p in zip(labels, inst, pose)]
+    names = [f"{class_names[lab]}/s{i}/p{p:02d}" for lab, i, p in zip(labels, inst, pose)]
     return ModelSet(models, labels, class_names, names, pose, inst, Rig.paper_default(size))
 

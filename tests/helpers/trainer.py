@@ -43,7 +43,7 @@ def make_models(n_types=2, n_poses=8, size=24, n_sites=8, seed=0, signal=60.0):
 def make_modelset(**kwargs) -> ModelSet:
     models, labels, poses, names = make_models(**kwargs)
     size = models.shape[-1]
-    sample_names = [f'{names[l]}/s0/p{p:02d}' for l, p in zip(labels, poses)]
+    sample_names = [f'{names[lab]}/s0/p{p:02d}' for lab, p in zip(labels, poses)]
     return ModelSet(models, labels, names, sample_names, poses, np.zeros_like(labels),
                     Rig.paper_default(size))
 

@@ -1,7 +1,6 @@
 """The `lightstage` dispatcher: help, unknown verbs, and that every verb resolves."""
 import importlib
 import re
-from pathlib import Path
 
 import pytest
 

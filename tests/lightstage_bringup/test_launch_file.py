@@ -3,7 +3,6 @@ is checked statically), its params YAML, and that setup.py installs both."""
 import ast
 import py_compile
 import runpy
-from pathlib import Path
 
 import setuptools
 import yaml

@@ -19,7 +19,7 @@ def flat_modelset(level=100.0, size=64, n=3, seed=0):
     models = np.full((n, 4, 8, size, size), level, np.float32)
     models[-1] = rng.uniform(0, 200, size=(4, 8, size, size))
     labels = np.arange(n) % 2
-    names = [f"{['apple-fake', 'apple-real'][l]}/s{i}/p00" for i, l in enumerate(labels)]
+    names = [f"{['apple-fake', 'apple-real'][lab]}/s{i}/p00" for i, lab in enumerate(labels)]
     return ModelSet(models, labels, ['apple-fake', 'apple-real'], names, np.arange(n),
                     np.arange(n), Rig.paper_default(size))
 

@@ -24,7 +24,7 @@ from lifecycle_msgs.srv import ChangeState  # noqa: E402
 from lightstage_interfaces.msg import IlluminationState, Pattern  # noqa: E402
 from lightstage_interfaces.srv import ApplyPatterns  # noqa: E402
 
-from helpers.suite import REPO, fresh_domain_id
+from helpers.suite import REPO, fresh_domain_id  # noqa: E402
 
 SRC = REPO / 'src'
 
@@ -116,7 +116,8 @@ class Client:
                     found.append((status, values))
                     return True
             return False
-        seen = lambda: [{kv.key: kv.value for kv in a.status[0].values}.get('state') for a in self.diagnostics]
+        def seen():
+            return [{kv.key: kv.value for kv in a.status[0].values}.get('state') for a in self.diagnostics]
         assert self.spin_until(check, timeout_s), f'no such /diagnostics status within {timeout_s} s: {seen()}'
         return found[0]
 

@@ -20,7 +20,7 @@ from helpers.driver import wait_until
 pytestmark = pytest.mark.ros
 rclpy = pytest.importorskip('rclpy')
 
-from helpers.graded_pins import on_times_us
+from helpers.graded_pins import on_times_us  # noqa: E402
 
 LEDS = list(range(32))     # every LED: the most light a 5 ms exposure gets
 SAMPLE = 'banana-real/s1/p00'

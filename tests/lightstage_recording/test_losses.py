@@ -85,7 +85,7 @@ def _record_with_a_pause(path):
     rec.add_topic('/camera/image_raw', 'sensor_msgs/msg/Image', one)
     rec.add_topic(CLASSIFY, CLASSIFY_EVENT, one)
     t = 1_700_000_000_000_000_000
-    ill, img, pixels = serialize_message(illumination()), serialize_message(image()), None
+    ill, img = serialize_message(illumination()), serialize_message(image())
     trigger = event = 0
     lost_calls = {3: ('request', 'response'), 4: ('response',)}
     for call in range(1, 7):

@@ -80,7 +80,7 @@ def test_recover_of_a_cut_off_bag_names_the_cut(tmp_path, capsys):
     os.truncate(cut / 'cut_0.mcap', (full / 'full_0.mcap').stat().st_size // 2)
     rc, out, err = _recover(capsys, cut, '-o', tmp_path / 'fixed')
     assert rc == 0, out + err
-    assert f'no metadata.yaml (the recorder did not close the bag)' in out, out
+    assert 'no metadata.yaml (the recorder did not close the bag)' in out, out
     assert 'cut_0.mcap is cut off at byte ' in out
     assert f'lost in {cut}: whatever was written after the damage above' in out
     n = lr.BagReader(tmp_path / 'fixed').info().message_count

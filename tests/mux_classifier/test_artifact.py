@@ -21,8 +21,6 @@ from helpers.artifact_checks import (FUZZ_SETTINGS, SIGMA3, check_header_fields_
                                      check_refused_or_classifies, rewrite_artifact, saved_bytes)
 from helpers.artifact_mutations import mutated_artifacts
 
-from helpers.suite import REPO
-
 
 
 @pytest.fixture(scope="module")

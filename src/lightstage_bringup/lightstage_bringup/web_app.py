@@ -132,7 +132,7 @@ async def api_errors(request: web.Request, handler):
                       else exc.text)
     except asyncio.CancelledError:
         raise
-    except Exception as exc:  # noqa: BLE001 (the page's server outlives any one request)
+    except Exception as exc:  # the page's server outlives any one request
         log.exception('request %s %s failed', request.method, request.path)
         return _error(500, f'internal error: {type(exc).__name__}: {exc}')
 

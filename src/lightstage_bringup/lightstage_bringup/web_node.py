@@ -400,7 +400,7 @@ def spin_in_thread(node: Node) -> tuple[SingleThreadedExecutor, threading.Thread
     def spin():
         try:
             executor.spin()
-        except Exception:  # noqa: BLE001 (shutting down: the context went away under the spin)
+        except Exception:  # shutting down: the context went away under the spin
             if rclpy.ok():
                 raise
 

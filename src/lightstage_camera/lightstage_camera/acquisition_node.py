@@ -220,7 +220,7 @@ class AcquisitionNode(Node):
             return None
         try:
             return Rig.load_yaml(path)
-        except Exception as exc:  # missing file, YAML errors, bad values
+        except Exception as exc:  # noqa: BLE001 - missing file, YAML errors, bad values
             raise DestinationError(f'rig_file {path} does not load ({exc}); fix it or set '
                                    'rig_file to \'\' (the paper\'s stage)') from None
 

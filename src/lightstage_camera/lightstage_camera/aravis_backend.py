@@ -86,7 +86,7 @@ class AravisBackend(TriggeredBackend):
         self._frame_ids = FrameIdCounter()
         try:
             camera = Aravis.Camera.new(self.serial_number or None)
-        except Exception as exc:  # noqa: BLE001 - GLib.Error: the camera is not there
+        except Exception as exc:  # GLib.Error: the camera is not there
             raise CameraError(f'no GenICam camera {self.serial_number or "(first found)"}: {exc}; '
                               'is it plugged in, powered and (GigE) on this subnet?') from exc
         self._camera = camera
@@ -134,7 +134,7 @@ class AravisBackend(TriggeredBackend):
         except CameraError:
             self._device_close()
             raise
-        except Exception as exc:  # noqa: BLE001 - GLib.Error from a feature the camera refused
+        except Exception as exc:  # GLib.Error from a feature the camera refused
             self._device_close()
             raise CameraError(f'the camera refused its configuration: {exc}') from exc
 

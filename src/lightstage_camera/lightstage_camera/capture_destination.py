@@ -108,7 +108,7 @@ def folder_rig(root) -> Rig | None:
         return None
     try:
         return Rig.load_yaml(rig_path)
-    except Exception as exc:  # yaml errors, missing keys, bad values
+    except Exception as exc:  # noqa: BLE001 - yaml errors, missing keys, bad values
         raise DestinationError(f"{rig_path} does not load ({exc}); fix it or write into a "
                                "new folder") from None
 

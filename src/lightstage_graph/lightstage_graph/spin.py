@@ -74,7 +74,7 @@ def spin_until_stopped(node: Node, executor: Executor | None = None) -> int:
         _finish_work(executor, node, CALLBACK_GRACE_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except Exception:  # noqa: BLE001
+    except Exception:
         # a context shut down by someone else while spin builds its wait set surfaces as an
         # RCLError, not ExternalShutdownException (ros2/rclpy#1166): a stop all the same
         if rclpy.ok():

@@ -83,7 +83,7 @@ def read_image(path: Path, rig: Rig) -> np.ndarray:
     """One single-LED image as its raw 16-bit values, validated against the rig."""
     try:
         with Image.open(path) as im:
-            mode, size = im.mode, im.size
+            mode = im.mode
             if mode not in ("I;16", "I;16B", "I;16L"):
                 depth = {"1": "1-bit", "L": "8-bit gray", "P": "palette", "RGB": "RGB",
                          "RGBA": "RGBA", "I": "32-bit", "F": "float"}.get(mode, mode)

@@ -8,6 +8,7 @@ Read noise depends only on gain; photon noise on gain and exposure.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -159,12 +160,11 @@ NOISE_FILE_VERSION = 1
 
 
 def save_noise_file(path, model: NoiseModel, stderr: tuple[float, float] | None = None,
-                    measured: dict | None = None) -> "Path":
+                    measured: dict | None = None) -> Path:
     """Write `model` (and its standard errors, how it was measured) as a noise YAML file.
 
     The write is atomic (a temporary file renamed over the target)."""
     import os
-    from pathlib import Path
 
     import yaml
 

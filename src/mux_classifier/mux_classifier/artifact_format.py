@@ -156,7 +156,7 @@ def read_artifact(path, build):
         return build(**_fields(header, arrays))
     except ArtifactError as exc:
         raise ArtifactError(f"{what}: {exc}") from None
-    except Exception as exc:  # noqa: BLE001 - whatever else a malformed file trips over
+    except Exception as exc:  # whatever else a malformed file trips over
         raise ArtifactError(f"{what}: malformed content ({type(exc).__name__}: {exc}); "
                             "retrain to get a new file") from exc
 
@@ -350,7 +350,7 @@ def _read_npz(path: str, what: str) -> dict:
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             arrays = {name: npz[name] for name in npz.files}
-    except Exception as exc:  # noqa: BLE001 - corrupt members, pickled object arrays, bad CRC ...
+    except Exception as exc:  # corrupt members, pickled object arrays, bad CRC ...
         raise ArtifactError(f"{what}: {type(exc).__name__}: {exc}; retrain to get a new file") from exc
     # np.load hands a member that is not an .npy file back as its raw bytes
     not_arrays = sorted(name for name, a in arrays.items() if not isinstance(a, np.ndarray))

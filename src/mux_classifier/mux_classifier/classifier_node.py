@@ -150,7 +150,7 @@ class ClassifierNode(Node):
             artifact.predict_stack(np.zeros((artifact.n_images[-1], size, size), np.float32))
         except ArtifactError:
             raise
-        except Exception as exc:  # noqa: BLE001 - last resort: a bad file never takes the node down
+        except Exception as exc:  # last resort: a bad file never takes the node down
             raise ArtifactError(f'{path!r} cannot be used as a classifier ({type(exc).__name__}: '
                                 f'{exc}); retrain to get a new file') from exc
         return artifact

@@ -202,7 +202,7 @@ class DaskCluster:
                     break
                 except TimeoutError:
                     pass
-                except Exception as exc:  # noqa: BLE001 - CancelledError once the client gave up
+                except Exception as exc:  # CancelledError once the client gave up
                     if 'deserializ' in str(exc):  # e.g. an older mux_trainer on the cluster
                         raise ClusterUnavailable(
                             f'the Dask cluster {self.address} cannot run the search\'s tasks '

@@ -27,7 +27,7 @@ from lightstage_physics.workers import check_jobs
 from .baselines import NaiveClassifier, SnrOptimalClassifier
 from .data import search_data
 from .greedy import GreedyPatternSelector
-from .holdout import HOLDOUT_BY, accuracy_by_type, holdout_split, method_summary, test_features
+from .holdout import HOLDOUT_BY, accuracy_by_type, holdout_split, method_summary
 from .search_params import Execution, SplitScoring
 
 METHODS = ('naive', 'naive_bow', 'snr_optimal', 'greedy', 'greedy_joint', 'learned')

@@ -1,6 +1,4 @@
 """The shipped real-rig YAML names only parameters the nodes declare, with their types."""
-from pathlib import Path
-
 import yaml
 
 from helpers.suite import REPO
