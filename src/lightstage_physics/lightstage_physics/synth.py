@@ -39,7 +39,7 @@ from .flat_objects import FLAT_TYPES
 from .fruit_render import (CHANNEL_POWER, DIFFUSER_SHININESS, FLOOR_ALBEDO,  # noqa: F401
                            OBJECT_TYPES, PENUMBRA_MM, WHITE_LEVEL_PER_LED, instance_shape,
                            render_pose)
-from .materials import (FRACTION_FIELDS, MATERIALS, MAX_STRENGTH, Material,  # noqa: F401
+from .materials import (FRACTION_FIELDS, MATERIALS, MAX_STRENGTH, Material,
                         blend_materials)
 from .rig import Rig
 
