@@ -36,6 +36,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument('--timeout-s', type=float, default=0.0,
                    help=f'time limit of the classification [s], {TIMEOUT_MIN_S:g} to '
                         f'{TIMEOUT_MAX_S:g} (default 0: the node\'s timeout_s)')
+    p.add_argument('--target-probability', type=float, default=0.0,
+                   help='stop after the first pattern column at which the top class reaches '
+                        'this calibrated probability, 0 to 1 (default 0: the classifier\'s own '
+                        'rule; 1: every image). An uncalibrated classifier takes every image')
     p.add_argument('--wait-s', type=float, default=5.0,
                    help='how long to wait for the classify service to appear [s] (default 5)')
     p.add_argument('--domain-id', type=int, default=None,
@@ -44,16 +48,42 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _timing(answer: dict) -> str:
+    budget = answer.get('images_budget') or answer['images_used']
+    return (f'{answer["images_used"]} of {budget} exposures, acquisition '
+            f'{answer["acquisition_ms"]:.1f} ms, compute {answer["compute_ms"]:.1f} ms')
+
+
 def format_answer(answer: dict) -> str:
-    """Human-readable answer: the label, then the scores best first, then the timings."""
+    """Human-readable answer in plain words: the decision (accepted with its probability, not
+    sure, unknown; or the label of an uncalibrated classifier), the exposures it took and the
+    timings, then each class best first with its probability and score."""
     if not answer['success']:
         return f'classification failed: {answer["message"]}'
-    lines = [f'label: {answer["label"]}  ({answer["images_used"]} images, acquisition '
-             f'{answer["acquisition_ms"]:.1f} ms, compute {answer["compute_ms"]:.1f} ms)']
-    ranked = sorted(zip(answer['class_names'], answer['scores']), key=lambda cs: -cs[1])
-    width = max((len(c) for c, _ in ranked), default=0)
-    lines += [f'  {c:<{width}}  {s:+.3f}' for c, s in ranked]
-    return '\n'.join(lines)
+    probabilities = answer.get('probabilities') or []
+    names, scores = answer['class_names'], answer['scores']
+    if not probabilities:
+        lines = [f'label: {answer["label"]}  (uncalibrated classifier: scores only; '
+                 f'{_timing(answer)})']
+        ranked = sorted(zip(names, scores), key=lambda cs: -cs[1])
+        width = max((len(c) for c, _ in ranked), default=0)
+        return '\n'.join(lines + [f'  {c:<{width}}  {s:+.3f}' for c, s in ranked])
+    ranked = sorted(zip(names, probabilities, scores), key=lambda cps: -cps[1])
+    decision = answer.get('decision', 'accepted')
+    if decision == 'unsure':
+        top = ', '.join(f'{c} {100 * p:.1f} %' for c, p, _ in ranked[:2])
+        head = f'not sure: {top}: look again or ask a person ({_timing(answer)})'
+    elif decision == 'unknown':
+        c, p, _ = ranked[0]
+        novelty = math.nan if answer.get('novelty') is None else float(answer['novelty'])
+        head = (f'unknown: unlike every trained class (novelty {novelty:.2f}); '
+                f'nearest {c} {100 * p:.1f} % ({_timing(answer)})')
+    else:
+        head = (f'label: {answer["label"]}, {100 * ranked[0][1]:.1f} % (accepted; '
+                f'{_timing(answer)})')
+    width = max((len(c) for c, _, _ in ranked), default=0)
+    return '\n'.join([head] + [f'  {c:<{width}}  {100 * p:5.1f} %  (score {s:+.3f})'
+                                for c, p, s in ranked])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -64,6 +94,10 @@ def main(argv: list[str] | None = None) -> int:
         # the node's own request checks, so that the answer is a usage error, not a refusal
         request_max_images(args.max_images, '--max-images')
         request_timeout_s(args.timeout_s, name='--timeout-s')
+        if not (math.isfinite(args.target_probability) and 0.0 <= args.target_probability <= 1.0):
+            raise ValueError('--target-probability must be a number from 0 (the classifier\'s '
+                             'own rule) to 1 (every image); got '
+                             f'{args.target_probability!r}')
         if not (math.isfinite(args.wait_s) and args.wait_s >= 0):
             raise ValueError(f'--wait-s must be a finite number of seconds >= 0; got {args.wait_s!r}')
         apply_ros_environment(args.domain_id)  # before rclpy is imported: LOCALHOST discovery
@@ -77,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
 
     # the node enforces the timeout; sent 0, its own default is at most TIMEOUT_MAX_S
     limit_s = (args.timeout_s if args.timeout_s > 0 else TIMEOUT_MAX_S) + 5.0
-    request = Classify.Request(max_images=args.max_images, timeout_s=args.timeout_s)
+    request = Classify.Request(max_images=args.max_images, timeout_s=args.timeout_s,
+                               target_probability=args.target_probability)
     # Every wait below is bounded; the deadline bounds what no timeout reaches (creating and
     # destroying the DDS participant): the whole call, then the teardown once answered.
     with ExitDeadline(args.wait_s + limit_s + SETUP_S, 'lightstage classify', EXIT_UNAVAILABLE,
@@ -108,7 +143,10 @@ def _print_answer(r, as_json: bool) -> int:
     answer = {'success': bool(r.success), 'message': r.message, 'label': r.label,
               'class_names': list(r.class_names), 'scores': [float(s) for s in r.scores],
               'images_used': int(r.images_used), 'acquisition_ms': float(r.acquisition_ms),
-              'compute_ms': float(r.compute_ms)}
+              'compute_ms': float(r.compute_ms),
+              'probabilities': [float(p) for p in r.probabilities], 'decision': r.decision,
+              'novelty': float(r.novelty) if math.isfinite(r.novelty) else None,
+              'images_budget': int(r.images_budget), 'calibrated': bool(r.calibrated)}
     if as_json:
         print(json.dumps(answer), flush=True)
     else:
