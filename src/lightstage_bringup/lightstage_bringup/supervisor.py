@@ -210,6 +210,20 @@ class Supervisor:
                 return running
             time.sleep(0.02)
 
+    def stop(self, name: str) -> ExitReport:
+        """Stop one child as `shutdown` stops them all (SIGINT, then SIGTERM, then SIGKILL
+        after the timeouts); its report."""
+        proc = self._processes[name]
+        proc.stop_requested = True
+        for sig, timeout_s in ((signal.SIGINT, self.sigint_timeout_s),
+                               (signal.SIGTERM, self.sigterm_timeout_s),
+                               (signal.SIGKILL, 5.0)):
+            if proc.popen.poll() is not None:
+                break
+            self._signal_group(proc, sig)
+            self._wait_all([proc], timeout_s)
+        return proc.report()
+
     def shutdown(self) -> list[ExitReport]:
         """Stop every running child: SIGINT, then SIGTERM, then SIGKILL after the timeouts.
 
