@@ -24,6 +24,7 @@ from mux_classifier.confidence import (Confidence, anytime_outcomes, expected_ca
 from scipy.optimize import minimize_scalar
 
 __all__ = ["DEFAULT_SPLITS", "DEFAULT_TOLERANCE", "calibrate_pattern_model", "choose_stop",
+           "evaluate_anytime",
            "fit_temperature", "held_out_scores"]
 
 DEFAULT_SPLITS = 8        # inner splits refitted per column count
@@ -128,3 +129,52 @@ def calibrate_pattern_model(model, n_splits: int = DEFAULT_SPLITS,
                 'note': 'temperatures fitted and scored on the same held-out answers'}
     return Confidence(temperatures=temperatures, stop_probability=target, tolerance=tolerance,
                       estimate=estimate)
+
+
+def evaluate_anytime(model, confidence: Confidence, test_data, n_renders: int = 4,
+                     seed: int = 0, budget: int | None = None) -> dict:
+    """The calibrated anytime rule of a fitted pattern model on held-out renders
+    (`holdout.test_features`: noise drawn apart from the training's), beside the full count.
+
+    ``budget``: the most pattern columns a call may take (default: the model's kept count).
+    Returns plain JSON: the full count's accuracy, images and calibration error; the anytime
+    rule's accuracy, mean images and calibration error; and accuracy against coverage when
+    the answers below the target (unsure) are set aside.
+    """
+    from .holdout import test_features
+    per = int(model.images_per_pattern)
+    budget = int(model.best_n_patterns_ if budget is None else budget)
+    columns = [c for c in range(1, budget + 1) if c * per in confidence.temperatures]
+    labels, steps_probs = [], [[] for _ in columns]
+    for r in range(int(n_renders)):
+        X = test_features(test_data, model.mode, model.patterns_, r, seed)
+        for i, c in enumerate(columns):
+            clf = model.classifiers_[c]
+            scores = clf.decision_function_features(X[:, :clf.n_features_in_])
+            steps_probs[i].append(confidence.probabilities(scores, c * per))
+        labels.append(np.asarray(test_data.labels))
+    y = np.concatenate(labels)
+    probabilities = [np.vstack(p) for p in steps_probs]
+    steps = np.array([c * per for c in columns])
+    stop, predicted, reached = anytime_outcomes(probabilities, confidence.stop_probability)
+    at_stop = np.stack([probabilities[s][j] for j, s in enumerate(stop)])
+    full = probabilities[-1]
+    coverage = {}
+    for t in (0.5, 0.8, 0.9, 0.95, 0.99):
+        kept = at_stop.max(axis=1) >= t
+        coverage[str(t)] = {'share': float(kept.mean()),
+                            'accuracy': float((predicted[kept] == y[kept]).mean())
+                            if kept.any() else None}
+    return {
+        'answers': int(y.size), 'budget_images': int(steps[-1]),
+        'stop_probability': float(confidence.stop_probability),
+        'full_accuracy': float((full.argmax(axis=1) == y).mean()),
+        'full_calibration_error': expected_calibration_error(full, y),
+        'anytime_accuracy': float((predicted == y).mean()),
+        'anytime_mean_images': float(steps[stop].mean()),
+        'anytime_calibration_error': expected_calibration_error(at_stop, y),
+        'accepted_share': float(reached.mean()),
+        'accepted_accuracy': float((predicted[reached] == y[reached]).mean())
+        if reached.any() else None,
+        'coverage': coverage,
+    }
