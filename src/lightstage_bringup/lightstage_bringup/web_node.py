@@ -142,6 +142,11 @@ class WebBridge(Node):
                               'sequences': [int(s) for s in msg.sequences],
                               'acquisition_ms': float(msg.acquisition_ms),
                               'compute_ms': float(msg.compute_ms),
+                              'probabilities': json_safe([float(p) for p in msg.probabilities]),
+                              'decision': msg.decision,
+                              'novelty': json_safe(float(msg.novelty)),
+                              'images_budget': int(msg.images_budget),
+                              'calibrated': bool(msg.calibrated),
                               'stamp_ns': stamp_to_ns(msg.header.stamp)})
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:

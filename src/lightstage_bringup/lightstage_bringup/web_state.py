@@ -239,7 +239,8 @@ class PageState:
 
     def on_result(self, result: dict) -> None:
         """A ClassificationResult (`label`, `class_names`, `scores`, `images_used`,
-        `sequences`, `acquisition_ms`, `compute_ms`, `stamp_ns`) -> the history, with the
+        `sequences`, `acquisition_ms`, `compute_ms`, `stamp_ns`; from a calibrated classifier
+        also `probabilities`, `decision`, `novelty`, `images_budget`) -> the history, with the
         images and illumination of its sequences (those still on their way are added when
         they come: each topic has a reader of its own)."""
         with self._lock:
@@ -253,6 +254,11 @@ class PageState:
             item = {'id': self._new_id(), 'time': time.time(), 'success': True, 'message': '',
                     **{k: result[k] for k in ('label', 'class_names', 'scores', 'images_used',
                                               'acquisition_ms', 'compute_ms')},
+                    'probabilities': list(result.get('probabilities') or []),
+                    'decision': result.get('decision') or 'accepted',
+                    'novelty': result.get('novelty'),
+                    'images_budget': int(result.get('images_budget') or result['images_used']),
+                    'calibrated': bool(result.get('calibrated')),
                     'stamp_ns': str(result['stamp_ns']), 'images': images}
             self._add_history(item)
             for awaiting in (self._awaiting_illumination, self._awaiting_image):

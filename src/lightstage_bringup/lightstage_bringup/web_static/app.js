@@ -195,6 +195,36 @@ function scoreBars(names, scores) {
   }));
 }
 
+function probabilityBars(names, probabilities) {
+  const box = document.getElementById('scores');
+  const order = probabilities.map((p, i) => i).sort((a, b) => probabilities[b] - probabilities[a]);
+  box.replaceChildren(...order.flatMap((i, rank) => [
+    el('span', {class: 'score-name'}, names[i]),
+    el('div', {class: 'bar probability'}, el('span', {class: rank === 0 ? 'best' : '',
+      style: `left:0%;width:${(100 * probabilities[i]).toFixed(1)}%`})),
+    el('span', {class: 'muted'}, `${(100 * probabilities[i]).toFixed(1)} %`)]));
+}
+
+// an answer in words: what was decided, and what to do about it (colour is never the only cue)
+function decisionText(a) {
+  if (!a.success) return '';
+  const p = a.probabilities || [];
+  if (!p.length) return 'uncalibrated classifier: scores only';
+  const order = p.map((v, i) => i).sort((x, y) => p[y] - p[x]);
+  const pct = i => `${a.class_names[i]} ${(100 * p[i]).toFixed(1)} %`;
+  if (a.decision === 'unsure') return `not sure: ${pct(order[0])}, ${pct(order[1])} — look again or ask a person`;
+  if (a.decision === 'unknown') {
+    const n = a.novelty === null || a.novelty === undefined ? '' : ` (novelty ${a.novelty.toFixed(2)})`;
+    return `unknown object: unlike every trained class${n} — not ${a.label}`;
+  }
+  return `accepted: ${(100 * p[order[0]]).toFixed(1)} % sure`;
+}
+
+function exposures(a) {
+  const budget = a.images_budget || a.images_used;
+  return budget && budget !== a.images_used ? `${a.images_used} of ${budget}` : `${a.images_used}`;
+}
+
 function shownEntry() {
   if (selected !== null) return state.history.find(h => h.id === selected) || null;
   return state.history[0] || null;
@@ -206,12 +236,18 @@ function renderAnswer() {
   // this page's own answer first (a failed call may have no history entry yet), then the history
   const a = selected === null && lastAnswer ? lastAnswer : entry;
   if (!a) return;
+  const decision = a.success ? (a.decision || 'accepted') : '';
   label.textContent = a.success ? a.label : `classification failed: ${a.message}`;
-  label.className = a.success ? '' : 'failed';
+  label.className = a.success ? (decision === 'accepted' ? '' : decision) : 'failed';
   label.dataset.success = a.success ? '1' : '0';
+  const said = document.getElementById('decision');
+  said.textContent = decisionText(a);
+  said.className = `decision ${decision}`;
+  said.dataset.decision = decision;
   document.getElementById('times').textContent = a.success
-    ? `${a.images_used} images, acquisition ${ms(a.acquisition_ms)}, compute ${ms(a.compute_ms)}` : '';
-  scoreBars(a.class_names || [], a.scores || []);
+    ? `${exposures(a)} exposures, acquisition ${ms(a.acquisition_ms)}, compute ${ms(a.compute_ms)}` : '';
+  if (a.probabilities && a.probabilities.length) probabilityBars(a.class_names || [], a.probabilities);
+  else scoreBars(a.class_names || [], a.scores || []);
   const thumbs = document.getElementById('class-images');
   const images = entry && (!lastAnswer || selected !== null || sameClassification(entry, lastAnswer)) ? entry.images : [];
   thumbs.replaceChildren(...images.map(i => el('div', {class: 'thumb'},
@@ -225,14 +261,22 @@ function sameClassification(entry, answer) {
     && entry.acquisition_ms === answer.acquisition_ms;
 }
 
+function historyLabel(h) {
+  const p = h.probabilities || [];
+  const top = p.length ? ` ${(100 * Math.max(...p)).toFixed(0)} %` : '';
+  if (h.decision === 'unsure') return el('td', {class: 'unsure', 'data-decision': 'unsure'}, `not sure (${h.label}${top})`);
+  if (h.decision === 'unknown') return el('td', {class: 'unknown', 'data-decision': 'unknown'}, 'unknown object');
+  return el('td', {'data-decision': 'accepted'}, h.label + top);
+}
+
 function renderHistory() {
   const body = document.querySelector('#history tbody');
   body.replaceChildren(...state.history.map(h => el('tr', {
       class: h.id === selected ? 'selected' : '', 'data-id': h.id,
       onclick: () => { selected = selected === h.id ? null : h.id; lastAnswer = null; render(); }},
     el('td', {}, clock(h.time)),
-    h.success ? el('td', {}, h.label) : el('td', {class: 'failed', title: h.message}, 'failed: ' + h.message.slice(0, 60)),
-    el('td', {}, h.images_used || ''), el('td', {}, h.success ? ms(h.acquisition_ms) : ''),
+    h.success ? historyLabel(h) : el('td', {class: 'failed', title: h.message}, 'failed: ' + h.message.slice(0, 60)),
+    el('td', {}, h.success ? exposures(h) : ''), el('td', {}, h.success ? ms(h.acquisition_ms) : ''),
     el('td', {}, h.success ? ms(h.compute_ms) : ''))));
 }
 
