@@ -308,14 +308,15 @@ def _on_stage(out: Path, capture: Path, summary: dict, samples: list[str], domai
                 supervisor.stop(RECORDER)
                 for method in calibrated:
                     results[f'{method}, every exposure'] = _stage_pass(
-                        graph, method, summary, samples, target_probability=1.0)
+                        graph, method, summary, samples, target_probability=1.0,
+                        name=f'{method}, every exposure')
     # leaving the Supervisor stopped the recorder with SIGINT: the bag is closed
     _report_bag(bag, summary['greedy']['artifact'], out, domain_id)
     return results
 
 
 def _stage_pass(graph, method: str, summary: dict, samples: list[str],
-                target_probability: float = 0.0) -> list[dict]:
+                target_probability: float = 0.0, name: str | None = None) -> list[dict]:
     """Classify each sample once with `method`'s artifact (at most its best image count);
     one row per call."""
     _set_parameter(graph, CLASSIFIER_NODE, 'artifact_path', summary[method]['artifact'])
@@ -332,7 +333,7 @@ def _stage_pass(graph, method: str, summary: dict, samples: list[str],
                      'acquisition_ms': float(r.acquisition_ms),
                      'compute_ms': float(r.compute_ms)})
     correct = sum(row['true'] == row['label'] for row in rows)
-    _say(f'{method}: {correct}/{len(rows)} unseen samples right on the stage')
+    _say(f'{name or method}: {correct}/{len(rows)} unseen samples right on the stage')
     return rows
 
 
