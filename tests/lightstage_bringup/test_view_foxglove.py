@@ -144,6 +144,9 @@ def test_a_foxglove_client_sees_images_illumination_and_result_of_a_classify(
     (result,) = [decode['/lightstage/result'](data) for data in received['/lightstage/result']]
     assert result.label == answer.label and result.images_used == 4
     assert len(result.scores) == len(result.class_names) == 4
+    # the answer's decision, exposures of its budget and calibration reach the client too
+    assert (result.decision, result.images_budget, result.calibrated) == ('accepted', 4, False)
+    assert len(result.probabilities) == 0 and result.probabilities is not None
     assert sorted(result.sequences) == sorted(m.sequence for m in lit)
     diagnostics = [decode['/diagnostics'](data) for data in received['/diagnostics']]
     assert {s.name for d in diagnostics for s in d.status} == {'driver: light stage link', 'camera: camera'}
@@ -151,6 +154,8 @@ def test_a_foxglove_client_sees_images_illumination_and_result_of_a_classify(
     assert listening and all(s.loopback for s in listening), [str(s) for s in listening]
     layout = json.loads((REPO / 'src/lightstage_bringup/config/foxglove_layout.json').read_text())
     assert layout_topics(layout) <= set(channels), layout_topics(layout)
+    plotted = [p['value'] for p in layout['configById']['Plot!scores']['paths']]
+    assert '/lightstage/result.probabilities' in plotted
     assert max(int(image_pixels(image).max()) for image in images) <= full_scale_mono16()
 
 
