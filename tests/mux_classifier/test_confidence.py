@@ -154,3 +154,10 @@ def test_classify_on_stage_asks_one_column_at_a_time_and_stops_when_sure(stage_a
     assert lit == [4, 4] and result.decision == UNSURE and result.images_used == 8
     result, lit = run(stage_artifact)         # uncalibrated: one sequence, as ever
     assert lit == [8] and not result.calibrated and result.probabilities.size == 0
+
+
+def test_the_classifier_says_its_inner_estimate_and_how_it_was_held_out(stage_artifact):
+    from dataclasses import replace
+    art = replace(stage_artifact, provenance={**stage_artifact.provenance, 'inner_estimate': {
+        'accuracy': 0.747, 'held_out': 'physical samples', 'n_images': 2}})
+    assert 'inner estimate 74.7 % on held-out physical samples' in art.describe()

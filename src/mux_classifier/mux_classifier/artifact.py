@@ -339,6 +339,10 @@ class TrainedArtifact:
         calibrated = ("calibrated, anytime stop at "
                       f"{100 * self.confidence.stop_probability:.0f} %"
                       if self.confidence is not None else "uncalibrated")
+        inner = self.provenance.get("inner_estimate")
+        if isinstance(inner, dict) and isinstance(inner.get("accuracy"), (int, float)):
+            calibrated += (f"; inner estimate {100 * inner['accuracy']:.1f} % on held-out "
+                           f"{inner.get('held_out', 'poses')}")
         return (f"{len(self.class_names)} classes, {mode}, {features} "
                 f"features, classifiers for {self.n_images} images ({calibrated}), noise "
                 f"{self.noise.get('name')}, {dimmer}")
