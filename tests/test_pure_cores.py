@@ -130,7 +130,7 @@ def test_learning_code_and_physics_import_no_camera():
 
 
 def test_the_classifier_package_never_imports_jax():
-    """Issue 26: learned models classify in numpy (`mux_classifier.learned_model`); JAX is the
+    """Learned models classify in numpy (`mux_classifier.learned_model`); JAX is the
     trainer's. No module of mux_classifier names jax in any import (function-level too), and
     importing every one of them, the classifier node included, loads no jax."""
     naming = sorted(m.name for m in (SRC / 'mux_classifier' / 'mux_classifier').glob('*.py')

@@ -11,7 +11,7 @@ import numpy as np
 
 from lightstage_graph.ros_env import ros_environment
 from lightstage_bringup.supervisor import Supervisor
-from helpers.suite import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
+from helpers.suite import REPO, GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params  # noqa: F401 (REPO: re-exported to the recording tests)
 
 
 

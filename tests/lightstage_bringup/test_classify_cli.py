@@ -71,8 +71,8 @@ def test_bad_arguments_exit_2_with_the_reason(capsys):
     assert 'out of range' in capsys.readouterr().err
 
 
-def test_issue_12_timeout_beyond_any_timer_is_a_usage_error():
-    """Issue 12, item 1: `lightstage classify --timeout-s 1e10` failed building an rclpy timer
+def test_timeout_beyond_any_timer_is_a_usage_error():
+    """`lightstage classify --timeout-s 1e10` failed building an rclpy timer
     (TypeError); it is a usage error naming the option and its range, before any ROS set-up."""
     p = subprocess.run(lightstage_command('classify', '--timeout-s', '1e10'),
                        capture_output=True, text=True, timeout=60)

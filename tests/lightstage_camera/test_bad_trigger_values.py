@@ -1,4 +1,4 @@
-"""Issue 23: a trigger's values must never stop the camera. A gain or exposure out of range,
+"""A trigger's values must never stop the camera. A gain or exposure out of range,
 NaN LED values ... are refused naming the field and reported as a lost frame; the camera
 goes on with the next trigger."""
 import math
@@ -101,7 +101,7 @@ def test_the_shared_checks_name_the_field_they_are_given():
 
 @pytest.mark.ros
 def test_the_camera_node_survives_a_gain_of_1e6_and_reports_the_trigger_lost(stage_capture):
-    """Issue 23: gain_db = 1e6 killed the camera node (OverflowError in noise.gain_ratio)
+    """`gain_db` = 1e6 killed the camera node (OverflowError in noise.gain_ratio)
     and the launcher then stopped the graph."""
     from test_camera_node import CameraHarness
     h = CameraHarness(capture_dir=str(stage_capture), noise='auto', diagnostics_period_s=0.2)

@@ -1,4 +1,4 @@
-"""Issue 12, item 10 end to end: the driver's own simulator killed under a running graph.
+"""The driver's own simulator killed under a running graph.
 
 It was never restarted: every classify then waited 10-12 s for "driver did not answer".
 Now the classify fails with the driver's reason and works again once the driver has

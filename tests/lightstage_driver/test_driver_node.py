@@ -221,7 +221,7 @@ def test_deactivate_darkens_and_refuses_then_activate_serves_again(rig):
 
 
 def test_a_lost_port_is_reported_requests_fail_at_once_and_the_link_comes_back(rig):
-    # issue 12, item 10, for a port that is not the driver's own simulator (as a real serial
+    # for a port that is not the driver's own simulator (as a real serial
     # port): the firmware process is killed, its pty goes
     backend, proc, client = rig
     client.wait_state('armed')
@@ -243,7 +243,7 @@ def test_a_lost_port_is_reported_requests_fail_at_once_and_the_link_comes_back(r
 
 
 def test_firmware_killed_mid_sequence_the_reply_says_the_leds_state_is_unknown(rig):
-    # issue 12, item 9: the reply said "LEDs switched off" while the driver could not switch
+    # the reply said "LEDs switched off" while the driver could not switch
     # them off and the last latched word was all 32 LEDs on
     backend, proc, client = rig
     client.wait_state('armed')
@@ -272,7 +272,7 @@ def test_firmware_killed_mid_sequence_the_reply_says_the_leds_state_is_unknown(r
 
 
 def test_the_drivers_own_simulator_killed_is_noticed_reported_and_restarted():
-    # issue 12, item 10: with port sim, the simulator child killed was never restarted and every
+    # with port sim, the simulator child killed was never restarted and every
     # request waited 10-12 s for "driver did not answer"
     domain = fresh_domain_id()
     proc = start_node('sim', 'stage_driver_sim_killed', 'reconnect_period_s:=5.0', domain_id=domain)
@@ -351,7 +351,7 @@ def test_port_sim_starts_its_own_simulator():
 
 @pytest.mark.parametrize('port, params, reason', [
     ('/nonexistent/ttyACM9', (), '/nonexistent/ttyACM9 does not exist'),
-    # issue 12, item 8: these gave "Could not configure port: (25, 'Inappropriate ioctl for device')"
+    # these gave "Could not configure port: (25, 'Inappropriate ioctl for device')"
     ('/dev/null', (), '/dev/null is not a serial device'),
     ('REGULAR_FILE', (), 'is a regular file, not a serial device'),
     ('sim', ('sites:=6',), 'drives 8 sites x 4 channels, but this rig is configured as 6 x 4'),
@@ -402,7 +402,7 @@ def test_a_crashed_driver_does_not_leave_the_leds_on():
 
 
 def test_every_bad_request_field_is_refused_by_name_and_the_node_serves_on(rig):
-    """Issue 23: NaN, infinite, negative, above-1 drives, exposures out of range, gains out of
+    """NaN, infinite, negative, above-1 drives, exposures out of range, gains out of
     range, graded drives on this on/off board: each refused naming the field, nothing sent."""
     backend, proc, client = rig
     assert client.apply([eye(0)], trigger=False).success

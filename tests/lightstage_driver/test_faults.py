@@ -239,7 +239,7 @@ def test_missing_port_and_unknown_usb_serial_are_named():
 
 @pytest.mark.parametrize('kind', ['regular file', 'directory', '/dev/null'])
 def test_a_path_that_is_no_serial_device_is_named_so(kind, tmp_path):
-    # issue 12, item 8: a regular file or /dev/null gave "Could not configure port: (25,
+    # a regular file or /dev/null gave "Could not configure port: (25,
     # 'Inappropriate ioctl for device')"
     if kind == 'regular file':
         port, said = tmp_path / 'ttyACM0', 'is a regular file, not a serial device'

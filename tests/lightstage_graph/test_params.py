@@ -1,4 +1,4 @@
-"""Issue 23, node parameters: a params YAML with a syntax error, a value out of range, an
+"""A params YAML with a syntax error, a value out of range, an
 integer where a float belongs, an unknown name -- each a message naming the parameter (and
 the line), never an rclpy traceback; integers are taken for float parameters."""
 import os

@@ -154,7 +154,7 @@ def test_train_action_streams_feedback_and_returns_a_result(graph, tiny_capture,
     assert bad.accepted
     bad_result = c.result(bad.get_result_async(), 30, 'the failed Train result').result
     assert not bad_result.success and 'no such capture folder' in bad_result.message
-    # the node's features parameter picks the extractor (issue 16); a bad name aborts a goal
+    # the node's features parameter picks the extractor; a bad name aborts a goal
     small = dict(capture_dir=str(tiny_capture), noise='sigma2', max_images=1, repeats=3)
     try:
         (ok,) = c.set_parameters('trainer', features='intensity_stats')

@@ -1,4 +1,4 @@
-"""Issue 23 (Bad 5 and the synth rows): a cache whose bytes changed with its size kept is
+"""A cache whose bytes changed with its size kept is
 rebuilt; `synth --strength` and `--size` out of range are refused before any work."""
 import numpy as np
 import pytest

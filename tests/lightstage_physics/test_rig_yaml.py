@@ -1,4 +1,4 @@
-"""Issue 12, items 4 and 7: rig.yaml entries of the wrong kind name their key and value.
+"""`rig.yaml` entries of the wrong kind name their key and value.
 
 `bit_depth: 11.9` used to load as 11 (every gray level doubled) and `image_height: 120.9` as
 120; a wrong type gave `invalid literal for int() with base 10: 'one-twenty'` or `malformed
@@ -117,12 +117,12 @@ def test_unequal_pose_counts_are_named(tmp_path):
     ("field_of_view_mm", -10, "camera.field_of_view_mm = -10.0 mm is out of range"),
     ("height_mm", 0, "camera.height_mm = 0.0 mm is out of range"),
 ])
-def test_issue_23_camera_values_out_of_range_are_refused_naming_the_key(root, key, value, message):
+def test_camera_values_out_of_range_are_refused_naming_the_key(root, key, value, message):
     _with(root, "camera", key, value)
     _refused(root, message)
 
 
-def test_issue_23_unknown_keys_are_refused_with_the_closest_known_one(root):
+def test_unknown_keys_are_refused_with_the_closest_known_one(root):
     """A typo `frames_averged: 64` silently became the default 1."""
     data = yaml.safe_load((root / "rig.yaml").read_text())
     data["camera"]["frames_averged"] = 64

@@ -1,4 +1,4 @@
-"""Issue 12 item 5: `lightstage bag info` on a bag with a damaged chunk exited 0 and listed
+"""`lightstage bag info` on a bag with a damaged chunk exited 0 and listed
 every message as intact (the messages of a chunk of bags/sim_session whose CRC no longer
 matches). It now reads every chunk back by default; --no-verify says in its output
 that CRCs were not checked."""

@@ -6,7 +6,7 @@ recorder as processes; 15 samples, each classified with 8 and then 4 images: 30 
 recorded with a small max_bag_size_bytes so that the bag is split, then the two printed
 commands. The first starts the observing classifier *and a recorder* (`lightstage up`
 records unless --no-record), which subscribes to the same topics as the classifier while
-the bag plays: every one of the 30 labels must come back all the same (issue 23: with the
+the bag plays: every one of the 30 labels must come back all the same (with the
 recorder on, 2 to 4 of the demo's 30 did), and the recorder must have recorded every image.
 """
 import re

@@ -1,4 +1,4 @@
-"""Issue 23, the recording rows: `bag info` into a closed pipe, and --remap rules the
+"""`bag info` into a closed pipe, and --remap rules the
 bag cannot be played with, refused naming the rule before any node exists."""
 import os
 import subprocess

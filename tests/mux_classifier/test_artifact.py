@@ -274,8 +274,8 @@ def test_corrupted_bytes_are_refused(artifact, tmp_path):
         TrainedArtifact.load(tmp_path / "c.npz")
 
 
-def test_issue_12_header_that_is_not_an_npy_array_is_refused(tmp_path, monkeypatch):
-    """Issue 12, item 2, as written there: a zip whose header.npy is not an .npy array gave
+def test_header_that_is_not_an_npy_array_is_refused(tmp_path, monkeypatch):
+    """A zip whose header.npy is not an .npy array gave
     AttributeError ('bytes' object has no attribute 'astype')."""
     monkeypatch.chdir(tmp_path)
     zipfile.ZipFile('x.npz', 'w').writestr('header.npy', b'garbage')
@@ -328,7 +328,7 @@ def test_header_array_of_another_type_is_refused(tmp_path):
      "header field 'noise.exposure_ms' = -1 ms is out of range: give 0.001 .. 10000 ms"),
     ("noise", {"name": "x", "sigma_p2": "a", "sigma_r2": 1, "gain_db": 0, "exposure_ms": 1},
      "header field 'noise.sigma_p2' must be a number or null"),
-    # issue 23: a gain no camera has killed the camera node on the next classify
+    # a gain no camera has killed the camera node on the next classify
     ("noise", {"name": "x", "sigma_p2": 1, "sigma_r2": 1, "gain_db": 1e6, "exposure_ms": 30},
      "header field 'noise.gain_db' = 1000000.0 dB is out of range: give 0 .. 48 dB"),
     ("noise", {"name": "x", "sigma_p2": 1, "sigma_r2": 1e300, "gain_db": 15, "exposure_ms": 30},
@@ -368,7 +368,7 @@ def test_arrays_of_text_are_refused(artifact, tmp_path):
 
 @pytest.mark.parametrize("umask", [0o022, 0o002, 0o077])
 def test_saved_file_has_the_mode_the_umask_gives(artifact, tmp_path, umask):
-    """Issue 12: artifacts were written 0600 (mkstemp's mode survived the rename), unreadable
+    """Artifacts were written 0600 (mkstemp's mode survived the rename), unreadable
     to a classifier running as another user."""
     old = os.umask(umask)
     try:
@@ -395,7 +395,7 @@ def test_fuzz_malformed_files_raise_only_artifact_error(artifact_bytes, tmp_path
 
 
 def test_fuzz_every_header_field_out_of_range_is_refused_naming_it(artifact, tmp_path):
-    """Issue 23: every header field, set to NaN, inf, negative, huge, another type or a list
+    """Every header field, set to NaN, inf, negative, huge, another type or a list
     of another length: the file loads (the value is one the format allows) and classifies,
     or is refused with an ArtifactError naming the field."""
     check_header_fields_refused_naming_them(artifact, tmp_path)

@@ -58,7 +58,7 @@ def test_an_unforeseen_failure_in_a_call_is_answered_with_its_text(node, monkeyp
 
 
 def test_a_camera_that_does_not_answer_refuses_the_call(node, monkeypatch):
-    """Issue 23: a stopped camera made the classifier skip its dimmer check after 2 s and
+    """A stopped camera made the classifier skip its dimmer check after 2 s and
     light the stage anyway; the safety check fails closed."""
     from lightstage_interfaces.srv import Classify
     from mux_classifier import classifier_node

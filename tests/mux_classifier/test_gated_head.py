@@ -1,4 +1,4 @@
-"""A linear head gated by object type (`gated_head`, docs/LEARNED.md round 10): fitted per
+"""A linear head gated by object type (`gated_head`, docs/LEARNED.md): fitted per
 type on that type's samples, its scores pick the best class of the best type."""
 import numpy as np
 import pytest

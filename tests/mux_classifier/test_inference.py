@@ -34,7 +34,7 @@ def test_plan_takes_the_first_k_patterns_k_a_trained_count_and_the_artifacts_set
     plan = plan_acquisition(noise_free, 0)
     assert plan.exposure_us == 0 and math.isnan(plan.gain_db)  # driver / camera defaults
     # a setting no camera takes (nor the Pattern message: uint32 us, float32 dB) is refused
-    # when the artifact is made or loaded (issue 23: the shared ranges), so never sent
+    # when the artifact is made or loaded (the shared ranges), so never sent
     for exposure_ms, gain_db, field in [(4_294_968.0, 0.0, 'exposure_ms'), (22.5, 1e39, 'gain_db')]:
         with pytest.raises(ArtifactError, match=f'noise setting {field} = .* is out of range'):
             replace(stage_artifact, noise=dict(stage_artifact.noise, exposure_ms=exposure_ms,

@@ -2,7 +2,7 @@
 
 Every node runs in its own process through the bring-up supervisor, in a domain id of this
 test's own with LOCALHOST discovery; the test talks to them from an in-process client.
-The classifier answers every request and survives every artifact file (issue 12): fuzzed
+The classifier answers every request and survives every artifact file: fuzzed
 Classify requests and artifact_path files.
 
 LIGHTSTAGE_FUZZ_EXAMPLES=N runs N examples per fuzz test here (default: a few, they go
@@ -112,7 +112,7 @@ def test_classify_over_samples_is_complete_consistent_and_accurate(graph):
 
 def test_an_artifact_on_pose_robust_features_classifies_on_the_stage(
         graph, stage_intensity_artifact_path, stage_artifact_path):
-    """Issue 16: an artifact whose classifiers use `intensity_stats` (recorded in its
+    """An artifact whose classifiers use `intensity_stats` (recorded in its
     header), set at run time, classifies the stage's samples through the graph."""
     from mux_classifier.artifact import TrainedArtifact
     client = graph.client
@@ -197,7 +197,7 @@ def _served_order(answers, results):
             for m in results]
 
 
-def test_issue_23_twenty_concurrent_calls_are_all_served_in_order(graph):
+def test_twenty_concurrent_calls_are_all_served_in_order(graph):
     """Four or more concurrent calls all failed: every executor thread waited for the stage,
     none was left for the driver's reply. Twenty at once, each with time enough to wait its
     turn: every one classifies, one at a time, in the order sent, and the node stays up."""
@@ -219,7 +219,7 @@ def test_issue_23_twenty_concurrent_calls_are_all_served_in_order(graph):
     assert not graph.supervisor.exited()
 
 
-def test_issue_23_calls_beyond_what_fits_their_time_limit_are_refused_at_once(graph):
+def test_calls_beyond_what_fits_their_time_limit_are_refused_at_once(graph):
     """Twenty at once with 1.5 s each: those the stage can serve in time classify, in order;
     the others are refused with the reason (the calls ahead of them, the time limit) instead
     of failing after it; none is left unanswered and the stage classifies afterwards."""
@@ -244,7 +244,7 @@ def test_issue_23_calls_beyond_what_fits_their_time_limit_are_refused_at_once(gr
     assert not graph.supervisor.exited()
 
 
-def test_issue_23_a_stopped_camera_is_refused_not_skipped(graph):
+def test_a_stopped_camera_is_refused_not_skipped(graph):
     """A camera stopped with SIGSTOP made the classifier skip its dimmer check after 2 s and
     light the stage anyway ("its dimmer is not checked"); the check fails closed: the call is
     refused naming the camera, and classifies again once the camera runs."""
@@ -274,7 +274,7 @@ def test_classify_cli_prints_the_answer(graph):
     p = subprocess.run([lightstage, 'classify', '--domain-id', str(domain_id), '--json',
                         '--max-images', '4'], capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr
-    # issue 23: every successful call ended in `Exception ignored in: <function
+    # every successful call ended in `Exception ignored in: <function
     # Executor.__del__> ... InvalidHandle`; the client now closes in order
     assert 'Exception ignored' not in p.stderr and 'Traceback' not in p.stderr, p.stderr
     answer = json.loads(p.stdout)
@@ -287,8 +287,8 @@ SPECIAL_TIMEOUTS = [0.0, -0.0, 1e-6, 0.1, 600.0, 600.0000001, 1e10, threading.TI
                     math.inf, -math.inf, math.nan, -1.0, 5e-324]
 
 
-def test_issue_12_request_time_limits_outside_the_contract_are_refused(graph):
-    """Issue 12, item 1: timeout_s above threading.TIMEOUT_MAX killed the node (OverflowError
+def test_request_time_limits_outside_the_contract_are_refused(graph):
+    """Timeout_s above threading.TIMEOUT_MAX killed the node (OverflowError
     in the stage lock's acquire); negative and NaN were silently replaced by the default;
     1e-6 answered 'timeout_s must be > 0, got -9.43e-06'. Each is refused, naming the value."""
     for bad in [1e10, threading.TIMEOUT_MAX * 2, -1.0, math.nan, math.inf, -math.inf, 1e-6]:
@@ -299,9 +299,9 @@ def test_issue_12_request_time_limits_outside_the_contract_are_refused(graph):
     assert r.success, r.message
 
 
-def test_issue_12_malformed_artifact_set_at_run_time_is_rejected_and_the_old_one_kept(
+def test_malformed_artifact_set_at_run_time_is_rejected_and_the_old_one_kept(
         graph, tmp_path, monkeypatch):
-    """Issue 12, item 2: set at run time, this file made the parameter call go unanswered and
+    """Set at run time, this file made the parameter call go unanswered and
     took the graph down."""
     monkeypatch.chdir(tmp_path)
     zipfile.ZipFile('x.npz', 'w').writestr('header.npy', b'garbage')
@@ -338,9 +338,9 @@ def test_fuzz_classify_answers_every_request_and_the_node_stays_up(graph):
     assert r.success, r.message
 
 
-def test_issue_12_malformed_artifacts_leave_the_node_up_at_start_and_at_run_time(
+def test_malformed_artifacts_leave_the_node_up_at_start_and_at_run_time(
         stage_artifact_path, tmp_path, monkeypatch):
-    """Issue 12, item 2 at start-up (the node died), then fuzzed artifact files set through
+    """An unreadable artifact at start-up (the node died), then fuzzed artifact files set through
     artifact_path: every parameter call is answered and the node stays up."""
     monkeypatch.chdir(tmp_path)
     zipfile.ZipFile('x.npz', 'w').writestr('header.npy', b'garbage')

@@ -1,4 +1,4 @@
-"""Issue 26: a learned-illumination model in the artifact (format 4): its arrays in the npz
+"""A learned-illumination model in the artifact (format 4): its arrays in the npz
 (no pickle), one prediction path (the artifact's estimator per image count), bad files
 refused naming the field."""
 import json

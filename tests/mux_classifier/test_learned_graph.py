@@ -1,4 +1,4 @@
-"""Issue 26, item 6: `lightstage classify` on a learned artifact through the real graph --
+"""`lightstage classify` on a learned artifact through the real graph --
 driver (simulated firmware), camera and classifier, each its own process. A graded model
 runs on a graded board (pwm_bits 8), an on/off one on an on/off board (pwm_bits 0, the
 authors' rig); the stage lights the learned levels in image order."""

@@ -1,4 +1,4 @@
-"""Issue 12, items 3 and 11, and the unequal pose counts; issue 15's --jobs default.
+"""Faults of the train and eval CLI, the unequal pose counts, and the --jobs default.
 
 Output paths that cannot be written are refused before any work; a path that stops taking
 files during the run does not lose the result. The tests run as root, so "read-only" is
@@ -258,7 +258,7 @@ def test_trainer_node_refuses_zero_workers():
         rclpy.shutdown(context=context)
 
 
-# ---------------------------------------------------------------- issue 15: --jobs default
+# ---------------------------------------------------------------- --jobs default
 def test_jobs_default_is_the_usable_cores(capture, tmp_path, monkeypatch):
     seen = {}
 

@@ -82,7 +82,7 @@ def test_eval_selects_methods_and_noises(capture, capsys):
 
 
 def test_eval_and_train_with_feature_extractors(capture, tmp_path, capsys):
-    """Issue 16: --features runs every method once per extractor; methods stay the first's,
+    """--features runs every method once per extractor; methods stay the first's,
     by_features holds each; train writes an artifact on the chosen extractor."""
     out_dir = tmp_path / 'eval'
     rc = eval_main([str(capture), '--repeats', '4', '--max-images', '1', '--renders', '1',

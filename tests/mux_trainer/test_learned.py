@@ -376,7 +376,7 @@ def test_the_callback_hears_every_start_column_and_step_and_can_stop_the_fit(tin
 
 def test_the_head_is_fitted_on_several_noise_draws(tiny_data, monkeypatch):
     """The final SVM sees head_renders noise draws of every training sample: the inner
-    splits' draw first (the head of rounds 1-4), then draws that differ from it and from
+    splits' draw first (the head's first draw), then draws that differ from it and from
     each other; data without noise has one draw (the others would be copies)."""
     import mux_trainer.learned as learned
     fitted_on = []
@@ -573,8 +573,8 @@ def typed_disk_data(n_poses=8, size=24, seed=0):
 
 
 def test_the_head_is_gated_by_object_type_unless_flat_is_asked():
-    """Round 10: by default one SVM tells the types apart and one per type its classes;
-    head='flat' is rounds 3-9's."""
+    """By default one SVM tells the types apart and one per type its classes;
+    head='flat' is one SVM over every class."""
     data = typed_disk_data()
     kwargs = dict(n_images=4, starts=('per_colour',), fine_tune='none', n_repeats=20,
                   head_renders=2, seed=0)

@@ -1,4 +1,4 @@
-"""Issue 26, item 6: learned illumination where the other methods are -- `lightstage train
+"""Learned illumination where the other methods are -- `lightstage train
 --method learned`, `lightstage eval --methods ...,learned`, the trainer node's parameters --
 on the tiny capture (24 px) with a few steps."""
 import json

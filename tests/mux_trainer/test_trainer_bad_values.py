@@ -1,4 +1,4 @@
-"""Issue 23, the trainer's rows: `train --out` over a file that is not an artifact, noise
+"""`train --out` over a file that is not an artifact, noise
 specs and files out of range, --seed and --repeats bounds, Dask addresses refused at once.
 Each refused before any work, naming the option or key."""
 import pytest

@@ -12,7 +12,7 @@ saturation, by the mean of the *other* half against the fitted model's noise. Wh
 point's bin and whether it is used is then independent of the point itself, so neither the
 binning nor the dropping selects points by their own noise (the old rule, dropping a pixel
 whose own sample sd put it near 0, kept only the low-variance pixels at low means and bent
-the binned points below the line there, the more the fewer the frames: issue 12 item 6).
+the binned points below the line there, the more the fewer the frames).
 
 `PixelMoments` / `SplitMoments` accumulate the halves' per-pixel moments frame by frame, so no
 frame stack is held in memory; `fit_uncertainty` gives the fit's standard errors from the

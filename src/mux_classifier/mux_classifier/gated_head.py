@@ -4,12 +4,12 @@ A flat one-vs-rest linear SVM over many classes z-scores every statistic over al
 Where two classes of one type (a relief seal and a flat print of it) differ by a small step
 of one statistic that varies widely between types (fruit against card), that step is small
 in those units, and the SVM leans on whatever else separates the few training samples of
-the pair, which need not hold for a sample it has not seen (docs/LEARNED.md, round 10: the
-16-class mix's held-out seals). Here one linear SVM tells the types apart, and within a type
+the pair, which need not hold for a sample it has not seen (docs/LEARNED.md, "The head: gated
+by object type": the 16-class mix's held-out seals). Here one linear SVM tells the types apart, and within a type
 a class's score is the sum of two linear SVMs' (an average of the two): one fitted on that
 type's samples alone, z-scored over them (it sees the small step), and the flat one-vs-rest
 SVM over every class (its direction is held by all the data: alone, the per-type SVM lost
-green apples of a held-out instance that the flat one classifies, round 10).
+green apples of a held-out instance that the flat one classifies).
 
 All are linear in the raw statistics, so the head is one linear layer with ``G + K``
 outputs: the G types' scores, then the K classes' scores within their type

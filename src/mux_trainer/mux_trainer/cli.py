@@ -145,7 +145,7 @@ def _learned_arguments(p: argparse.ArgumentParser) -> None:
                    help=f'gradient steps on the LED levels from each start descended (the random '
                         f'one, greedy\'s columns and the best raking split; snapshots scored by the '
                         f'inner splits, the best kept); default: {DEFAULT_STEPS}, the starts '
-                        f'alone (docs/LEARNED.md, round 9)')
+                        f'alone (docs/LEARNED.md, "Gradient steps on the levels")')
 
 
 def _learned_options(prog: str, args) -> dict:

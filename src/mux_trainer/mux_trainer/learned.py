@@ -17,27 +17,28 @@ would have to learn that from a handful of poses), they are what the greedy sear
 with on free placement (`--features intensity_stats`), so a comparison isolates what
 learning the light adds, and they are cheap (two sorts per image) and exact to reproduce
 in numpy for the node (`mux_classifier.learned_model`). A small CNN over the images was
-measured (round 8: 65-82 % where the statistics give 97 %, 15 training samples per class).
+measured: 65-82 % where the statistics give 97 %, 15 training samples per class
+(docs/research/LEARNED_PATH.md).
 By default (`ratio_stats`) statistics across images follow (`mux_classifier.ratio_stats`,
 in JAX `stack_ratio_stats`): per pair, the log ratio's spread and gradient, which a
 relief's shading keeps and a print of it does not.
 
-Training (why: docs/LEARNED.md, rounds 3, 8 and 9). Candidate lights are scored with the
+Training (why: docs/LEARNED.md, "Candidate lights and how one is kept"). Candidate lights are scored with the
 greedy search's own inner splits and the exact linear SVM on them
 (`evaluation.CandidateEvaluator` in the joint mode) and the best is kept (a tie keeps the
 earlier): the starts (a random graded light with every LED partly on, the per-colour
 start, the SNR-optimal baseline's site columns expanded to LED levels, greedy's columns,
 a raking-sides light per split of the rig's low sites, any the caller gives) and, with
-``max_steps`` > 0 (0 by default: round 9), snapshots of gradient steps from some of them.
+``max_steps`` > 0 (0 by default: no descent was ever kept), snapshots of gradient steps from some of them.
 The steps run on the training samples (a fresh noise draw each step, Adam on the LED
 logits) against the pose-held-out loss of a closed-form ridge classifier (`cv_ridge_loss`:
 per fold of training poses, the head solved on the other poses, its squared hinge on the
 fold's), so the light is asked for what the inner splits measure: separation that holds on
 poses it was not fitted on.
 The final classifier is greedy's kind: a linear SVM on the chosen patterns' rendered
-training statistics (`head_renders` noise draws), stored as one linear layer. Round 2's
-shrunk Fisher criterion and round 1's cross-entropy through a head trained alongside remain
-as `objective` options.
+training statistics (`head_renders` noise draws), stored as one linear layer. The shrunk
+Fisher criterion and cross-entropy through a head trained alongside remain as `objective`
+options.
 """
 from __future__ import annotations
 
@@ -71,13 +72,15 @@ from .search_params import SplitScoring
 from .split_scoring import SCORERS
 from .splits import check_inner_groups, resolve_inner_groups
 
-# criteria for the light's gradient steps (docs/LEARNED.md, round 3): the pose-held-out
-# ridge classifier's squared hinge (default), the shrunk Fisher criterion (round 2),
-# cross-entropy through a head trained alongside (round 1)
+# criteria for the light's gradient steps (docs/LEARNED.md, "Gradient steps on the
+# levels"): the pose-held-out ridge classifier's squared hinge (default), the shrunk Fisher
+# criterion, cross-entropy through a head trained alongside
 OBJECTIVES = ('cv_ridge', 'fisher', 'cross_entropy')
 HEADS = ('by_type', 'flat')
 BUILTIN_STARTS = ('random', 'per_colour', 'snr_optimal', 'greedy', 'raking_sides')
 HEAD_NOISE_STREAM = 5   # the head's extra noise draws (`_head_features`)
+# seed-sequence tag of every random stream of the learned method (apart from the search's)
+LEARNED_STREAM = 26
 INNER_DRAW_STREAM = 7   # the seeds of the inner splits' further draws (`inner_seeds`)
 _LEVEL_F = np.array(LEVEL_QUANTILES, np.float32) / 100
 _GRAD_F = np.array(GRADIENT_QUANTILES, np.float32) / 100
@@ -283,7 +286,7 @@ def raking_name(split: int) -> str:
 def raking_rng(seed: int, split: int) -> np.random.Generator:
     """The stream of the split-th raking start of a fit with `seed` (its later images'
     random halves), one per split so that no start's draws change another's."""
-    return np.random.default_rng([int(seed), 26, zlib.crc32(b'raking_sides'), 1 + int(split)])
+    return np.random.default_rng([int(seed), LEARNED_STREAM, zlib.crc32(b'raking_sides'), 1 + int(split)])
 
 
 def raking_sides_start(site_positions_mm, n_channels: int, k: int, rng,
@@ -295,7 +298,7 @@ def raking_sides_start(site_positions_mm, n_channels: int, k: int, rng,
     visible colours from every site, NIR from every site (inks that differ in NIR); the
     images after the first four are `per_colour_start`'s (each colour alone). A light a
     person would set up to tell relief and inks apart; measured against the other starts
-    in docs/LEARNED.md (round 7): not a default start."""
+    in docs/research/LEARNED_PATH.md: not a default start."""
     if n_channels != len(CHANNELS) or k < 4:
         raise ValueError(f'the raking-sides start needs the {len(CHANNELS)} channels '
                          f'{", ".join(CHANNELS)} and k >= 4; got {n_channels} channels, k {k}')
@@ -435,7 +438,7 @@ def _logits_of(P: np.ndarray, margin: float = 0.05) -> np.ndarray:
 def inner_seeds(seed: int, draws: int) -> list[int]:
     """The evaluator seeds of `draws` inner draws: ``seed`` itself (the splits and noise of a
     single draw, as before draws existed), then seeds of a stream of their own."""
-    more = np.random.SeedSequence([int(seed), 26, INNER_DRAW_STREAM]).generate_state(
+    more = np.random.SeedSequence([int(seed), LEARNED_STREAM, INNER_DRAW_STREAM]).generate_state(
         max(int(draws) - 1, 0))
     return [int(seed)] + [int(s) for s in more]
 
@@ -451,15 +454,14 @@ class LearnedIlluminationClassifier:
       training data and inner splits), both expanded to LEDs by `rig.site_to_led_patterns`,
       and 'raking_sides' (`raking_sides_start` on the rig's site positions, one start per
       split of the low sites, `low_side_splits`: 'raking_sides', 'raking_sides/1', ...;
-      docs/LEARNED.md rounds 7 and 8); default: all five; the last three are skipped unless
+      docs/LEARNED.md, "Candidate lights and how one is kept"); default: all five; the last three are skipped unless
       4 divides k; start_patterns: more starts, {name: (32, k) LED levels}. Every start is
       scored by the inner splits and may be kept as it is.
     - fine_tune: the starts the gradient steps run from, each for max_steps (default 0: no
-      descent, the starts alone; docs/LEARNED.md round 9): names of starts (default
+      descent, the starts alone; docs/LEARNED.md, "Gradient steps on the levels"): names of starts (default
       ('random', 'greedy', 'raking_sides'): from the random start, which needs many steps to
       find the cue where no on/off column shows it, from greedy's columns, whose choice of
-      sites a descent refines where many classes need them, round 4, and from the raking
-      sides, round 8), or
+      sites a descent refines where many classes need them, and from the raking sides), or
       'best' (the start the inner splits score best), 'all', 'none'; 'raking_sides' means
       the best scored of its splits. Each descent draws
       from a stream of its own, so one never changes another's. A perfect inner score
@@ -478,29 +480,28 @@ class LearnedIlluminationClassifier:
       start and snapshot (`evaluation.CandidateEvaluator` in the joint mode: greedy's split
       scoring and its noise streams) and their classifier: 'squared_hinge' (default: the
       exact linear SVM, the head's kind; it ranks lights more nearly as their held-out
-      accuracy does, docs/LEARNED.md rounds 7 and 8) or 'ridge' (the search's fast screen,
-      what rounds 3-6 measured), final_C: the linear SVM head's C, head_renders: the noise
+      accuracy does, docs/research/LEARNED_PATH.md) or 'ridge' (the search's fast screen),
+      final_C: the linear SVM head's C, head_renders: the noise
       draws of the training samples it is fitted on (default 6: the inner splits' draw and
-      5 more; a head on one draw may learn its noise, round 8; 4 draws measured level with
-      one without the cross-image statistics, round 5).
-    - head: 'by_type' (default; docs/LEARNED.md round 10): a head gated by object type
+      5 more; a head on one draw may learn its noise; 4 draws measured level with one without
+      the cross-image statistics).
+    - head: 'by_type' (default; docs/LEARNED.md, "The head: gated by object type"): a head gated by object type
       (`mux_classifier.gated_head`, types from the class names' prefix,
       `data.class_type_groups`): one linear SVM tells the types apart; within a type a
       class scores by its type's own SVM (that type's samples and z-scoring) plus the flat
       SVM; the flat head where gating changes nothing (one type, or one class per type).
-      'flat': one one-vs-rest linear SVM over every class (rounds 3-9).
+      'flat': one one-vs-rest linear SVM over every class.
     - inner_draws: independent sets of inner splits, each with its own noise draw
       (`inner_seeds`; the first is the one seed gives), whose mean accuracy scores a
-      candidate: more draws, less of the ranking left to one draw (docs/LEARNED.md, round 9:
-      two raking starts tied on one draw of the 16-class mix; 1, the default).
+      candidate: more draws, less of the ranking left to one draw (two raking
+      starts tied on one draw of the 16-class mix; 1, the default).
     - site_positions_mm: (n_sites, 3) for the raking-sides start; None: the rig of the
       ModelSet fitted, or the paper's stage for a SearchData (which carries no rig).
     - ratio_stats: after the images' own statistics, the cross-image relief statistics of
       every pair of images (`mux_classifier.ratio_stats`: the log ratio's spread and mean
       gradient over the object; albedo and print cancel in a ratio, relief's shading does
       not) in the descent's criterion, the inner splits and the head (the model stores their
-      offset). Default True (docs/LEARNED.md rounds 8 and 9); False: the 9 statistics per
-      image alone, as rounds 1-7 measured.
+      offset). Default True (docs/LEARNED.md); False: the 9 statistics per image alone.
     - noise, dimmer, hog_config (the image size) when fitting a ModelSet; seed; progress.
     - callback: called with a dict per step of the fit (as greedy's `callback`): a start
       begun and scored, greedy's columns while its start is made, a descent's snapshot
@@ -627,7 +628,7 @@ class LearnedIlluminationClassifier:
         L = data.n_sites * data.n_channels
         per_colour = k % data.n_channels == 0
         makers = []
-        # the two drawn starts are drawn now, in this order (the stream's draws of round 3)
+        # the two drawn starts are drawn now, in this order (the stream's first draws)
         if 'random' in self.starts:
             P_random = random_start(data, k, rng)
             makers.append(('random', lambda: P_random))
@@ -677,7 +678,7 @@ class LearnedIlluminationClassifier:
             raise ValueError('learned illumination needs at least 2 training poses per class '
                              '(the inner splits hold poses out); capture more poses')
         k = int(self.n_images)
-        rng = np.random.default_rng([int(self.seed), 26])
+        rng = np.random.default_rng([int(self.seed), LEARNED_STREAM])
         evaluators = [CandidateEvaluator(data, mode='joint', n_repeats=int(self.n_repeats),
                                          test_fraction=float(self.test_fraction), seed=s,
                                          inner_classifier=self.split_classifier, n_jobs=1,
@@ -730,7 +731,7 @@ class LearnedIlluminationClassifier:
                     # the random start's descent continues the stream that drew it (round
                     # 3's draws); any other start's has a stream of its own (seed, name)
                     chain_rng = rng if name == 'random' else np.random.default_rng(
-                        [int(self.seed), 26, zlib.crc32(name.encode())])
+                        [int(self.seed), LEARNED_STREAM, zlib.crc32(name.encode())])
                     for step, P, loss in ([] if perfect() else
                                           self._descend(data, candidates[name], chain_rng)):
                         tag = f'{name}+{step}'
@@ -856,12 +857,12 @@ class LearnedIlluminationClassifier:
     def _head_features(self, data: SearchData, ev, patterns) -> np.ndarray:
         """The training samples' statistics under the patterns, head_renders noise draws
         stacked: the inner splits' draw, then draws of a stream of its own (a head fitted on
-        one draw may learn that draw's noise with it; measured: docs/LEARNED.md, round 5)."""
+        one draw may learn that draw's noise with it; measured: docs/research/LEARNED_PATH.md)."""
         parts = [self._features(data, ev.images(patterns))]
         renders = int(self.head_renders) if data.noise_a or data.noise_b else 1
         if renders > 1:
             clean = clean_led_images(data, patterns)
-            rng = np.random.default_rng([int(self.seed), 26, HEAD_NOISE_STREAM])
+            rng = np.random.default_rng([int(self.seed), LEARNED_STREAM, HEAD_NOISE_STREAM])
             for _ in range(renders - 1):
                 noisy = add_noise_images(data, clean, standard_normal(rng, clean.shape))
                 parts.append(self._features(data, noisy))

@@ -6,11 +6,11 @@ from __future__ import annotations
 # gradient steps on the light from each start descended (`learned`'s fine_tune: the random
 # start, greedy's columns and the best raking split; every `eval_every` steps a snapshot is
 # scored by the inner splits, the best kept). 0: the starts are scored and the best
-# kept, no descent. Why 0 by default (docs/LEARNED.md, round 9): with the cross-image
+# kept, no descent. Why 0 by default (docs/LEARNED.md, "Gradient steps on the levels"): with the cross-image
 # statistics no snapshot of 200 steps from any of the three was kept on the 16-class mix, at
-# 17 min per descent; the starts alone are at least round 4's descents on every capture
-# measured but the weakest cue strength. 200 was rounds 3-8's (the inner score still rose at
-# 200 steps from the random start on the strength-0.2 capture, round 3).
+# 17 min per descent; the starts alone score at least as well as descents on every capture
+# measured but the weakest cue strength, where the inner score still rose at 200 steps from
+# the random start (strength 0.2; docs/research/LEARNED_PATH.md).
 DEFAULT_STEPS = 0
 MAX_STEPS = 100_000
 # exposure counts `lightstage eval` trains a learned model for (one model each: a learned

@@ -194,7 +194,7 @@ def test_calibrating_the_simulated_stage_recovers_the_camera_noise(graph, stage,
         again = cli('calibrate', str(noise_file), '--frames', '3', '--levels', '2',
                     domain_id=graph.domain_id)
         assert again.returncode == 1 and 'already exists' in again.stderr
-        # too few frames for an unbiased fit: refused with the reason (issue 12 item 6)
+        # too few frames for an unbiased fit: refused with the reason
         again = cli('calibrate', str(tmp_path / 'new.yaml'), '--frames', '2', '--levels', '2',
                     domain_id=graph.domain_id)
         assert again.returncode == 1 and 'at least 3 frames per level' in again.stderr

@@ -1,4 +1,4 @@
-"""Issue 12 item 6: the noise calibration is unbiased for any frame count it accepts, and its
+"""The noise calibration is unbiased for any frame count it accepts, and its
 stated standard errors cover the configured noise at the stated rate.
 
 Main's fit dropped a pixel when its own mean +- 4 of its own sample sds left 0..max: at low
@@ -92,7 +92,7 @@ def dim_stage(tmp_path_factory):
 
 
 @pytest.mark.parametrize('frames, levels', [(120, 8), (30, 8), (30, 6)])
-def test_issue_12_item_6_sim_stage_calibration_is_unbiased(dim_stage, frames, levels):
+def test_sim_stage_calibration_is_unbiased(dim_stage, frames, levels):
     """The issue's three cases on the simulated stage (pure core, `calibrate_noise` on sim
     camera frames): each term within 4 of its stated standard errors of the configured noise,
     and the bins below 100 gray levels on the line, not under it (their mean standardized

@@ -222,7 +222,7 @@ def test_hardware_triggered_frames_pair_with_triggers_announced_after_them(backe
 
 
 def test_no_camera_at_all_names_the_serial_number_asked_for(monkeypatch):
-    """Issue 23: `serial_number: NOT-A-SERIAL` with no camera said `no Basler camera found`."""
+    """`serial_number: NOT-A-SERIAL` with no camera said `no Basler camera found`."""
     from types import SimpleNamespace
     stub = SimpleNamespace(serial_number='NOT-A-SERIAL', transport_layer='',
                            _devices=lambda pylon: (None, []))

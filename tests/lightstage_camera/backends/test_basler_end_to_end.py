@@ -1,4 +1,4 @@
-"""The whole method on pylon's emulated camera (issue 14): driver (Python firmware simulator),
+"""The whole method on pylon's emulated camera: driver (Python firmware simulator),
 camera node with backend basler, acquisition and classifier nodes as processes; `lightstage
 capture` writes a valid capture folder, `lightstage calibrate` runs to the end, and the
 Classify service returns the label of the sample whose images the camera serves; a frame the

@@ -1,4 +1,4 @@
-"""Acceptance (issue 14) on pylon's emulated camera: the driver (Python firmware simulator)
+"""Acceptance on pylon's emulated camera: the driver (Python firmware simulator)
 and the camera node with backend basler run as processes; pattern sequences fired through
 ApplyPatterns give one mono16 image per trigger, equal to the served file, stamped with its
 trigger, each with its camera_info; a failed buffer and a trigger without a frame give their
