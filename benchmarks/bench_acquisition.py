@@ -15,10 +15,10 @@ acquisition node as processes in a domain id of its own (LOCALHOST discovery), t
     .venv/bin/python benchmarks/bench_acquisition.py [--size 240] [--frames 1 4 16]
         [--calibration-frames 15 30 60 120] [--exposure-us 30000] [--json OUT.json]
 
-Without ROS (`--core`): the calibration cases FRAMESxLEVELS (default the issue 12 cases
+Without ROS (`--core`): the calibration cases FRAMESxLEVELS (default the cases
 120x8 30x8 30x6) through `calibration.calibrate_noise` on the simulated camera's frames (the
 acquisition node's core, the same frames the graph delivers), `--seeds` repeats each, and the
-mean error in stated standard errors. `--cause` adds the experiment behind issue 12 item 6:
+mean error in stated standard errors. `--cause` adds the experiment behind the fit's pixel selection:
 the same frames fitted with main's pixel-dropping rule and its variants.
 
     .venv/bin/python benchmarks/bench_acquisition.py --core [--cases 120x8 30x8 30x6]

@@ -1,4 +1,4 @@
-"""Classify throughput and latency with 1, 4 and 16 concurrent clients (issue 23).
+"""Classify throughput and latency with 1, 4 and 16 concurrent clients.
 
 Brings up driver (Python firmware simulator), sim camera and classifier as processes in a
 domain id of its own (LOCALHOST discovery; run it in a private network namespace as the

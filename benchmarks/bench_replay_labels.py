@@ -2,7 +2,7 @@
 """Replaying the demo's stage session into an observing classifier while a recorder runs:
 how many of the session's classifications come back, per replay, for the classifier as
 shipped (one executor thread) and on rclpy's MultiThreadedExecutor (4 threads, the node's
-executor before stop 38), the two alternating in one run.
+executor the node ran on before), the two alternating in one run.
 
 Each replay starts the classifier with the demo's replay parameters and a recorder (as
 `lightstage up classifier` does), plays the bag's /illumination and /camera/image_raw as the

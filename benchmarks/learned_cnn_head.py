@@ -1,4 +1,4 @@
-"""Round 8's probe (docs/LEARNED.md): a small convolutional head instead of the statistics.
+"""A probe (docs/research/LEARNED_PATH.md): a small convolutional head instead of the statistics.
 Conv layers (3 x 3, ReLU, 2 x 2 average pooling) over the k images' logs, then the global
 mean and max of each channel (pose-robust by construction) and a linear layer; trained by
 Adam with fresh noise every step on the training samples relit under a fixed light, early

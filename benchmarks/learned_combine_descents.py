@@ -1,7 +1,7 @@
 """One learned fit of several descents, from runs of learned_vs_greedy.py that each ran some
 of them (per capture): the union of their candidates, the one the estimator keeps, and its held-out figure.
 
-Every descent draws from a stream of its own and the random start's draws what round 3 drew
+Every descent draws from a stream of its own and the random start's draws what the stream's first draws were
 (`test_each_descent_draws_its_own_stream`), so a run with `--fine-tune random` and one with
 `--fine-tune greedy` score exactly what one run of both would. The estimator keeps the best
 inner score, the earlier candidate on a tie, in the order: starts, then each descent's

@@ -7,7 +7,7 @@ sites) are scored by its inner splits (exact linear SVM, 400 pose splits, the de
 features with the cross-image statistics) under evaluator seeds 0 .. S-1: each seed is
 another set of inner splits and another noise draw. Prints the scores and the mean and
 standard deviation of the second light's lead. Seed 0 is what a fit with that split seed 0
-uses (docs/LEARNED.md, round 9: the mix's instances/0 tie).
+uses (docs/research/LEARNED_PATH.md: the mix's instances/0 tie).
 
     PYTHONPATH=src/lightstage_physics:src/mux_classifier:src/mux_trainer \\
         .venv/bin/python benchmarks/learned_inner_seeds.py DIR/mix16 --seeds 5

@@ -9,10 +9,10 @@ The matrices (rows: site-major LEDs, one column per exposure, levels 0/1):
   from every site;
 - sides_visible_nir: two images lit in every colour from opposite pairs of low sites, one
   by the visible colours from every site, one by NIR from every site;
-and the learned model's own light (round 3 default, 4 exposures) for comparison.
+and the learned model's own light (its defaults without cross-image statistics, 4 exposures) for comparison.
 Written by hand after looking at the classes' cues (relief under grazing light, NIR inks);
 they show how far the light's family, not the features or the classifier, held greedy back
-(docs/LEARNED.md, round 3).
+(docs/research/LEARNED_PATH.md).
 
     PYTHONPATH=src/lightstage_physics:src/mux_classifier:src/mux_trainer \\
         .venv/bin/python benchmarks/learned_light_headroom.py /work/data/sweep/weak0.2 [--seed 0]

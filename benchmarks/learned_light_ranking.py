@@ -1,9 +1,9 @@
 """How the learned estimator's inner splits rank fixed lights, against the held-out accuracy
 the lights give: for one split of a capture, each light's inner score under the two split
 classifiers (`CandidateEvaluator(inner_classifier=...)`: 'ridge', the search's fast screen,
-which rounds 3-6 scored the learned candidates with, and 'squared_hinge', the exact linear
+the search's fast screen, and 'squared_hinge', the exact linear
 SVM, the head's kind), and its held-out accuracy with the model's head fitted on 1 and on 6
-noise draws (`head_renders`). Docs/LEARNED.md, round 7.
+noise draws (`head_renders`). docs/research/LEARNED_PATH.md.
 
 The lights, 4 exposures: the light a learned_vs_greedy.py run kept (its JSON), the
 raking-sides start (`learned.raking_sides_start` on the paper's stage), and

@@ -1,6 +1,6 @@
-"""Round 7's probe: does a cross-image feature learned jointly with the light carry the seal
-pair's relief cue in the 16-class mix at 4 exposures? (docs/LEARNED.md, round 7; since
-round 8 the model's option `ratio_stats`, whose functions this probe now uses)
+"""A probe: does a cross-image feature learned jointly with the light carry the seal
+pair's relief cue in the 16-class mix at 4 exposures? (docs/research/LEARNED_PATH.md;
+the model's option `ratio_stats` now, whose functions this probe uses)
 
 Pair features, per pair of images (i, j), over the object (the mask of the images' sum):
 R = log(I_i + c) - log(I_j + c) (albedo and print cancel; relief's shading does not), its

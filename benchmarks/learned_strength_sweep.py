@@ -1,4 +1,4 @@
-"""Held-out accuracy against cue strength: learned vs greedy vs SNR-optimal (issue 26's plot).
+"""Held-out accuracy against cue strength: learned vs greedy vs SNR-optimal (the plot in docs/LEARNED.md).
 
 For each strength S it makes (once; kept for reuse) the capture `lightstage synth
 OUT/weakS --placement free --types coin,note,seal --samples N --poses P --strength S`, then
