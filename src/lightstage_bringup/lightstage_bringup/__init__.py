@@ -10,6 +10,7 @@ The command and its processes (no rclpy at import):
     classify_cli     `lightstage classify` (the ``/lightstage/classify`` service)
 The operator's page (`lightstage web`, docs/WEB.md):
     web_state        what the page shows, as plain data (`PageState`; no rclpy)
+    web_requests     the page's API requests checked field by field, the goals they make
     web_app          the aiohttp server over a `PageState` and a bridge to the graph (no rclpy)
     web_node         the bridge: hands the graph's messages to the page, its calls to the graph
     web_cli          `lightstage web`
@@ -26,5 +27,5 @@ ROS environment is `lightstage_graph.ros_env`. Importing the package imports non
 """
 
 __all__ = ['cli', 'demo', 'launcher', 'supervisor', 'acquisition_cli', 'classify_cli',
-           'web_state', 'web_app', 'web_node', 'web_cli', 'view_channels', 'view_server',
+           'web_state', 'web_requests', 'web_app', 'web_node', 'web_cli', 'view_channels', 'view_server',
            'view_node', 'view_cli']
