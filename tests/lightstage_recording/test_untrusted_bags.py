@@ -195,3 +195,25 @@ def test_a_file_outside_the_bag_directory_is_refused_and_not_read(name, bag):
     assert 'refused, nothing read' in p.stderr, p.stderr
     head = open('/etc/passwd', 'rb').read(8)
     assert repr(head) not in p.stderr and head.decode() not in p.stderr, p.stderr
+
+
+def test_a_metadata_yaml_with_aliases_is_refused_before_they_are_expanded(bag):
+    """Nine levels of ten aliases each ('billion laughs') would be 10**9 strings once expanded
+    by a consumer that walks the tree; rosbag2 writes no anchors, so any is refused."""
+    meta_path = bag / 'metadata.yaml'
+    laughs = ['a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol","lol"]']
+    for i, name in enumerate('bcdefghi'):
+        prev = 'abcdefgh'[i]
+        laughs.append(f'{name}: &{name} [{", ".join(["*" + prev] * 10)}]')
+    meta_path.write_text(meta_path.read_text() + '\n'.join(laughs) + '\n')
+    with pytest.raises(BagError, match=r'metadata\.yaml uses YAML anchors or aliases'):
+        BagReader(bag)
+    p = _cli('bag', 'info', str(bag))
+    assert p.returncode == 2 and 'anchors or aliases' in p.stderr, p.stdout + p.stderr
+
+
+def test_a_metadata_yaml_beyond_1_mib_is_refused_with_the_file_and_the_limit(bag):
+    meta_path = bag / 'metadata.yaml'
+    meta_path.write_text(meta_path.read_text() + '#' * (2 << 20) + '\n')
+    with pytest.raises(BagError, match=r'metadata\.yaml is \d+ bytes, more than the 1048576 bytes'):
+        BagReader(bag)

@@ -17,6 +17,27 @@ from .exceptions import BagError
 ROS_DISTRO = 'jazzy'
 METADATA_FILE = 'metadata.yaml'
 METADATA_VERSION = 9
+# A rosbag2 metadata.yaml is a few KiB (about 1 KiB per topic and per file); 1 MiB is far
+# beyond any real one and bounds what a hostile file makes the reader load.
+MAX_METADATA_BYTES = 1 << 20
+
+
+def load_metadata(meta_path: Path, max_bytes: int = MAX_METADATA_BYTES):
+    """The parsed metadata.yaml. A file larger than ``max_bytes`` or with YAML anchors or
+    aliases (rosbag2 writes none; nested aliases expand exponentially, 'billion laughs') is
+    refused with `BagError` naming the file and the rule, before it is expanded."""
+    size = meta_path.stat().st_size
+    if size > max_bytes:
+        raise BagError(f'{meta_path} is {size} bytes, more than the {max_bytes} bytes a '
+                       f'{METADATA_FILE} may hold; refused without reading it (a damaged or '
+                       'hostile file)')
+    text = meta_path.read_text()
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, yaml.AliasEvent) or getattr(event, 'anchor', None) is not None:
+            raise BagError(f'{meta_path} uses YAML anchors or aliases (line '
+                           f'{event.start_mark.line + 1}), which a rosbag2 {METADATA_FILE} never '
+                           'holds; refused without expanding them (a hostile file)')
+    return yaml.safe_load(text)
 
 
 def file_name(bag: Path, index: int) -> Path:
@@ -63,7 +84,7 @@ def resolve_files(path: Path) -> tuple[list[Path], dict | None, list[str]]:
     metadata = None
     if meta_path.is_file():
         try:
-            loaded = yaml.safe_load(meta_path.read_text())
+            loaded = load_metadata(meta_path)
             metadata = loaded['rosbag2_bagfile_information']
             if not isinstance(metadata, dict):
                 raise TypeError('rosbag2_bagfile_information is not a mapping')
