@@ -64,7 +64,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f'unknown verb {verb!r}; choose one of: {", ".join(VERBS)}')
     module, function, _ = VERBS[verb]
     entry = getattr(importlib.import_module(module), function)
-    return int(entry(rest) or 0)
+    try:
+        return int(entry(rest) or 0)
+    except KeyboardInterrupt:  # a verb that has nothing to clean up on Ctrl-C: one line, not a traceback
+        print(f'lightstage {verb}: interrupted (Ctrl-C)', file=sys.stderr)
+        return 130
 
 
 if __name__ == '__main__':
