@@ -88,13 +88,11 @@ def _data(path: Path):
 
 
 def _features(data, patterns, renders: int, seed: int, stream: int, extractor=None):
-    """Rows (renders * n, features) of `renders` noisy renders of every sample."""
-    import dataclasses
-
+    """`renders` noisy renders of every sample: a list of (n, features) (default: the
+    novelty models' features)."""
     from mux_trainer.novelty_fit import novelty_features
-    if extractor is not None:
-        data = dataclasses.replace(data, features=extractor)
-    return [novelty_features(data, 'per_colour', patterns, r, seed, stream)
+    extra = {} if extractor is None else {'features': extractor}
+    return [novelty_features(data, 'per_colour', patterns, r, seed, stream, **extra)
             for r in range(renders)]
 
 
@@ -165,7 +163,8 @@ def print_summary(title: str, summary: dict, rate: float) -> None:
     for k, s in summary.items():
         fam = ('-' if s['families'] is None else
                f"{100 * s['families']:5.1f} % (min {100 * s['families_worst']:.0f})")
-        print(f"{k:>6} | {100 * s['detected']:6.1f} % (worst {s['detected_worst_type']} "
+        worst = s['detected_worst_type'] if s['detected_worst'] < 1 else 'type'
+        print(f"{k:>6} | {100 * s['detected']:6.1f} % (worst {worst} "
               f"{100 * s['detected_worst']:.0f}) | {100 * s['false_alarm']:5.1f} % "
               f"(worst fold {100 * s['false_alarm_worst_fold']:4.1f}) | {fam:>18}")
 

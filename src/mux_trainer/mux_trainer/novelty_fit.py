@@ -25,10 +25,12 @@ DEFAULT_RENDERS = 3    # noisy renders of each training sample
 
 
 def novelty_features(data: SearchData, mode: str, patterns: np.ndarray, render_index: int,
-                     seed: int, stream: int = NOVELTY_STREAM) -> np.ndarray:
-    """`NOVELTY_FEATURES` (n, images * 9) of one noisy render of every sample of ``data``
-    under ``patterns`` (all columns, in image order), rendered one column at a time."""
-    stats = dataclasses.replace(data, features=NOVELTY_FEATURES)
+                     seed: int, stream: int = NOVELTY_STREAM,
+                     features: str = NOVELTY_FEATURES) -> np.ndarray:
+    """``features`` (n, images * values per image; `NOVELTY_FEATURES`: 9) of one noisy render
+    of every sample of ``data`` under ``patterns`` (all columns, in image order), rendered
+    one column at a time."""
+    stats = dataclasses.replace(data, features=features)
     parts = []
     for c in range(patterns.shape[1]):
         clean = render(data, mode, patterns[:, c:c + 1])

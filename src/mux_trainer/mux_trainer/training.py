@@ -238,6 +238,9 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False,
         'n_exposures': int(model.best_n_patterns_ * model.images_per_pattern),
         'inner_estimate': model.inner_estimate_,
         'confidence': None if confidence is None else confidence.to_dict(),
+        'novelty': {str(k): {'false_alarm_rate': m.false_alarm_rate_,
+                             'held_out_false_alarm': m.held_out_false_alarm_}
+                    for k, m in (artifact.novelty or {}).items()} or None,
         'train_seconds': seconds,
     }
     if hasattr(model, 'improved_'):
