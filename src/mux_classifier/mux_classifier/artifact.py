@@ -23,12 +23,13 @@ from sklearn.utils.validation import check_is_fitted
 from .artifact_format import (FORMAT_NAME, FORMAT_VERSION, LEARNED_MODE, MAX_IMAGES,
                               MAX_LEARNED_WIDTH, MODES, READABLE_VERSIONS, UNRECORDED_DIMMER,
                               ArtifactError, read_artifact, write_artifact)
-from .confidence import (ACCEPTED, UNSURE, Confidence, ConfidenceError, Decision,
+from .confidence import (ACCEPTED, UNKNOWN, UNSURE, Confidence, ConfidenceError, Decision,
                          check_target_probability)
 from .estimator import LearnedModelClassifier, MuxClassifier
-from .features import DEFAULT_EXTRACTOR, check_stacks, searchable_extractor
+from .features import DEFAULT_EXTRACTOR, check_stacks, make_extractor, searchable_extractor
 from .hog import HogConfig
 from .learned_model import LearnedModel
+from .novelty import NOVELTY_FEATURES, NoveltyModel
 
 # the features a learned model classifies with (`learned_model`: intensity statistics)
 LEARNED_FEATURES = "intensity_stats"
@@ -127,6 +128,9 @@ class TrainedArtifact:
     ``confidence``: the calibration of the classifiers' scores and the anytime stop rule
     (`confidence.Confidence`, or its dict), fitted at training time; None (every file before
     format 7): uncalibrated, scores only, every image taken.
+    ``novelty``: {image count: `novelty.NoveltyModel`} (or each model's `to_arrays()` dict),
+    scoring the images' `NOVELTY_FEATURES` against the trained classes; `decide` answers
+    "unknown" where the score is >= 1. None: never unknown.
     Prediction is the estimator's: `classifier` (a fitted `MuxClassifier` per image count, or
     the learned model's `LearnedModelClassifier`).
     """
@@ -144,8 +148,11 @@ class TrainedArtifact:
     features: str = DEFAULT_EXTRACTOR
     learned: LearnedModel | None = None
     confidence: Confidence | None = None
+    novelty: dict | None = None
 
     def __post_init__(self):
+        if self.novelty is not None:
+            self.novelty = _novelty_models(self.novelty)
         if self.learned is not None and not isinstance(self.learned, LearnedModel):
             self.learned = _learned_model(self.learned)
         if self.confidence is not None and not isinstance(self.confidence, Confidence):
@@ -245,6 +252,7 @@ class TrainedArtifact:
         if self.learned is not None:
             self._validate_learned()
             self._validate_confidence()
+            self._validate_novelty()
             return
         if not self.stages:
             raise ArtifactError("the artifact holds no classifier")
@@ -277,6 +285,24 @@ class TrainedArtifact:
                                                   features=self.features)
             for s in self.stages}
         self._validate_confidence()
+        self._validate_novelty()
+
+    def _validate_novelty(self):
+        """Novelty models cover only image counts the artifact has a classifier for, each on
+        that many images' `NOVELTY_FEATURES`."""
+        if not self.novelty:
+            self.novelty = None
+            return
+        extra = sorted(set(self.novelty) - set(self.n_images))
+        if extra:
+            raise ArtifactError(f"the novelty models name image counts {extra} that have no "
+                                f"classifier (it has {self.n_images})")
+        per_image = make_extractor(NOVELTY_FEATURES, self.hog_config).features_per_image
+        for k, model in self.novelty.items():
+            if model.n_features_in_ != k * per_image:
+                raise ArtifactError(f"the novelty model for {k} images scores "
+                                    f"{model.n_features_in_} features, not {k} x {per_image} "
+                                    f"({NOVELTY_FEATURES})")
 
     def _validate_confidence(self):
         """A calibration covers only image counts the artifact has a classifier for."""
@@ -339,6 +365,9 @@ class TrainedArtifact:
         calibrated = ("calibrated, anytime stop at "
                       f"{100 * self.confidence.stop_probability:.0f} %"
                       if self.confidence is not None else "uncalibrated")
+        if self.novelty:
+            rate = max(m.false_alarm_rate_ for m in self.novelty.values())
+            calibrated += f"; unknown objects flagged at {100 * rate:g} % false alarms"
         inner = self.provenance.get("inner_estimate")
         if isinstance(inner, dict) and isinstance(inner.get("accuracy"), (int, float)):
             calibrated += (f"; inner estimate {100 * inner['accuracy']:.1f} % on held-out "
@@ -437,20 +466,37 @@ class TrainedArtifact:
         trained one), else unsure; ``stop`` when it is accepted (unless
         ``target_probability`` >= 1: every image) or when ``final`` (the budget is spent).
         Uncalibrated: no probabilities; it stops only when ``final`` and accepts the label.
+        Either way, with a novelty model for k images: ``novelty`` is its score and the
+        decision is unknown where it is >= 1 (when it stops is unchanged).
         """
         prediction = self.predict_stack(images)
         k = prediction.n_images
+        novelty = self.novelty_score(images)
+        unknown = bool(novelty >= 1.0)
         if self.confidence is None or k not in self.confidence.temperatures:
             return Decision(prediction.label, prediction.index, prediction.scores,
-                            np.empty(0, dtype=np.float64), ACCEPTED, math.nan, bool(final), k)
+                            np.empty(0, dtype=np.float64), UNKNOWN if unknown else ACCEPTED,
+                            novelty, bool(final), k)
         fixed = target_probability is not None and float(target_probability) >= 1.0
         target = (self.confidence.stop_probability if target_probability is None or fixed
                   else float(target_probability))
         probabilities = self.confidence.probabilities(prediction.scores, k)[0]
         reached = bool(probabilities[prediction.index] >= target)
+        decision = UNKNOWN if unknown else ACCEPTED if reached else UNSURE
         return Decision(prediction.label, prediction.index, prediction.scores, probabilities,
-                        ACCEPTED if reached else UNSURE, math.nan,
-                        (reached and not fixed) or bool(final), k)
+                        decision, novelty, (reached and not fixed) or bool(final), k)
+
+    def novelty_score(self, images) -> float:
+        """How unlike every trained class one sample's images (k, H, W) are: >= 1 unknown,
+        NaN without a novelty model for k images."""
+        arr = np.asarray(images)
+        if not self.novelty or arr.ndim != 3 or arr.shape[0] not in self.novelty:
+            return math.nan
+        try:
+            X = make_extractor(NOVELTY_FEATURES, self.hog_config).raw_features(arr[None])
+        except ValueError as exc:
+            raise ArtifactError(str(exc)) from None
+        return float(self.novelty[arr.shape[0]].score(X)[0])
 
     @staticmethod
     def check_target_probability(value) -> float | None:
@@ -487,6 +533,27 @@ def _learned_model(arrays) -> LearnedModel:
         raise ArtifactError(f"learned model arrays lack {exc}; retrain to get a new file") from None
     except (TypeError, ValueError) as exc:
         raise ArtifactError(f"learned model arrays: {exc}") from None
+
+
+def _novelty_models(novelty) -> dict:
+    """{image count: NoveltyModel} from models or their named arrays; ArtifactError naming
+    what is wrong."""
+    if not isinstance(novelty, dict):
+        raise ArtifactError(f"novelty must map image counts to novelty models, got "
+                            f"{type(novelty).__name__}")
+    models = {}
+    for k, model in novelty.items():
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+            raise ArtifactError(f"novelty key {reprlib.repr(k)} is not an image count")
+        if not isinstance(model, NoveltyModel):
+            try:
+                model = NoveltyModel.from_arrays(dict(model))
+            except (TypeError, ValueError) as exc:
+                raise ArtifactError(f"the novelty model for {k} images: {exc}") from None
+        elif not hasattr(model, "threshold_"):
+            raise ArtifactError(f"the novelty model for {k} images is not fitted")
+        models[int(k)] = model
+    return dict(sorted(models.items()))
 
 
 def _positive_dimmer(value, what: str) -> float:

@@ -24,6 +24,8 @@ from lightstage_graph.limits import DIMMER_MAX, DIMMER_MIN, LimitError, check_ra
 
 from .features import DEFAULT_EXTRACTOR, searchable_extractor
 from .hog import HogConfig
+from .novelty import ARRAY_NAMES as NOVELTY_ARRAYS
+from .novelty import NOVELTY_FEATURES
 
 __all__ = ["ArtifactError", "FORMAT_NAME", "FORMAT_VERSION", "READABLE_VERSIONS",
            "UNRECORDED_DIMMER", "MODES", "MAX_IMAGES", "LEARNED_MODE", "LEARNED_PREFIX",
@@ -31,8 +33,10 @@ __all__ = ["ArtifactError", "FORMAT_NAME", "FORMAT_VERSION", "READABLE_VERSIONS"
 
 FORMAT_NAME = "lightstage.mux_classifier"
 # 7: the header carries "confidence" (calibrated probabilities and the anytime stop rule,
-# `confidence.Confidence`); a release that reads 6 would ignore it and answer without
-# probabilities, so such a file says 7. A file without one is still written as 4, 5 or 6.
+# `confidence.Confidence`) and/or "novelty" (the unknown-object models, `novelty`, their
+# arrays "novelty_<k>_<name>"); a release that reads 6 would ignore them and answer without
+# probabilities or "unknown", so such a file says 7. A file without either is still written
+# as 4, 5 or 6.
 # 6: a learned model whose head is gated by object type (its "learned_class_groups"): a
 # release that reads 5 would take the types' scores for classes' and refuse the file as
 # mis-sized, so such a file says 6.
@@ -54,7 +58,9 @@ LEARNED_SINCE = 4  # the first format version with learned models
 RATIO_SINCE = 5    # ... and with learned models' cross-image statistics
 GROUPS_SINCE = 6   # ... and with learned models' heads gated by object type
 CONFIDENCE_SINCE = 7  # ... and with calibrated probabilities and the anytime rule
+NOVELTY_SINCE = 7     # ... and with the unknown-object (novelty) models
 LEARNED_PREFIX = "learned_"
+NOVELTY_PREFIX = "novelty_"
 MAX_IMAGES = 4096  # images of one classification: far beyond any search (16 in the paper)
 MAX_LEARNED_WIDTH = 4096  # hidden units of a learned model's layer (the trainer's: 0 .. 64)
 DIMMER_RANGE = (DIMMER_MIN, DIMMER_MAX)
@@ -72,6 +78,8 @@ def written_version(artifact) -> int:
     learned = artifact.learned
     if getattr(artifact, "confidence", None) is not None:
         return CONFIDENCE_SINCE
+    if getattr(artifact, "novelty", None):
+        return NOVELTY_SINCE
     if learned is not None and learned.class_groups is not None:
         return GROUPS_SINCE
     return RATIO_SINCE if learned is not None and learned.ratio_offset else LEARNED_SINCE
@@ -92,6 +100,8 @@ def _header(artifact) -> dict:
         "features": artifact.features,
         **({"confidence": artifact.confidence.to_dict()}
            if getattr(artifact, "confidence", None) is not None else {}),
+        **({"novelty": {"features": NOVELTY_FEATURES, "n_images": sorted(artifact.novelty)}}
+           if getattr(artifact, "novelty", None) else {}),
     }
 
 
@@ -112,6 +122,9 @@ def write_artifact(path, artifact) -> None:
     if artifact.learned is not None:
         for name, a in artifact.learned.to_arrays().items():
             arrays[LEARNED_PREFIX + name] = np.asarray(a)
+    for k, model in sorted((getattr(artifact, "novelty", None) or {}).items()):
+        for name, a in model.to_arrays().items():
+            arrays[f"{NOVELTY_PREFIX}{k}_{name}"] = a
     path = os.fspath(path)
     directory = os.path.dirname(os.path.abspath(path))
     # a new file of its own ("x": never another's), created with the umask's mode as any
@@ -135,7 +148,7 @@ def read_artifact(path, build):
     ``fields`` are TrainedArtifact's: led_patterns, class_names, stages (tuples n_images,
     coef, intercept), noise, hog_config, mode, site_patterns, provenance, dimmer,
     dimmer_recorded, features, learned (None, or a learned model's named arrays), confidence
-    (None, or the calibration's dict). Whatever else ``path`` holds (nothing, a directory, another
+    (None, or the calibration's dict), novelty (None, or {image count: named arrays}). Whatever else ``path`` holds (nothing, a directory, another
     kind of file, an archive whose members are not .npy arrays, a malformed header or
     arrays), and any ArtifactError of ``build``, raises ArtifactError saying what is wrong.
     """
@@ -219,7 +232,29 @@ def _fields(header: dict, arrays: dict) -> dict:
         confidence=(field_of("confidence", dict, "an object (the calibration)")
                     if header["format_version"] >= CONFIDENCE_SINCE and "confidence" in header
                     else None),
+        novelty=(_novelty_arrays(field_of("novelty", dict, "an object (the novelty models)"),
+                                 arrays, array)
+                 if header["format_version"] >= NOVELTY_SINCE and "novelty" in header else None),
     )
+
+
+def _novelty_arrays(doc: dict, arrays: dict, array) -> dict:
+    """{image count: the novelty model's named arrays} of the header's "novelty" entry."""
+    unknown = sorted(set(doc) - {"features", "n_images"})
+    if unknown:
+        raise ArtifactError(f"header field 'novelty' has unknown keys {unknown}")
+    if doc.get("features") != NOVELTY_FEATURES:
+        raise ArtifactError(f"header field 'novelty.features' must be {NOVELTY_FEATURES!r} "
+                            f"(the features this release scores novelty on), got "
+                            f"{reprlib.repr(doc.get('features'))}")
+    counts = doc.get("n_images")
+    if not isinstance(counts, list) or not counts or not all(
+            isinstance(k, int) and not isinstance(k, bool) and 1 <= k <= MAX_IMAGES
+            for k in counts) or len(set(counts)) != len(counts):
+        raise ArtifactError(f"header field 'novelty.n_images' must list distinct image "
+                            f"counts 1 .. {MAX_IMAGES}, got {reprlib.repr(counts)}")
+    return {k: {name: array(f"{NOVELTY_PREFIX}{k}_{name}") for name in NOVELTY_ARRAYS}
+            for k in counts}
 
 
 def _learned_arrays(arrays: dict) -> dict:

@@ -201,7 +201,8 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False,
     artifact path is checked first; an artifact that cannot be written at the end after all
     is kept in a rescue folder (ArtifactNotWritten, an OSError, says where). `force`: replace
     an existing file that is not an artifact. `calibrate`: fit calibrated probabilities and the
-    anytime stop rule on held-out inner answers (`calibration`; pattern models).
+    anytime stop rule on held-out inner answers (`calibration`), and the unknown-object models
+    on held-out physical samples (`novelty_fit`); pattern models.
     """
     out = check_artifact_path(out_path, force)
     if options.get('method') == 'learned':
@@ -219,9 +220,11 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False,
         import dataclasses
 
         from .calibration import calibrate_pattern_model
+        from .novelty_fit import fit_pattern_novelty
         t1 = time.perf_counter()
         confidence = calibrate_pattern_model(model)
-        artifact = dataclasses.replace(artifact, confidence=confidence)
+        artifact = dataclasses.replace(artifact, confidence=confidence,
+                                       novelty=fit_pattern_novelty(model))
         seconds += time.perf_counter() - t1
     summary = {
         'method': options.get('method', 'greedy'), 'mode': model.mode,
@@ -235,6 +238,9 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False,
         'n_exposures': int(model.best_n_patterns_ * model.images_per_pattern),
         'inner_estimate': model.inner_estimate_,
         'confidence': None if confidence is None else confidence.to_dict(),
+        'novelty': {str(k): {'false_alarm_rate': m.false_alarm_rate_,
+                             'held_out_false_alarm': m.held_out_false_alarm_}
+                    for k, m in (artifact.novelty or {}).items()} or None,
         'train_seconds': seconds,
     }
     if hasattr(model, 'improved_'):
