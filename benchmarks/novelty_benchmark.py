@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-TEST_STREAM = 6152  # the test renders' noise (the training renders': novelty_fit.NOVELTY_STREAM)
+from mux_trainer.novelty_fit import UNKNOWN_TEST_STREAM as TEST_STREAM  # the test renders' noise
 
 
 def parse_args(argv=None) -> argparse.Namespace:

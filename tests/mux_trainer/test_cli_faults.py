@@ -22,7 +22,7 @@ from mux_trainer.cli import eval_main, train_main
 
 from helpers.trainer import TINY
 TRAIN = ['--repeats', '6', '--max-images', '2', '--fixed-count', *TINY]
-EVAL = ['--repeats', '4', '--max-images', '1', '--renders', '1', '--methods', 'naive,greedy',
+EVAL = ['--no-answers', '--repeats', '4', '--max-images', '1', '--renders', '1', '--methods', 'naive,greedy',
         '--no-plots', *TINY]
 
 

@@ -64,12 +64,31 @@ def test_eval_json_shape_and_outputs(capture, tmp_path, capsys):
         assert (out_dir / name).stat().st_size > 0
     table = (out_dir / 'table1.csv').read_text().splitlines()
     assert table[0].startswith('noise,method,fruit0,fruit1,overall') and len(table) == 5
+    # the calibrated answers of every pattern method (naive + BoW has no calibration)
+    assert 'answers' not in doc['methods']['naive_bow']
+    for name in ('naive', 'snr_optimal', 'greedy'):
+        a = doc['methods'][name]['answers']
+        assert a['budget_images'] == doc['methods'][name]['n_exposures']
+        assert a['full_accuracy'] == pytest.approx(doc['methods'][name]['accuracy'])
+        assert 1 <= a['anytime_mean_images'] <= a['budget_images']
+        bins = a['reliability']['full']
+        assert sum(b['answers'] for b in bins) == a['answers']
+        assert a['full_calibration_error'] == pytest.approx(
+            sum(b['answers'] * abs(b['accuracy'] - b['confidence']) for b in bins) / a['answers'])
+        assert a['coverage_curve'][-1]['coverage'] == 1.0  # of the anytime answers
+        assert a['coverage_curve'][-1]['accuracy'] == pytest.approx(a['anytime_accuracy'])
+        u = a['unknown']  # each of the two fruit left out of the novelty model in turn
+        assert set(u['by_left_out_type']) == {'fruit0', 'fruit1'}
+        assert 0 <= u['flagged'] <= 1 and 0 <= u['false_alarms'] <= 1
+    answers = (out_dir / 'answers.csv').read_text().splitlines()
+    assert answers[0].startswith('noise,method,budget_exposures') and len(answers) == 4
+    assert (out_dir / 'answers.png').stat().st_size > 0
 
 
 def test_eval_selects_methods_and_noises(capture, capsys):
     rc = eval_main([str(capture), '--repeats', '4', '--max-images', '1', '--renders', '1',
                     '--methods', 'naive,greedy_joint', '--noise', 'sigma1,sigma2', '--json',
-                    '--joint-max-images', '3', '--quiet', *TINY])
+                    '--joint-max-images', '3', '--quiet', '--no-answers', *TINY])
     assert rc == 0
     doc = json.loads(capsys.readouterr().out)
     assert set(doc['methods']) == {'naive', 'greedy_joint'}
@@ -87,7 +106,7 @@ def test_eval_and_train_with_feature_extractors(capture, tmp_path, capsys):
     out_dir = tmp_path / 'eval'
     rc = eval_main([str(capture), '--repeats', '4', '--max-images', '1', '--renders', '1',
                     '--methods', 'naive,naive_bow,greedy', '--features', 'hog_grid,intensity_stats',
-                    '--json', '--quiet', '--out', str(out_dir), *TINY])
+                    '--json', '--quiet', '--no-answers', '--out', str(out_dir), *TINY])
     assert rc == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc['features'] == 'hog_grid' and doc['settings']['features'] == ['hog_grid', 'intensity_stats']
@@ -199,7 +218,8 @@ def test_bad_noise_settings_fail_clearly(capture, tmp_path):
 
 def test_eval_count_rule_reports_what_each_rule_keeps(capture, capsys):
     rc = eval_main([str(capture), '--repeats', '6', '--max-images', '3', '--renders', '1',
-                    '--methods', 'greedy,snr_optimal', '--count-rule', 'one_se', '--json', *TINY])
+                    '--methods', 'greedy,snr_optimal', '--count-rule', 'one_se', '--json',
+                    '--no-answers', *TINY])
     assert rc == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc['settings']['count_rule'] == 'one_se'

@@ -24,8 +24,8 @@ from mux_classifier.confidence import (Confidence, anytime_outcomes, expected_ca
 from scipy.optimize import minimize_scalar
 
 __all__ = ["DEFAULT_SPLITS", "DEFAULT_TOLERANCE", "calibrate_pattern_model", "choose_stop",
-           "evaluate_anytime",
-           "fit_temperature", "held_out_scores"]
+           "coverage_curve", "evaluate_anytime", "fit_temperature", "held_out_scores",
+           "reliability_bins"]
 
 DEFAULT_SPLITS = 8        # inner splits refitted per column count
 DEFAULT_TOLERANCE = 0.01  # accuracy the anytime rule may give up against the full count
@@ -177,4 +177,43 @@ def evaluate_anytime(model, confidence: Confidence, test_data, n_renders: int = 
         'accepted_accuracy': float((predicted[reached] == y[reached]).mean())
         if reached.any() else None,
         'coverage': coverage,
+        'coverage_curve': coverage_curve(at_stop, y),
+        'reliability': {'full': reliability_bins(full, y),
+                        'anytime': reliability_bins(at_stop, y)},
     }
+
+
+def reliability_bins(probabilities: np.ndarray, labels: np.ndarray,
+                     n_bins: int = 10) -> list[dict]:
+    """The reliability diagram of the top-class probability: per equal-width confidence bin
+    with answers in it, its range, the answers, their mean confidence and their accuracy
+    (`expected_calibration_error` is the answer-weighted mean of the gaps)."""
+    p = np.asarray(probabilities, dtype=np.float64)
+    y = np.asarray(labels)
+    top = p.max(axis=1)
+    correct = p.argmax(axis=1) == y
+    edges = np.linspace(0.0, 1.0, int(n_bins) + 1)
+    which = np.clip(np.digitize(top, edges[1:-1], right=True), 0, int(n_bins) - 1)
+    return [{'low': float(edges[b]), 'high': float(edges[b + 1]), 'answers': int(inside.sum()),
+             'confidence': float(top[inside].mean()), 'accuracy': float(correct[inside].mean())}
+            for b in range(int(n_bins)) if (inside := which == b).any()]
+
+
+COVERAGE_STEPS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+
+
+def coverage_curve(probabilities: np.ndarray, labels: np.ndarray,
+                   steps=COVERAGE_STEPS) -> list[dict]:
+    """Accuracy against coverage: the answers kept most sure first (by top-class
+    probability), at each share of them kept; what a user gets by setting the least sure
+    answers aside (to a person, or another look)."""
+    p = np.asarray(probabilities, dtype=np.float64)
+    y = np.asarray(labels)
+    order = np.argsort(-p.max(axis=1), kind='stable')
+    correct = (p.argmax(axis=1) == y)[order]
+    out = []
+    for share in steps:
+        n = max(1, int(round(float(share) * len(correct))))
+        out.append({'coverage': n / len(correct), 'accuracy': float(correct[:n].mean()),
+                    'min_probability': float(p.max(axis=1)[order][n - 1])})
+    return out

@@ -295,6 +295,12 @@ def eval_main(argv: list[str] | None = None) -> int:
                    help='greedy_joint: most 32-LED pattern columns, one exposure each (default: '
                         '--max-images; 4 x --max-images matches the per-colour search\'s '
                         'exposures)')
+    p.add_argument('--answers', action=argparse.BooleanOptionalAction, default=True,
+                   help='calibrate each pattern method as `lightstage train` does and report '
+                        'its answers on the held-out samples: the anytime rule against the '
+                        'fixed count, calibration error and reliability, accuracy against '
+                        'coverage, and object types never trained flagged unknown (default: '
+                        'on; --no-answers skips it)')
     _learned_eval_arguments(p)
     p.add_argument('--out', metavar='DIR', help='write results.json, CSVs and PNG plots here')
     p.add_argument('--no-plots', action='store_true', help='with --out: skip the PNG plots')
@@ -342,7 +348,7 @@ def eval_main(argv: list[str] | None = None) -> int:
                                      joint_max_images=args.joint_max_images, quiet=args.quiet,
                                      progress=not args.quiet, holdout_by=args.holdout_by,
                                      count_rule=args.count_rule, inner_groups=args.inner_groups,
-                                     learned_options=learned_options)
+                                     learned_options=learned_options, answers=args.answers)
         except ValueError as exc:
             raise SystemExit(f'lightstage eval: {exc}') from None
     results['capture'] = str(Path(args.capture_dir).resolve())
@@ -350,7 +356,7 @@ def eval_main(argv: list[str] | None = None) -> int:
                            'joint_max_images': args.joint_max_images or args.max_images,
                            'holdout': args.holdout, 'holdout_by': args.holdout_by,
                            'count_rule': args.count_rule, 'inner_groups': args.inner_groups,
-                           'renders': args.renders, 'seed': args.seed,
+                           'renders': args.renders, 'seed': args.seed, 'answers': args.answers,
                            'methods': methods, 'noise': noises, 'features': features,
                            'dimmer': DEFAULT_DIMMER}
     doc = json_ready(results)
@@ -380,6 +386,34 @@ def eval_main(argv: list[str] | None = None) -> int:
 def _print_methods(methods: dict) -> None:
     for name, m in methods.items():
         print(f'  {method_row(name, m)}')
+        if m.get('answers'):
+            for line in answers_lines(m['answers']):
+                print(f'      {line}')
+
+
+def answers_lines(a: dict) -> list[str]:
+    """A method's calibrated answers on the held-out samples, in words (`report.answers_summary`)."""
+    accepted = ('none reached it' if a.get('accepted_accuracy') is None else
+                f'{100 * a["accepted_share"]:.0f} % accepted, right {100 * a["accepted_accuracy"]:.1f} %')
+    lines = [f'anytime (stop at {100 * a["stop_probability"]:.0f} %): '
+             f'{100 * a["anytime_accuracy"]:.1f} % at a mean of {a["anytime_mean_images"]:.1f} '
+             f'of {a["budget_images"]} exposures, against {100 * a["full_accuracy"]:.1f} % at '
+             f'{a["budget_images"]}; {accepted}',
+             f'calibration error {a["full_calibration_error"]:.3f} (every exposure), '
+             f'{a["anytime_calibration_error"]:.3f} (anytime), on {a["answers"]} answers']
+    curve = {round(100 * c['coverage']): c['accuracy'] for c in a.get('coverage_curve', [])}
+    if curve:
+        lines.append('accuracy of the surest answers: ' + ', '.join(
+            f'{100 * curve[k]:.1f} % of {k} %' for k in (50, 80, 100) if k in curve))
+    u = a.get('unknown')
+    if u:
+        worst = min(u['by_left_out_type'].items(),
+                    key=lambda kv: -1 if kv[1]['flagged'] is None else kv[1]['flagged'])
+        lines.append(f'unknown objects (each type left out of the novelty model in turn): '
+                     f'{100 * u["flagged"]:.1f} % flagged (worst: {worst[0]} '
+                     f'{100 * worst[1]["flagged"]:.0f} %), false alarms on trained types '
+                     f'{100 * u["false_alarms"]:.1f} % (stated {100 * u["false_alarm_rate"]:g} %)')
+    return lines
 
 
 def _count(n: int, word: str) -> str:

@@ -83,3 +83,43 @@ def plot_pattern_matrices(doc: dict, path) -> Path:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def plot_answers(doc: dict, path) -> Path | None:
+    """The calibrated answers of each method at the first noise setting: the reliability
+    diagram (accuracy against confidence per bin, the diagonal is calibrated; marker area by
+    answers) and accuracy against coverage (the surest answers kept first). None when no
+    method has answers (`lightstage eval --no-answers`)."""
+    methods = {n: m['answers'] for n, m in doc['methods'].items() if m.get('answers')}
+    if not methods:
+        return None
+    fig, (rel, cov) = plt.subplots(1, 2, figsize=(9.6, 4.4))
+    rel.plot([0, 1], [0, 1], color='gray', linewidth=0.8)
+    for name, a in methods.items():
+        bins = a['reliability']['full']
+        line, = rel.plot([b['confidence'] for b in bins], [b['accuracy'] for b in bins],
+                         linestyle=STYLE.get(name, ('-', 'o'))[0], label=(
+                             f'{name} (error {a["full_calibration_error"]:.3f})'))
+        rel.scatter([b['confidence'] for b in bins], [b['accuracy'] for b in bins],
+                    s=[8 + 200 * b['answers'] / a['answers'] for b in bins],
+                    color=line.get_color())
+        curve = a['coverage_curve']
+        cov.plot([100 * c['coverage'] for c in curve], [100 * c['accuracy'] for c in curve],
+                 linestyle=STYLE.get(name, ('-', 'o'))[0], marker=STYLE.get(name, ('-', 'o'))[1],
+                 color=line.get_color(), label=name)
+    rel.set_xlabel('calibrated probability of the answer (every exposure)')
+    rel.set_ylabel('share of answers right')
+    rel.set_xlim(0, 1)
+    rel.set_ylim(0, 1)
+    rel.set_title('reliability on held-out samples', fontsize=9)
+    cov.set_xlabel('answers kept, surest first (%)')
+    cov.set_ylabel('accuracy of the kept answers %')
+    cov.set_title('accuracy against coverage (the rest: not sure)', fontsize=9)
+    for ax in (rel, cov):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

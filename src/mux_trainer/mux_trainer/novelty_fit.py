@@ -17,7 +17,8 @@ from mux_classifier.novelty import DEFAULT_FALSE_ALARM_RATE, NOVELTY_FEATURES, N
 from .evaluation import render
 from .rendering import SearchData, add_noise, image_features, standard_normal
 
-__all__ = ["DEFAULT_RENDERS", "NOVELTY_STREAM", "fit_novelty", "fit_pattern_novelty",
+__all__ = ["DEFAULT_RENDERS", "NOVELTY_STREAM", "UNKNOWN_TEST_STREAM", "evaluate_unknown",
+           "fit_novelty", "fit_pattern_novelty",
            "novelty_features", "sample_groups"]
 
 NOVELTY_STREAM = 6151  # seed-sequence tag of the novelty renders' noise
@@ -73,3 +74,55 @@ def fit_pattern_novelty(model, false_alarm_rate: float = DEFAULT_FALSE_ALARM_RAT
     return fit_novelty(model.evaluator_.data, model.mode, patterns[:, :columns],
                        int(model.images_per_pattern), int(model.seed), false_alarm_rate,
                        n_renders)
+
+
+UNKNOWN_TEST_STREAM = 6152  # seed-sequence tag of the renders an unknown-object test scores
+
+
+def evaluate_unknown(model, train_data: SearchData, test_data: SearchData,
+                     n_renders: int = 4, seed: int = 0,
+                     false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE) -> dict | None:
+    """How well objects of a type never trained are flagged unknown, under a fitted pattern
+    model's patterns at its kept column count.
+
+    Each object type in turn is left out: novelty models are fitted (as `lightstage train`
+    fits them) on the other types' training samples, then ``n_renders`` fresh noisy renders
+    of the held-out test samples are scored: the left-out type's (the share flagged unknown
+    is the detection) and the other types' (new samples of trained types: the share flagged
+    is the false alarms). The patterns are the model's, chosen on every type: the left-out
+    type's looks took part in choosing the light, not in the novelty model
+    (benchmarks/novelty_benchmark.py leaves types out of everything, on fixed patterns).
+    Returns plain JSON, or None with fewer than two object types.
+    """
+    from .data import sample_object_types
+
+    patterns = np.asarray(model.patterns_)[:, :int(model.best_n_patterns_)]
+    per = int(model.images_per_pattern)
+    k = patterns.shape[1] * per
+    train_types, test_types = sample_object_types(train_data), sample_object_types(test_data)
+    types = list(dict.fromkeys(train_types.tolist()))
+    if len(types) < 2:
+        return None
+    X_test = np.vstack([novelty_features(test_data, model.mode, patterns, r, seed,
+                                         UNKNOWN_TEST_STREAM) for r in range(int(n_renders))])
+    tiled_types = np.tile(test_types, int(n_renders))
+    by_type = {}
+    flagged_known, known_answers = 0, 0
+    for left_out in types:
+        keep = np.flatnonzero(train_types != left_out)
+        models = fit_novelty(train_data.subset(keep), model.mode, patterns, per, int(model.seed),
+                             false_alarm_rate)
+        flagged = models[k].score(X_test) >= 1.0
+        novel = tiled_types == left_out
+        known = ~novel
+        by_type[left_out] = {'flagged': float(flagged[novel].mean()) if novel.any() else None,
+                             'false_alarms': float(flagged[known].mean()) if known.any()
+                             else None}
+        flagged_known += int(flagged[known].sum())
+        known_answers += int(known.sum())
+    detected = [v['flagged'] for v in by_type.values() if v['flagged'] is not None]
+    return {'n_images': k, 'false_alarm_rate': float(false_alarm_rate),
+            'renders': int(n_renders), 'by_left_out_type': by_type,
+            'flagged': float(np.mean(detected)) if detected else None,
+            'flagged_worst': float(min(detected)) if detected else None,
+            'false_alarms': flagged_known / known_answers if known_answers else None}

@@ -86,7 +86,8 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
                            n_jobs=1, hog_config=None, beam_width=1, joint_max_images=None,
                            quiet=False, progress=False, features='hog_grid',
                            naive_bow=None, holdout_by='poses', count_rule='max',
-                           learned=None, learned_options=None, inner_groups='auto') -> dict:
+                           learned=None, learned_options=None, inner_groups='auto',
+                           answers=True) -> dict:
     """All requested methods at one noise setting; returns {'methods': {...}, ...}.
 
     joint_max_images: pattern columns of 'greedy_joint' (one exposure each; default
@@ -103,6 +104,9 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
     (`column_count`); every method's result also reports what each rule would keep.
     learned: an earlier run's 'learned' result for this noise, reused (it classifies with
     its own statistics, whatever `features`); learned_options: `_learned_result`'s.
+    answers: also calibrate every pattern method as `lightstage train` does and report its
+    answers on the held-out samples (`answers_summary`: anytime against the fixed count,
+    calibration error and reliability, accuracy against coverage, unknown objects).
     """
     unknown = set(methods) - set(METHODS)
     if unknown:
@@ -152,6 +156,8 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
         else:
             results[name] = method_summary(model, test, n_renders, seed, train_seconds=train_s)
             models[name] = model
+            if answers:
+                results[name]['answers'] = answers_summary(model, train, test, n_renders, seed)
         _log(f'[{noise}, {results[name]["features"]}] {name}: held-out accuracy '
              f'{results[name]["accuracy"]:.4f} at {results[name]["n_exposures"]} exposure(s) '
              f'({time.perf_counter() - t0:.1f} s)', quiet)
@@ -162,6 +168,20 @@ def evaluate_noise_setting(modelset, noise: str, methods=DEFAULT_METHODS, *, n_r
             'test_instances': (sorted(int(i) for i in np.unique(instance[test_idx]))
                                if instance is not None else None),
             'methods': results, '_models': models}
+
+
+def answers_summary(model, train, test, n_renders: int = 4, seed: int = 0) -> dict:
+    """What a user of a fitted pattern model gets on held-out samples, calibrated as
+    `lightstage train` calibrates it: the anytime rule against the fixed count, the
+    calibration error with its reliability bins, accuracy against coverage
+    (`calibration.evaluate_anytime`), and unknown objects (`novelty_fit.evaluate_unknown`)."""
+    from .calibration import calibrate_pattern_model, evaluate_anytime
+    from .novelty_fit import evaluate_unknown
+    confidence = calibrate_pattern_model(model)
+    out = evaluate_anytime(model, confidence, test, n_renders, seed)
+    out['inner'] = confidence.estimate
+    out['unknown'] = evaluate_unknown(model, train, test, n_renders, seed)
+    return out
 
 
 def run_evaluation(modelset, noises=('sigma3',), methods=DEFAULT_METHODS,
@@ -236,7 +256,8 @@ def keep_outputs(doc: dict, out_dir, error: Exception) -> str:
 
 
 def write_outputs(results: dict, out_dir, plots: bool = True) -> list[Path]:
-    """results.json, table1.csv, accuracy_vs_images.csv and (plots) PNG figures. `results`
+    """results.json, table1.csv, accuracy_vs_images.csv, answers.csv (when the methods were
+    calibrated) and (plots) PNG figures. `results`
     is `run_evaluation`'s, or its JSON-ready document (`json_ready`, a results.json)."""
     doc = json_ready(results)
     out = Path(out_dir)
@@ -282,8 +303,30 @@ def write_outputs(results: dict, out_dir, plots: bool = True) -> list[Path]:
                     w.writerow([noise, name, k, f'{acc:.4f}',
                                 f'{m.get("search_accuracy_by_images", {}).get(k, float("nan")):.4f}'])
     written.append(path)
+    answered = {(noise, name): m['answers'] for noise, r in doc['by_noise'].items()
+                for name, m in r['methods'].items() if m.get('answers')}
+    if answered:
+        path = out / 'answers.csv'
+        with path.open('w', newline='') as fh:
+            w = csv.writer(fh)
+            w.writerow(['noise', 'method', 'budget_exposures', 'full_accuracy',
+                        'stop_probability', 'anytime_accuracy', 'anytime_mean_exposures',
+                        'accepted_share', 'calibration_error_full', 'calibration_error_anytime',
+                        'unknown_flagged', 'unknown_flagged_worst', 'unknown_false_alarms'])
+            for (noise, name), a in answered.items():
+                u = a.get('unknown') or {}
+                w.writerow([noise, name, a['budget_images'], f'{a["full_accuracy"]:.4f}',
+                            a['stop_probability'], f'{a["anytime_accuracy"]:.4f}',
+                            f'{a["anytime_mean_images"]:.2f}', f'{a["accepted_share"]:.4f}',
+                            f'{a["full_calibration_error"]:.4f}',
+                            f'{a["anytime_calibration_error"]:.4f}',
+                            *[('' if u.get(k) is None else f'{u[k]:.4f}')
+                              for k in ('flagged', 'flagged_worst', 'false_alarms')]])
+        written.append(path)
     if plots:
-        from .evaluation_plots import plot_accuracy_vs_images, plot_pattern_matrices
+        from .evaluation_plots import plot_accuracy_vs_images, plot_answers, plot_pattern_matrices
+        if answered:
+            written.append(plot_answers(doc, out / 'answers.png'))
         written.append(plot_accuracy_vs_images(doc, out / 'accuracy_vs_images.png'))
         written.append(plot_accuracy_vs_images(doc, out / 'accuracy_vs_exposures.png',
                                                by='exposures'))
