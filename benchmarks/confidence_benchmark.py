@@ -68,7 +68,8 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     from lightstage_physics import synth
     from lightstage_physics.capture_format import load_capture
-    from mux_trainer.calibration import calibrate_pattern_model, evaluate_anytime
+    from mux_trainer.calibration import (calibrate_pattern_model, calibration_error_floor,
+                                         evaluate_anytime, pooled_calibration_error)
     from mux_trainer.data import search_data
 
     methods = [m for m in args.methods.split(',') if m]
@@ -108,7 +109,9 @@ def main(argv=None) -> int:
                   f'{r["anytime_mean_images"] / r["budget_images"]:>6.2f} '
                   f'{r["full_calibration_error"]:>9.3f} {r["anytime_calibration_error"]:>8.3f} '
                   f'{accepted:>14}', flush=True)
-    print('\nmeans over the folds (held-out physical samples, Sigma3):')
+    print('\nmeans over the folds (held-out physical samples, Sigma3); calibration error of '
+          'all folds\' answers together, beside what a perfectly calibrated classifier would '
+          'measure on as many answers (its floor):')
     for method in methods:
         mine = [r for r in rows if r['method'] == method]
         mean = {k: float(np.mean([r[k] for r in mine])) for k in (
@@ -119,7 +122,11 @@ def main(argv=None) -> int:
               f'at {mean["anytime_mean_images"]:.1f} '
               f'({100 * mean["anytime_mean_images"] / mean["budget_images"]:.0f} % of the '
               f'exposures); calibration error {mean["full_calibration_error"]:.3f} full, '
-              f'{mean["anytime_calibration_error"]:.3f} anytime')
+              f'{mean["anytime_calibration_error"]:.3f} anytime; all folds together '
+              f'{pooled_calibration_error([r["reliability"]["full"] for r in mine]):.3f} full, '
+              f'{pooled_calibration_error([r["reliability"]["anytime"] for r in mine]):.3f} '
+              f'anytime (floor about '
+              f'{calibration_error_floor([r["reliability"]["full"] for r in mine]):.3f})')
     if args.json:
         Path(args.json).write_text(json.dumps({'args': vars(args), 'rows': rows}, indent=2))
     return 0

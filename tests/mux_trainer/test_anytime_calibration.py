@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 from mux_classifier.artifact import TrainedArtifact
-from mux_classifier.confidence import softmax
+from mux_classifier.confidence import expected_calibration_error, softmax
 from mux_trainer.calibration import STOP_TARGETS, choose_stop, fit_temperature
 
 
@@ -48,3 +48,31 @@ def test_train_says_what_it_calibrated_in_words(stage_calibrated_artifact_path):
     assert text.startswith('calibrated probabilities; anytime: stops after the first pattern')
     assert f'{100 * art.confidence.stop_probability:.3g} %' in text
     assert 'held-out answers (physical samples)' in text and 'calibration error' in text
+
+
+def test_pooled_calibration_error_is_that_of_all_answers_together():
+    from mux_trainer.calibration import pooled_calibration_error, reliability_bins
+    rng = np.random.default_rng(3)
+    p = rng.dirichlet(np.full(4, 0.6), size=400)
+    y = rng.integers(0, 4, 400)
+    parts = [reliability_bins(p[i:i + 100], y[i:i + 100]) for i in range(0, 400, 100)]
+    assert pooled_calibration_error(parts) == pytest.approx(expected_calibration_error(p, y))
+    # not the mean of the parts' errors: each part's bins are noisier
+    assert pooled_calibration_error(parts) < np.mean(
+        [pooled_calibration_error([b]) for b in parts])
+
+
+def test_calibration_error_floor_is_what_a_calibrated_classifier_measures():
+    from mux_trainer.calibration import calibration_error_floor, reliability_bins
+    rng = np.random.default_rng(5)
+    p = rng.dirichlet(np.full(5, 0.5), size=300)
+    top, label = p.max(axis=1), p.argmax(axis=1)
+    measured = []
+    for _ in range(300):  # answers right with exactly their probability
+        right = rng.random(top.size) < top
+        measured.append(expected_calibration_error(p, np.where(right, label, (label + 1) % 5)))
+    floor = calibration_error_floor([reliability_bins(p, label)])
+    assert floor == pytest.approx(np.mean(measured), rel=0.15)
+    # four times the answers: about half the floor
+    assert calibration_error_floor([reliability_bins(np.tile(p, (4, 1)), np.tile(label, 4))]) \
+        == pytest.approx(floor / 2, rel=0.05)

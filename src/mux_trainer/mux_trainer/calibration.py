@@ -24,8 +24,8 @@ from mux_classifier.confidence import (Confidence, anytime_outcomes, expected_ca
 from scipy.optimize import minimize_scalar
 
 __all__ = ["DEFAULT_SPLITS", "DEFAULT_TOLERANCE", "calibrate_pattern_model", "choose_stop",
-           "coverage_curve", "evaluate_anytime", "fit_temperature", "held_out_scores",
-           "reliability_bins"]
+           "calibration_error_floor", "coverage_curve", "evaluate_anytime", "fit_temperature",
+           "held_out_scores", "pooled_calibration_error", "reliability_bins"]
 
 DEFAULT_SPLITS = 8        # inner splits refitted per column count
 DEFAULT_TOLERANCE = 0.01  # accuracy the anytime rule may give up against the full count
@@ -173,6 +173,9 @@ def evaluate_anytime(model, confidence: Confidence, test_data, n_renders: int = 
         'anytime_accuracy': float((predicted == y).mean()),
         'anytime_mean_images': float(steps[stop].mean()),
         'anytime_calibration_error': expected_calibration_error(at_stop, y),
+        'full_calibration_error_floor': calibration_error_floor([reliability_bins(full, y)]),
+        'anytime_calibration_error_floor': calibration_error_floor(
+            [reliability_bins(at_stop, y)]),
         'accepted_share': float(reached.mean()),
         'accepted_accuracy': float((predicted[reached] == y[reached]).mean())
         if reached.any() else None,
@@ -197,6 +200,39 @@ def reliability_bins(probabilities: np.ndarray, labels: np.ndarray,
     return [{'low': float(edges[b]), 'high': float(edges[b + 1]), 'answers': int(inside.sum()),
              'confidence': float(top[inside].mean()), 'accuracy': float(correct[inside].mean())}
             for b in range(int(n_bins)) if (inside := which == b).any()]
+
+
+def calibration_error_floor(reliabilities: list[list[dict]]) -> float:
+    """About the calibration error a perfectly calibrated classifier would measure with the
+    same confidences on as many answers, from `reliability_bins` (one or several
+    evaluations' together): in a bin of n answers at confidence c, the right answers of a
+    calibrated classifier miss n c by sqrt(2 n c (1 - c) / pi) on average (normal
+    approximation). A measured error near it is as small as that many answers can show; a
+    target below it cannot be verified on them. Renders of one object count as apart, so
+    where they are alike the true floor is higher."""
+    by_bin = _pooled_bins(reliabilities)
+    total = sum(n for n, _, _ in by_bin.values())
+    return float(sum(math.sqrt(2.0 * n * (conf / n) * (1.0 - conf / n) / math.pi)
+                     for n, conf, _ in by_bin.values()) / total)
+
+
+def _pooled_bins(reliabilities: list[list[dict]]) -> dict:
+    by_bin: dict = {}
+    for bins in reliabilities:
+        for b in bins:
+            n, conf, acc = by_bin.get(b['low'], (0, 0.0, 0.0))
+            by_bin[b['low']] = (n + b['answers'], conf + b['answers'] * b['confidence'],
+                                acc + b['answers'] * b['accuracy'])
+    return by_bin
+
+
+def pooled_calibration_error(reliabilities: list[list[dict]]) -> float:
+    """The calibration error of several evaluations' answers taken together, from their
+    `reliability_bins` (the same bin edges): what one evaluation of all the answers would
+    measure."""
+    by_bin = _pooled_bins(reliabilities)
+    total = sum(n for n, _, _ in by_bin.values())
+    return float(sum(abs(acc - conf) for _, conf, acc in by_bin.values()) / total)
 
 
 COVERAGE_STEPS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)

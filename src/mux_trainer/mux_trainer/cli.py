@@ -400,7 +400,9 @@ def answers_lines(a: dict) -> list[str]:
              f'of {a["budget_images"]} exposures, against {100 * a["full_accuracy"]:.1f} % at '
              f'{a["budget_images"]}; {accepted}',
              f'calibration error {a["full_calibration_error"]:.3f} (every exposure), '
-             f'{a["anytime_calibration_error"]:.3f} (anytime), on {a["answers"]} answers']
+             f'{a["anytime_calibration_error"]:.3f} (anytime), on {a["answers"]} answers '
+             f'(a calibrated classifier would measure about '
+             f'{a["full_calibration_error_floor"]:.3f} on as many)']
     curve = {round(100 * c['coverage']): c['accuracy'] for c in a.get('coverage_curve', [])}
     if curve:
         lines.append('accuracy of the surest answers: ' + ', '.join(
