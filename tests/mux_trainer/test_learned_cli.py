@@ -44,6 +44,11 @@ def test_train_learned_writes_a_learned_artifact(capture, tmp_path, capsys):
         assert ((art.led_patterns > 0) & (art.led_patterns < 1)).any()
     images = np.full((1, 2, 24, 24), 100.0, np.float32)
     assert art.predict(images)[0] in art.class_names
+    # unknown objects: a novelty model for its two images, saved and loaded with it; a
+    # uniform grey card is unlike every trained fruit
+    assert list(art.novelty) == [2] and doc['novelty']['2']['false_alarm_rate'] == 0.05
+    decision = art.decide(images[0])
+    assert decision.novelty >= 1.0 and decision.decision == 'unknown'
 
 
 def test_train_learned_binary_gives_on_off_levels(capture, tmp_path, capsys):

@@ -18,7 +18,7 @@ from .evaluation import render
 from .rendering import SearchData, add_noise, image_features, standard_normal
 
 __all__ = ["DEFAULT_RENDERS", "NOVELTY_STREAM", "UNKNOWN_TEST_STREAM", "evaluate_unknown",
-           "fit_novelty", "fit_pattern_novelty",
+           "fit_learned_novelty", "fit_novelty", "fit_pattern_novelty",
            "novelty_features", "sample_groups"]
 
 NOVELTY_STREAM = 6151  # seed-sequence tag of the novelty renders' noise
@@ -50,18 +50,30 @@ def sample_groups(data: SearchData) -> np.ndarray:
 
 def fit_novelty(data: SearchData, mode: str, patterns: np.ndarray, images_per_column: int,
                 seed: int, false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE,
-                n_renders: int = DEFAULT_RENDERS) -> dict:
+                n_renders: int = DEFAULT_RENDERS, only_all: bool = False) -> dict:
     """{image count: fitted NoveltyModel} for the first 1 .. all columns of ``patterns``
-    (``images_per_column`` images each), on ``n_renders`` noisy renders of every sample."""
+    (``images_per_column`` images each; ``only_all``: all columns only), on ``n_renders``
+    noisy renders of every sample."""
     patterns = np.asarray(patterns)
     X = np.vstack([novelty_features(data, mode, patterns, r, seed)
                    for r in range(int(n_renders))])
     y = np.tile(data.labels, int(n_renders))
     groups = np.tile(sample_groups(data), int(n_renders))
     per_column = X.shape[1] // patterns.shape[1]
+    first = patterns.shape[1] if only_all else 1
     return {c * int(images_per_column): NoveltyModel().fit(X[:, :c * per_column], y, groups,
                                                            false_alarm_rate)
-            for c in range(1, patterns.shape[1] + 1)}
+            for c in range(first, patterns.shape[1] + 1)}
+
+
+def fit_learned_novelty(model, data: SearchData,
+                        false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE,
+                        n_renders: int = DEFAULT_RENDERS) -> dict:
+    """`fit_novelty` of a fitted learned model (`mux_trainer.learned`: one image per learned
+    LED pattern, graded levels rendered as the stage lights them) on its training ``data``,
+    for its one image count."""
+    return fit_novelty(data, 'joint', np.asarray(model.patterns_, np.float64), 1,
+                       int(model.seed), false_alarm_rate, n_renders, only_all=True)
 
 
 def fit_pattern_novelty(model, false_alarm_rate: float = DEFAULT_FALSE_ALARM_RATE,

@@ -206,7 +206,7 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False,
     """
     out = check_artifact_path(out_path, force)
     if options.get('method') == 'learned':
-        return _train_learned(modelset, out, capture, **options)
+        return _train_learned(modelset, out, capture, calibrate=calibrate, **options)
     model = build_model(**options)
     t0 = time.perf_counter()
     model.fit(modelset)
@@ -238,9 +238,7 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False,
         'n_exposures': int(model.best_n_patterns_ * model.images_per_pattern),
         'inner_estimate': model.inner_estimate_,
         'confidence': None if confidence is None else confidence.to_dict(),
-        'novelty': {str(k): {'false_alarm_rate': m.false_alarm_rate_,
-                             'held_out_false_alarm': m.held_out_false_alarm_}
-                    for k, m in (artifact.novelty or {}).items()} or None,
+        'novelty': _novelty_summary(artifact),
         'train_seconds': seconds,
     }
     if hasattr(model, 'improved_'):
@@ -249,9 +247,17 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False,
     return summary
 
 
+def _novelty_summary(artifact) -> dict | None:
+    """The unknown-object models of an artifact as the training summary gives them."""
+    return {str(k): {'false_alarm_rate': m.false_alarm_rate_,
+                     'held_out_false_alarm': m.held_out_false_alarm_}
+            for k, m in (artifact.novelty or {}).items()} or None
+
+
 def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8, seed=0,
                    repeats=400, hog_config=None, progress=False, binary=False, steps=None,
-                   callback=None, inner_groups='auto', **_search_options) -> dict:
+                   callback=None, inner_groups='auto', calibrate=True,
+                   **_search_options) -> dict:
     """`train_modelset` for method 'learned' (`learned_method`): ``max_images`` exposures,
     one learned pattern each, graded or on/off (``binary``), at most ``steps`` steps,
     candidates scored on ``repeats`` inner splits (as the search's, by physical sample or by
@@ -273,6 +279,15 @@ def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8
     if capture is not None:
         provenance['capture'] = str(Path(capture).resolve())
     artifact = learned_artifact(model, provenance)
+    if calibrate:
+        import dataclasses
+
+        from .data import search_data
+        from .novelty_fit import fit_learned_novelty
+        t1 = time.perf_counter()
+        data = search_data(modelset, noise, hog_config=hog_config)
+        artifact = dataclasses.replace(artifact, novelty=fit_learned_novelty(model, data))
+        seconds += time.perf_counter() - t1
     summary = {
         'method': 'learned', 'mode': artifact.mode, 'binary': bool(binary),
         'noise': noise if isinstance(noise, str) else artifact.noise['name'],
@@ -293,6 +308,7 @@ def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8
         'n_exposures': int(model.best_n_patterns_),
         'inner_estimate': model.inner_estimate_,
         'best_step': int(model.best_step_), 'max_steps': int(model.max_steps),
+        'novelty': _novelty_summary(artifact),
         'train_seconds': seconds,
     }
     _save_artifact(artifact, out, summary)
