@@ -76,3 +76,12 @@ def test_calibration_error_floor_is_what_a_calibrated_classifier_measures():
     # four times the answers: about half the floor
     assert calibration_error_floor([reliability_bins(np.tile(p, (4, 1)), np.tile(label, 4))]) \
         == pytest.approx(floor / 2, rel=0.05)
+
+
+def test_one_image_count_accepts_at_nine_in_ten():
+    from mux_trainer.calibration import ACCEPT_PROBABILITY
+    p = np.array([[0.95, 0.05], [0.6, 0.4], [0.2, 0.8]])
+    target, measured = choose_stop([p], [1], np.array([0, 1, 1]))
+    assert target == ACCEPT_PROBABILITY == 0.9
+    assert measured['anytime_mean_images'] == measured['full_images'] == 1
+    assert measured['anytime_accuracy'] == measured['full_accuracy'] == 2 / 3

@@ -23,7 +23,7 @@ from mux_classifier.confidence import (Confidence, anytime_outcomes, expected_ca
                                        softmax)
 from scipy.optimize import minimize_scalar
 
-__all__ = ["DEFAULT_SPLITS", "DEFAULT_TOLERANCE", "calibrate_pattern_model", "choose_stop",
+__all__ = ["ACCEPT_PROBABILITY", "DEFAULT_SPLITS", "DEFAULT_TOLERANCE", "calibrate_pattern_model", "choose_stop",
            "calibration_error_floor", "coverage_curve", "evaluate_anytime", "fit_temperature",
            "held_out_scores", "pooled_calibration_error", "reliability_bins"]
 
@@ -84,17 +84,26 @@ def held_out_scores(model, n_splits: int = DEFAULT_SPLITS) -> tuple[dict, np.nda
 # The targets the anytime rule chooses from: a short grid keeps the choice stable on a few
 # hundred held-out answers and the target readable ("stops at 95 %").
 STOP_TARGETS = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999)
+# The target of a classifier with one image count (naive, a learned model): nothing to stop
+# early, so the target only says which answers are accepted; calibrated, 9 in 10 of them are
+# right, the rest are "not sure".
+ACCEPT_PROBABILITY = 0.9
 
 
 def choose_stop(probabilities_by_step: list[np.ndarray], steps: list[int], labels: np.ndarray,
                 tolerance: float = DEFAULT_TOLERANCE) -> tuple[float, dict]:
     """The anytime target: of `STOP_TARGETS`, the one with the fewest mean images whose
     accuracy on these held-out answers stays within ``tolerance`` of the full count's (ties:
-    the higher target; none within: the highest, which stops early only when nearly sure).
+    the higher target; none within: the highest, which stops early only when nearly sure);
+    with one image count, `ACCEPT_PROBABILITY`.
     Returns (target, what it measured)."""
     labels = np.asarray(labels, dtype=int)
     steps = np.asarray(steps)
     full_accuracy = float((probabilities_by_step[-1].argmax(axis=1) == labels).mean())
+    if len(steps) == 1:
+        return ACCEPT_PROBABILITY, {'full_images': int(steps[-1]), 'full_accuracy': full_accuracy,
+                                    'anytime_accuracy': full_accuracy,
+                                    'anytime_mean_images': float(steps[-1])}
     chosen = None
     for t in sorted(STOP_TARGETS, reverse=True):
         stop, predicted, _ = anytime_outcomes(probabilities_by_step, t)
