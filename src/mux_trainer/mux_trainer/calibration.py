@@ -23,7 +23,8 @@ from mux_classifier.confidence import (Confidence, anytime_outcomes, expected_ca
                                        softmax)
 from scipy.optimize import minimize_scalar
 
-__all__ = ["ACCEPT_PROBABILITY", "DEFAULT_SPLITS", "DEFAULT_TOLERANCE", "calibrate_pattern_model", "choose_stop",
+__all__ = ["ACCEPT_PROBABILITY", "DEFAULT_SPLITS", "DEFAULT_TOLERANCE", "calibrate_learned_model",
+           "calibrate_pattern_model", "choose_stop", "confidence_from_scores",
            "calibration_error_floor", "coverage_curve", "evaluate_anytime", "fit_temperature",
            "held_out_scores", "pooled_calibration_error", "reliability_bins"]
 
@@ -61,11 +62,7 @@ def held_out_scores(model, n_splits: int = DEFAULT_SPLITS) -> tuple[dict, np.nda
     ev = model.evaluator_
     data = ev.data
     labels = np.asarray(data.labels, dtype=int)
-    masks = [np.asarray(m, dtype=bool) for m in ev.test_masks[:max(1, int(n_splits))]]
-    masks = [m for m in masks if m.any() and len(np.unique(labels[~m])) == len(np.unique(labels))]
-    if not masks:
-        raise ValueError("no inner split keeps every class on its training side: cannot "
-                         "calibrate")
+    masks = _usable_masks(ev.test_masks[:max(1, int(n_splits))], labels)
     columns = model.patterns_
     per_column = int(model.images_per_pattern)
     counts = list(range(1, columns.shape[1] + 1))
@@ -121,9 +118,54 @@ def calibrate_pattern_model(model, n_splits: int = DEFAULT_SPLITS,
                             tolerance: float = DEFAULT_TOLERANCE) -> Confidence:
     """The `Confidence` of a fitted pattern model (greedy, SNR-optimal, naive): a temperature
     per image count and the anytime target, from its held-out inner answers."""
+    _check_tolerance(tolerance)
+    scores, labels, description = held_out_scores(model, n_splits)
+    return confidence_from_scores(scores, labels, description, tolerance)
+
+
+def calibrate_learned_model(model, n_splits: int = DEFAULT_SPLITS,
+                            tolerance: float = DEFAULT_TOLERANCE) -> Confidence:
+    """The `Confidence` of a fitted learned model (`mux_trainer.learned`): its head refitted
+    for the kept light on the training side of its first ``n_splits`` inner splits (held out
+    by physical sample where the capture has two or more per class), the held-out scores
+    fitting the temperature of its one image count; accepted at `ACCEPT_PROBABILITY`."""
+    from .learned import fit_fixed_light_head
+    _check_tolerance(tolerance)
+    ev = model.evaluator_
+    labels = np.asarray(ev.data.labels, dtype=int)
+    masks = _usable_masks(ev.test_masks[:max(1, int(n_splits))], labels)
+    parts = Parallel(n_jobs=model.execution.n_jobs)(
+        delayed(fit_fixed_light_head)(ev.data, model.patterns_, ~m, m, head=model.head,
+                                      cross_image=bool(model.ratio_stats), seed=int(model.seed))
+        for m in masks)
+    k = int(model.best_n_patterns_)
+    scores = {k: np.vstack([p[1] for p in parts])}
+    y = np.concatenate([labels[m] for m in masks])
+    description = {**ev.inner_, 'calibration_splits': len(masks)}
+    return confidence_from_scores(scores, y, description, tolerance)
+
+
+def _check_tolerance(tolerance: float) -> None:
     if not 0.0 <= tolerance < 1.0 or math.isnan(tolerance):
         raise ValueError(f"tolerance must be in 0 .. 1, got {tolerance}")
-    scores, labels, description = held_out_scores(model, n_splits)
+
+
+def _usable_masks(masks, labels: np.ndarray) -> list[np.ndarray]:
+    """The inner splits' held-out masks that hold something out and keep every class on
+    their training side; ValueError when none does."""
+    masks = [np.asarray(m, dtype=bool) for m in masks]
+    masks = [m for m in masks if m.any() and len(np.unique(labels[~m])) == len(np.unique(labels))]
+    if not masks:
+        raise ValueError("no inner split keeps every class on its training side: cannot "
+                         "calibrate")
+    return masks
+
+
+def confidence_from_scores(scores: dict, labels: np.ndarray, description: dict,
+                           tolerance: float = DEFAULT_TOLERANCE) -> Confidence:
+    """Temperatures per image count and the anytime target (`choose_stop`) of held-out
+    answers: ``scores`` {image count: (m, n_classes)}, the same m answers at every count, of
+    class indices ``labels``; ``description`` says how they were held out."""
     steps = sorted(scores)
     temperatures = {k: fit_temperature(scores[k], labels) for k in steps}
     probabilities = [softmax(scores[k], temperatures[k]) for k in steps]
