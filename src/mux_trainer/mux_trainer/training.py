@@ -292,7 +292,7 @@ def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8
         'best_n_images': int(model.best_n_patterns_),
         'n_exposures': int(model.best_n_patterns_),
         'inner_estimate': model.inner_estimate_,
-        'best_step': int(model.best_step_), 'max_steps': int(model.max_steps),
+        'best_step': int(model.best_step_), 'max_steps': int(model.descent.max_steps),
         'train_seconds': seconds,
     }
     _save_artifact(artifact, out, summary)
