@@ -48,7 +48,7 @@ from mux_trainer.baselines import NaiveClassifier, SnrOptimalClassifier
 from mux_trainer.data import search_data
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import evaluate_heldout
-from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
+from mux_trainer.learned import LearnedIlluminationClassifier, Starts, evaluate_learned_heldout
 from mux_trainer.search_params import SplitScoring
 
 METHODS = ('naive', 'snr_optimal', 'greedy', 'learned')
@@ -111,15 +111,15 @@ def run_fold(train, test, args) -> dict:
         res = {'seconds': 0.0}
         for e in EXPOSURES:
             starts = {}
-            builtin = list(LearnedIlluminationClassifier().starts)
+            builtin = list(Starts().names)
             if greedy_columns is not None:
                 builtin.remove('greedy')
                 starts['greedy'] = site_to_led_patterns(greedy_columns[:, :e // 4],
                                                         train.n_channels)
-            model = LearnedIlluminationClassifier(n_images=e, seed=args.seed, starts=builtin,
-                                                  start_patterns=starts,
-                                                  n_repeats=args.n_repeats,
-                                                  inner_groups=args.inner_groups).fit(train)
+            model = LearnedIlluminationClassifier(
+                n_images=e, seed=args.seed, starts=Starts(names=tuple(builtin), patterns=starts),
+                scoring=SplitScoring(n_repeats=args.n_repeats,
+                                     inner_groups=args.inner_groups)).fit(train)
             res[str(e)] = evaluate_learned_heldout(model, test, args.n_renders,
                                                    args.seed)['accuracy']
             res[f'inner{e}'] = float(model.accuracy_by_images_[e])

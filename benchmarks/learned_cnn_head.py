@@ -28,8 +28,25 @@ from learned_vs_greedy import split_capture
 from lightstage_physics.render_jax import add_noise, relight
 from lightstage_physics.rig import Rig
 from mux_trainer.holdout import test_images
-from mux_trainer.learned import (_adam_init, _adam_update, _logits_of, levels,
-                                 pose_folds, raking_sides_start)
+import optax
+from mux_trainer.learned import levels, pose_folds, raking_sides_start
+from mux_trainer.learned import logits_of as _logits_of
+
+
+# Adam as the descent's (optax, mux_trainer.learned.descent.adam), the learning rate per call
+_ADAM = optax.scale_by_adam()
+
+
+def _adam_init(params):
+    return _ADAM.init(params)
+
+
+def _adam_update(params, grads, state, lr):
+    """One Adam step at learning rate lr (a number, or a pytree like params)."""
+    updates, state = _ADAM.update(grads, state)
+    same = jax.tree_util.tree_structure(lr) == jax.tree_util.tree_structure(params)
+    lrs = lr if same else jax.tree_util.tree_map(lambda _: lr, params)
+    return jax.tree_util.tree_map(lambda p, u, r: p - r * u, params, updates, lrs), state
 
 cap, hold, seed, light, steps, joint, out_json = (sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4],
                                                    int(sys.argv[5]), int(sys.argv[6]), sys.argv[7])

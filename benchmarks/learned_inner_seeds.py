@@ -24,8 +24,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from learned_vs_greedy import split_capture
 from lightstage_physics.rig import Rig
 from mux_trainer.evaluation import CandidateEvaluator
-from mux_trainer.learned import (LearnedIlluminationClassifier, low_side_splits,
-                                 raking_name, raking_rng, raking_sides_start)
+from mux_trainer.learned import (low_side_splits, raking_name, raking_rng, raking_sides_start,
+                                 ratio_offset, stack_features)
 
 
 def main(argv=None) -> int:
@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     for holdout in ('poses', 'instances'):
         for split_seed in (0, 1):
             train, _, _ = split_capture(args.capture, holdout, split_seed)
-            estimator = LearnedIlluminationClassifier(n_images=args.exposures, seed=split_seed)
+            offset = ratio_offset(train, True)   # the model's features: with the cross-image ones
             lights = {raking_name(split): raking_sides_start(
                           positions, train.n_channels, args.exposures,
                           raking_rng(split_seed, split), split).astype(np.float32)
@@ -48,7 +48,7 @@ def main(argv=None) -> int:
                 ev = CandidateEvaluator(train, mode='joint', n_repeats=400, seed=seed,
                                         inner_classifier='squared_hinge')
                 for name, P in lights.items():
-                    X = estimator._features(train, ev.images(P))
+                    X = stack_features(train, ev.images(P), offset)
                     scores[name].append(float(ev.score_features(X).mean()))
             names = list(lights)
             lead = np.subtract(scores[names[1]], scores[names[0]])

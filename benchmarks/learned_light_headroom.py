@@ -27,7 +27,8 @@ import numpy as np
 from lightstage_physics.capture_format import load_capture
 from mux_trainer.data import search_data
 from mux_trainer.holdout import holdout_split
-from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
+from mux_trainer.learned import (Descent, LearnedIlluminationClassifier, Starts,
+                                 evaluate_learned_heldout)
 
 
 def hand_patterns(n_sites: int = 8, n_channels: int = 4) -> dict:
@@ -63,7 +64,7 @@ def main(argv=None):
                        features='intensity_stats')
     tr, te = holdout_split(data, 0.25, args.seed)
     train, test = data.subset(tr), data.subset(te)
-    runs = {name: dict(starts=(), start_patterns={name: P}, fine_tune='none')
+    runs = {name: dict(starts=Starts(names=(), patterns={name: P}), descent=Descent(fine_tune='none'))
             for name, P in hand_patterns(data.n_sites, data.n_channels).items()}
     if not args.no_learned:
         runs['learned'] = {}

@@ -26,8 +26,9 @@ from joblib import Parallel
 from lightstage_physics.rig import Rig
 
 from mux_trainer.evaluation import CandidateEvaluator
-from mux_trainer.learned import (LearnedIlluminationClassifier, evaluate_learned_heldout,
-                                 raking_sides_start)
+from mux_trainer.learned import (Descent, Head, LearnedIlluminationClassifier, Starts,
+                                 evaluate_learned_heldout, raking_sides_start)
+from mux_trainer.search_params import SplitScoring
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from learned_light_headroom import hand_patterns
@@ -73,8 +74,9 @@ def main(argv=None):
                 row[clf] = float(ev.score(ev.prepare_column(P[:, :3]), P[:, 3:], parallel).mean())
         for h in HEAD_RENDERS:
             model = LearnedIlluminationClassifier(
-                n_images=4, starts=(), start_patterns={name: P}, fine_tune='none',
-                head_renders=h, n_repeats=args.n_repeats, seed=args.seed).fit(train)
+                n_images=4, starts=Starts(names=(), patterns={name: P}),
+                descent=Descent(fine_tune='none'), head=Head(renders=h),
+                scoring=SplitScoring(n_repeats=args.n_repeats), seed=args.seed).fit(train)
             row[f'heldout_{h}'] = evaluate_learned_heldout(model, test, args.n_renders,
                                                            args.seed)['accuracy']
         out[name] = row

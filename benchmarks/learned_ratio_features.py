@@ -34,8 +34,26 @@ from lightstage_physics.render_jax import add_noise, relight
 from mux_classifier.intensity_stats import intensity_stats_images
 from mux_classifier.ratio_stats import OFFSET_FRACTION, ratio_stats
 from mux_trainer.holdout import test_images
-from mux_trainer.learned import (_adam_init, _adam_update, _logits_of, cv_ridge_loss, levels,
-                                 pose_folds, stack_ratio_stats, stack_stats)
+import optax
+from mux_trainer.learned import (cv_ridge_loss, levels, pose_folds, stack_ratio_stats,
+                                 stack_stats)
+from mux_trainer.learned import logits_of as _logits_of
+
+
+# Adam as the descent's (optax, mux_trainer.learned.descent.adam), the learning rate per call
+_ADAM = optax.scale_by_adam()
+
+
+def _adam_init(params):
+    return _ADAM.init(params)
+
+
+def _adam_update(params, grads, state, lr):
+    """One Adam step at learning rate lr (a number, or a pytree like params)."""
+    updates, state = _ADAM.update(grads, state)
+    same = jax.tree_util.tree_structure(lr) == jax.tree_util.tree_structure(params)
+    lrs = lr if same else jax.tree_util.tree_map(lambda _: lr, params)
+    return jax.tree_util.tree_map(lambda p, u, r: p - r * u, params, updates, lrs), state
 
 cap, hold, seed, start_json, mode, steps, out_json = (sys.argv[1], sys.argv[2], int(sys.argv[3]),
                                                       sys.argv[4], sys.argv[5], int(sys.argv[6]),

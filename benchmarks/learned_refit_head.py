@@ -32,7 +32,9 @@ import numpy as np
 from sklearn.base import BaseEstimator, ClassifierMixin
 
 from mux_trainer.holdout import test_features
-from mux_trainer.learned import LearnedIlluminationClassifier, evaluate_learned_heldout
+from mux_trainer.learned import (Descent, Head, LearnedIlluminationClassifier, Starts,
+                                 evaluate_learned_heldout)
+from mux_trainer.search_params import SplitScoring
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from learned_combine_descents import combine, learned_runs
@@ -143,8 +145,10 @@ def main(argv=None):
             row = {'kept': best, 'run': accuracy, 'greedy': kept_by.get('greedy', {}).get(k)}
             for h in renders:
                 model = LearnedIlluminationClassifier(
-                    n_images=int(k), starts=(), start_patterns={best: light}, fine_tune='none',
-                    head_renders=h, n_repeats=run_args.get('n_repeats', 400), seed=seed).fit(train)
+                    n_images=int(k), starts=Starts(names=(), patterns={best: light}),
+                    descent=Descent(fine_tune='none'), head=Head(renders=h),
+                    scoring=SplitScoring(n_repeats=run_args.get('n_repeats', 400)),
+                    seed=seed).fit(train)
                 row[h] = evaluate_learned_heldout(model, test, run_args.get('n_renders', 4),
                                                   seed)['accuracy']
             if args.other_heads:

@@ -41,9 +41,9 @@ from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import holdout_split, method_summary, test_images
 from lightstage_physics.rig import site_to_led_patterns
 from mux_trainer.learned_schedule import DEFAULT_STEPS
-from mux_trainer.learned import (OBJECTIVES, LearnedIlluminationClassifier,
+from mux_trainer.learned import (Descent, Head, LearnedIlluminationClassifier, Starts,
                                  evaluate_learned_heldout)
-from mux_trainer.search_params import SplitScoring
+from mux_trainer.search_params import Execution, SplitScoring
 
 
 def classify_ms(model, test, seed, repeats=20) -> float:
@@ -120,14 +120,15 @@ def run_capture(path, args) -> dict:
                 starts['greedy'] = site_to_led_patterns(greedy_columns[:, :k // 4],
                                                         train.n_channels)
             model = LearnedIlluminationClassifier(
-                n_images=k, binary=binary, max_steps=args.steps, seed=args.seed,
-                lr_patterns=args.lr_patterns, objective=args.objective, fine_tune=fine_tune,
-                ridge=args.ridge, class_power=args.class_power,
-                split_classifier=args.split_classifier, ratio_stats=args.ratio_stats,
-                head_renders=args.head_renders, head=args.head, inner_draws=args.inner_draws,
-                inner_groups=inner_groups,
-                starts=builtin, start_patterns=starts,
-                n_repeats=args.n_repeats, progress=args.progress).fit(train)
+                n_images=k, binary=binary, seed=args.seed,
+                descent=Descent(max_steps=args.steps, lr=args.lr_patterns, fine_tune=fine_tune,
+                                ridge=args.ridge),
+                scoring=SplitScoring(n_repeats=args.n_repeats, classifier=args.split_classifier,
+                                     inner_groups=inner_groups),
+                ratio_stats=args.ratio_stats, inner_draws=args.inner_draws,
+                head=Head(kind=args.head, renders=args.head_renders),
+                starts=Starts(names=tuple(builtin), patterns=starts),
+                execution=Execution(progress=args.progress)).fit(train)
             acc = evaluate_learned_heldout(model, test, args.n_renders, args.seed)['accuracy']
             out[name][str(k)] = acc
             out[name][f'train_seconds_{k}'] = model.train_seconds_
@@ -161,13 +162,9 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     p.add_argument('--steps', type=int, default=DEFAULT_STEPS, help='learned: gradient steps')
     p.add_argument('--lr-patterns', type=float, default=0.2,
                    help='learned: Adam step on the LED logits')
-    p.add_argument('--objective', default='cv_ridge', choices=OBJECTIVES)
     defaults = LearnedIlluminationClassifier()
-    p.add_argument('--ridge', type=float, default=defaults.ridge,
-                   help="learned, objective cv_ridge: the fold classifiers' ridge")
-    p.add_argument('--class-power', type=float, default=defaults.class_power,
-                   help='learned, objective cv_ridge: the power mean over classes of their '
-                        'held-out losses (1: the mean over samples)')
+    p.add_argument('--ridge', type=float, default=defaults.descent.ridge,
+                   help="learned: the descent's fold classifiers' ridge")
     p.add_argument('--split-classifier', default=defaults.split_classifier,
                    choices=('ridge', 'squared_hinge', 'linear_svm'),
                    help="learned: the inner splits' classifier that scores starts and snapshots")
@@ -177,13 +174,13 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
     p.add_argument('--inner-draws', type=int, default=defaults.inner_draws,
                    help="learned: independent sets of inner splits (each its own noise draw) "
                         "whose mean scores a candidate")
-    p.add_argument('--head-renders', type=int, default=defaults.head_renders,
+    p.add_argument('--head-renders', type=int, default=defaults.head.renders,
                    help="learned: noise draws of the training samples the final SVM is fitted on")
-    p.add_argument('--head', default=defaults.head, choices=('by_type', 'flat'),
+    p.add_argument('--head', default=defaults.head.kind, choices=('by_type', 'flat'),
                    help="learned: the final head, gated by object type or one flat linear SVM")
-    p.add_argument('--fine-tune', default=','.join(defaults.fine_tune), type=lambda v: v.split(','),
+    p.add_argument('--fine-tune', default=','.join(defaults.descent.fine_tune), type=lambda v: v.split(','),
                    help="learned: 'best', 'all', 'none' or the starts the steps run from")
-    p.add_argument('--learned-starts', default=','.join(defaults.starts),
+    p.add_argument('--learned-starts', default=','.join(defaults.starts.names),
                    help="learned: start patterns ('greedy': this run's greedy columns if it ran)")
     p.add_argument('--exposures', default='4,8', type=lambda v: [int(x) for x in v.split(',')],
                    help='learned: the exposure counts to train a model for (one model each)')

@@ -34,12 +34,18 @@ NO_CAMERA_PACKAGES = ('lightstage_physics', 'mux_classifier', 'mux_trainer')
 CAMERA_MODULES = ('lightstage_camera', 'pypylon', 'gi')
 
 
+def package_modules(package: str) -> dict[str, Path]:
+    """{dotted name: file} of every module of `package`, its subpackages' too (no __init__)."""
+    root = SRC / package / package
+    return {'.'.join((package, *m.relative_to(root).with_suffix('').parts)): m
+            for m in sorted(root.rglob('*.py')) if m.stem != '__init__'}
+
+
 def pure_modules() -> list[str]:
     names = []
-    for package in sorted(p.parent for p in SRC.glob('*/*/__init__.py')):
-        for module in sorted(package.glob('*.py')):
-            name = f'{package.name}.{module.stem}'
-            if module.stem == '__init__' or module.stem.endswith('_node') or name in ROS_MODULES:
+    for package in sorted(p.parent.name for p in SRC.glob('*/*/__init__.py')):
+        for name in package_modules(package):
+            if name.endswith('_node') or name in ROS_MODULES:
                 continue
             names.append(name)
     return names
@@ -68,8 +74,9 @@ def test_every_core_module_imports_without_rclpy():
 
 
 def imported_modules(module: Path, package: str) -> set[str]:
-    """The absolute names of the modules `module` (a file of `package`) imports anywhere in it
-    (function-level and TYPE_CHECKING imports too): `from a.b import c` gives a.b and a.b.c."""
+    """The absolute names of the modules `module` (a file of `package`, dotted: a subpackage
+    too) imports anywhere in it (function-level and TYPE_CHECKING imports too): `from a.b
+    import c` gives a.b and a.b.c."""
     names = set()
     for node in ast.walk(ast.parse(module.read_text())):
         if isinstance(node, ast.Import):
@@ -77,7 +84,9 @@ def imported_modules(module: Path, package: str) -> set[str]:
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ''
             if node.level:
-                base = f'{package}.{base}' if base else package
+                parts = package.split('.')
+                parent = '.'.join(parts[:len(parts) - node.level + 1])
+                base = f'{parent}.{base}' if base else parent
             names |= {base} | {f'{base}.{a.name}' for a in node.names}
     return names
 
@@ -85,8 +94,8 @@ def imported_modules(module: Path, package: str) -> set[str]:
 def imported_project_packages(package: str) -> dict[str, set[str]]:
     """{other project package: the modules of `package` that import it}."""
     found: dict[str, set[str]] = {}
-    for module in (SRC / package / package).glob('*.py'):
-        for name in imported_modules(module, package):
+    for dotted, module in package_modules(package).items():
+        for name in imported_modules(module, dotted.rpartition('.')[0]):
             top = name.split('.')[0]
             if top in ALLOWED_IMPORTS and top != package:
                 found.setdefault(top, set()).add(module.name)
@@ -106,9 +115,10 @@ def test_no_import_cycles_between_packages_or_modules():
     refactoring has to untangle too)."""
     packages = {p: set(imported_project_packages(p)) for p in ALLOWED_IMPORTS}
     graphlib.TopologicalSorter(packages).prepare()  # CycleError names the circle
-    modules = {f'{m.parent.name}.{m.stem}': m for m in SRC.glob('*/*/*.py')
-               if (m.parent / '__init__.py').exists() and m.stem != '__init__'}
-    graph = {name: {d for d in imported_modules(path, path.parent.name) if d in modules and d != name}
+    modules = {name: path for package in ALLOWED_IMPORTS
+               for name, path in package_modules(package).items()}
+    graph = {name: {d for d in imported_modules(path, name.rpartition('.')[0])
+                    if d in modules and d != name}
              for name, path in modules.items()}
     graphlib.TopologicalSorter(graph).prepare()
 
@@ -116,10 +126,9 @@ def test_no_import_cycles_between_packages_or_modules():
 def test_learning_code_and_physics_import_no_camera():
     """Every module of the trainer, the classifier and the physics package, nodes included,
     imports without lightstage_camera and without a camera SDK (pypylon, gi for Aravis)."""
-    modules = sorted(f'{package}.{m.stem}' for package in NO_CAMERA_PACKAGES
-                     for m in (SRC / package / package).glob('*.py') if m.stem != '__init__')
+    modules = sorted(name for package in NO_CAMERA_PACKAGES for name in package_modules(package))
     assert {'lightstage_physics.render_jax', 'lightstage_physics.synth', 'mux_trainer.trainer_node',
-            'mux_trainer.learned', 'mux_classifier.hog_kernel'} <= set(modules)
+            'mux_trainer.learned.estimator', 'mux_classifier.hog_kernel'} <= set(modules)
     code = ('import importlib, sys\n'
             f'for name in {modules!r}:\n'
             '    importlib.import_module(name)\n'

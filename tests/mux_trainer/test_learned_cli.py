@@ -49,6 +49,12 @@ def test_train_learned_writes_a_learned_artifact(capture, tmp_path, capsys):
     assert list(art.novelty) == [2] and doc['novelty']['2']['false_alarm_rate'] == 0.05
     decision = art.decide(images[0])
     assert decision.novelty >= 1.0 and decision.decision == 'unknown'
+    # calibrated on held-out inner answers: probabilities, accepted at 90 % (one image count)
+    assert art.calibrated and art.confidence.counts == [2]
+    assert art.confidence.stop_probability == doc['confidence']['stop_probability'] == 0.9
+    assert decision.probabilities.shape == (len(art.class_names),)
+    assert decision.probabilities.sum() == pytest.approx(1.0)
+    assert decision.probabilities.argmax() == decision.index
 
 
 def test_train_learned_binary_gives_on_off_levels(capture, tmp_path, capsys):

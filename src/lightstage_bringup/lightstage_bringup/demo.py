@@ -176,7 +176,7 @@ def _train_learned(train, artifact: Path, capture: Path, args) -> dict:
                      ).save(artifact)
     k = int(model.best_n_patterns_)
     accuracy = float(model.accuracy_by_images_[k])
-    _say(f'training: learned: {seconds:.0f} s, {k} graded patterns (kept {describe_choice(model.chosen_, model.max_steps)}; '
+    _say(f'training: learned: {seconds:.0f} s, {k} graded patterns (kept {describe_choice(model.chosen_, model.descent.max_steps)}; '
          f'inner split accuracy {100 * accuracy:.1f} %)')
     return {'artifact': str(artifact), 'train_seconds': seconds, 'best_n_images': k,
             'patterns': pattern_levels(model.patterns_),

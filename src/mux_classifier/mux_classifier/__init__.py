@@ -9,6 +9,7 @@ The classifier and its file:
     learned_model      a learned-illumination model's inference, in numpy
     gated_head         a linear head gated by object type: which type, then which class
     confidence         calibrated probabilities, the anytime stop rule, an answer's decision
+    novelty            is this object unlike every trained class? (the "unknown" answer)
 Features of a sample's images:
     features           extractors by name and a sample's feature vector, in image order
     hog                batched HOG equal to skimage's for the paper's configuration
@@ -32,7 +33,7 @@ Importing the package imports none of them: `from mux_classifier.artifact import
 """
 
 __all__ = ['estimator', 'artifact', 'artifact_format', 'learned_model', 'gated_head', 'confidence',
-           'features',
+           'novelty', 'features',
            'hog', 'hog_kernel', 'hog_constants', 'pooled_hog', 'pose_normalise', 'object_mask',
            'intensity_stats', 'ratio_stats', 'bow', 'inference', 'observe', 'stage_queue',
            'classify_request', 'classifier_node']

@@ -4,8 +4,8 @@ simulation, and the evaluation that compares the methods (docs/SEARCH.md, docs/L
 The methods (greedy and the baselines share `pattern_model.PatternModelMixin`: patterns, a
 classifier per image count, prediction, a trained artifact):
     greedy              greedy joint selection of patterns and classifier (the paper's method)
-    learned             learned illumination: LED levels trained through the image formation
-                        with a linear head (JAX)
+    learned             learned illumination (a subpackage): LED levels trained through the
+                        image formation with a linear head (JAX)
     learned_method      learned illumination built, written and evaluated as the others are
     learned_schedule    how long learned illumination trains (no JAX)
     baselines           the paper's fixed-pattern baselines: SNR-optimal and naive
@@ -26,6 +26,7 @@ Inside the search:
 Training runs and evaluation:
     training            one training run: capture folder in, artifact out (CLI and node)
     calibration         calibrated probabilities and the anytime target, from held-out answers
+    novelty_fit         the unknown-object models, fitted at training time, and their evaluation
     holdout             held-out evaluation: train on some poses or samples, test on the others
     report              the paper's Table 1 and accuracy-vs-image-count figure
     evaluation_plots    the figures of an evaluation
@@ -39,5 +40,5 @@ Importing the package imports none of them (`learned` is the one that loads JAX)
 __all__ = ['greedy', 'learned', 'learned_method', 'learned_schedule', 'baselines', 'bow_baseline',
            'snr_optimal', 'pattern_model', 'search_params', 'candidate_patterns', 'data',
            'rendering', 'evaluation', 'split_scoring', 'splits', 'column_count', 'cluster',
-           'reference', 'training', 'calibration', 'holdout', 'report', 'evaluation_plots', 'cli',
+           'reference', 'training', 'calibration', 'novelty_fit', 'holdout', 'report', 'evaluation_plots', 'cli',
            'trainer_node']

@@ -92,6 +92,20 @@ def evaluate_heldout(model, test_data: SearchData, n_renders: int = 4, seed: int
     }
 
 
+def evaluate_learned_heldout(model, test_data: SearchData, n_renders: int = 4,
+                             seed: int = 0) -> dict:
+    """Held-out accuracy of a fitted learned model (`learned.LearnedIlluminationClassifier`)
+    under the rules of `evaluate_heldout`: test images rendered under the model's patterns
+    with `test_images` (the same noise stream, independent of training), n_renders times,
+    classified by the model's numpy forward pass. Returns {'accuracy', 'correct' (n,)}."""
+    correct = np.zeros(test_data.n_samples)
+    for r in range(int(n_renders)):
+        images = test_images(test_data, 'joint', model.patterns_, r, seed)
+        correct += model.predict_images(images) == test_data.labels
+    correct /= int(n_renders)
+    return {'accuracy': float(correct.mean()), 'correct': correct}
+
+
 def accuracy_by_type(test_data: SearchData, correct: np.ndarray) -> dict:
     """Accuracy per object type (classes sharing the prefix before '-', e.g. real and fake)."""
     types = sample_object_types(test_data)

@@ -14,26 +14,29 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from lightstage_physics.rig import DEFAULT_DIMMER
 
-from .data import noise_dict, resolve_noise
-from .learned_schedule import DEFAULT_STEPS, check_steps
 
 def build_learned(n_images=8, *, binary=False, steps=None, noise='sigma3',
-                  hog_config=None, seed=0, progress=False, **params):
-    """The unfitted learned-illumination estimator: ``n_images`` exposures (one image per
-    learned pattern), graded or on/off (``binary``) LED levels, ``steps`` gradient steps
-    (None: `DEFAULT_STEPS`); ``params``: more of its constructor's (batch_size, n_repeats,
-    start_patterns, ...)."""
-    from .learned import LearnedIlluminationClassifier
-    steps = DEFAULT_STEPS if steps is None else steps
-    check_steps(steps)
-    if int(n_images) < 1:
-        raise ValueError(f'n_images (exposures of the learned patterns) must be >= 1, got {n_images}')
-    return LearnedIlluminationClassifier(n_images=int(n_images), binary=bool(binary),
-                                         max_steps=int(steps), noise=noise,
-                                         hog_config=hog_config, seed=int(seed),
-                                         progress=progress, **params)
+                  hog_config=None, seed=0, progress=False, n_repeats=400,
+                  inner_groups='auto', callback=None, **params):
+    """The unfitted learned-illumination estimator from the options of `lightstage train`
+    and `lightstage eval`: ``n_images`` exposures (one image per learned pattern), graded
+    or on/off (``binary``) LED levels, ``steps`` gradient steps (None: `DEFAULT_STEPS`) on
+    ``params``' descent group (default `learned.Descent()`), camera ``noise`` and
+    ``hog_config`` (the rendering), ``n_repeats`` inner splits holding out what
+    ``inner_groups`` says, ``progress`` lines; ``params``: more of its constructor's
+    (starts, head, ratio_stats, ...). The estimator checks every setting when it fits."""
+    from .learned import Descent, LearnedIlluminationClassifier
+    from .learned.head import FEATURES
+    from .search_params import Execution, Rendering, SplitScoring
+    descent = params.pop('descent', Descent())
+    if steps is not None:
+        descent = descent.replace(max_steps=int(steps))
+    return LearnedIlluminationClassifier(
+        n_images=int(n_images), binary=bool(binary), descent=descent, seed=int(seed),
+        scoring=SplitScoring(n_repeats=int(n_repeats), inner_groups=inner_groups),
+        rendering=Rendering(noise=noise, hog_config=hog_config, features=FEATURES),
+        execution=Execution(progress=bool(progress)), callback=callback, **params)
 
 
 def describe_choice(chosen: str, max_steps: int = 0) -> str:
@@ -88,32 +91,29 @@ def learned_artifact(model, provenance: dict | None = None):
     """The trained artifact of a fitted learned model (the classifier node's file)."""
     from mux_classifier.artifact import TrainedArtifact
     from mux_classifier.hog import HogConfig
-    name, noise_model = resolve_noise(model.noise)
     prov = {'method': 'learned', 'binary': bool(model.binary), 'seed': int(model.seed),
-            'max_steps': int(model.max_steps), 'best_step': int(model.best_step_),
+            'max_steps': int(model.descent.max_steps), 'best_step': int(model.best_step_),
             'chosen': str(model.chosen_),
             'head': head_name(model),
             'levels': level_kind(model.patterns_),
-            'n_repeats': int(model.n_repeats),
+            'n_repeats': int(model.scoring.n_repeats),
             'inner_estimate': dict(model.inner_estimate_),
             'accuracy_by_patterns': {str(k): float(v)
                                      for k, v in model.accuracy_by_images_.items()},
             'best_n_patterns': int(model.best_n_patterns_)}
     prov.update(provenance or {})
     return TrainedArtifact.from_learned(
-        model.model_, noise=noise_dict(name, noise_model),
-        hog_config=model.hog_config or HogConfig(), provenance=prov,
-        dimmer=DEFAULT_DIMMER if model.dimmer is None else model.dimmer)
+        model.model_, noise=model.noise_, hog_config=model.rendering.hog_config or HogConfig(),
+        provenance=prov, dimmer=model.rendering.dimmer)
 
 
 def learned_summary(models: dict, test_data, n_renders: int = 4, seed: int = 0,
                     train_seconds: float | None = None) -> dict:
     """The Table 1 result of learned models {exposures: fitted model}: held-out accuracy
-    of each (`learned.evaluate_learned_heldout`: the test-noise stream of every method),
+    of each (`holdout.evaluate_learned_heldout`: the test-noise stream of every method),
     the row at the count whose inner split accuracy (training poses only) is best,
     fewer images on a tie -- the other methods choose theirs on training data too."""
-    from .holdout import accuracy_by_type, test_images
-    from .learned import evaluate_learned_heldout
+    from .holdout import accuracy_by_type, evaluate_learned_heldout, test_images
     results = {k: evaluate_learned_heldout(model, test_data, n_renders, seed)
                for k, model in sorted(models.items())}
     search = {k: float(m.accuracy_by_images_[k]) for k, m in models.items()}

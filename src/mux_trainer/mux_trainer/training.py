@@ -202,7 +202,7 @@ def train_modelset(modelset, out_path, *, capture=None, force: bool = False,
     is kept in a rescue folder (ArtifactNotWritten, an OSError, says where). `force`: replace
     an existing file that is not an artifact. `calibrate`: fit calibrated probabilities and the
     anytime stop rule on held-out inner answers (`calibration`), and the unknown-object models
-    on held-out physical samples (`novelty_fit`); pattern models.
+    on held-out physical samples (`novelty_fit`), for every method.
     """
     out = check_artifact_path(out_path, force)
     if options.get('method') == 'learned':
@@ -282,11 +282,13 @@ def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8
     if calibrate:
         import dataclasses
 
+        from .calibration import calibrate_learned_model
         from .data import search_data
         from .novelty_fit import fit_learned_novelty
         t1 = time.perf_counter()
         data = search_data(modelset, noise, hog_config=hog_config)
-        artifact = dataclasses.replace(artifact, novelty=fit_learned_novelty(model, data))
+        artifact = dataclasses.replace(artifact, confidence=calibrate_learned_model(model),
+                                       novelty=fit_learned_novelty(model, data))
         seconds += time.perf_counter() - t1
     summary = {
         'method': 'learned', 'mode': artifact.mode, 'binary': bool(binary),
@@ -307,7 +309,8 @@ def _train_learned(modelset, out: Path, capture, *, noise='sigma3', max_images=8
         'best_n_images': int(model.best_n_patterns_),
         'n_exposures': int(model.best_n_patterns_),
         'inner_estimate': model.inner_estimate_,
-        'best_step': int(model.best_step_), 'max_steps': int(model.max_steps),
+        'best_step': int(model.best_step_), 'max_steps': int(model.descent.max_steps),
+        'confidence': None if artifact.confidence is None else artifact.confidence.to_dict(),
         'novelty': _novelty_summary(artifact),
         'train_seconds': seconds,
     }
