@@ -24,12 +24,13 @@ QUEUED_SERVICE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
 # A service client's reply reader. Every client of a service receives every reply the server
 # sends, to whichever client, and drops the ones not addressed to it (rmw_fastrtps and
 # rmw_cyclonedds alike: ros2/rclcpp#2397); the reader keeps the last `depth` replies the
-# executor has not taken yet. At the default depth, 10, a burst of replies evicts some before
-# they are taken, and those calls are never answered: 30 calls at once, from 30 clients or one,
-# in one process got 15-27 of 30 replies at depth 10 and 30 of 30 at depth 1000. So every
-# client the project makes (`service_client`) reads replies 1000 deep. A client made elsewhere
-# with the default depth (`ros2 service call` makes one client per process for one call) is
-# safe while it has fewer than 10 calls in flight with the other clients of its service.
+# executor has not taken yet. So a client loses its reply when `depth` more replies, to any
+# client of the service, arrive before its executor takes it: at the default
+# depth, 10, 30 calls at once in one process got 15-27 of 30 replies, and a reply held while
+# 29 replies to another client arrived was lost (tests/lightstage_bringup/
+# test_web_classify_burst.py); at depth 1000 none was lost. Every client the project makes
+# (`service_client`) reads replies 1000 deep; a client made elsewhere needs the same depth
+# to be safe in a burst (`ros2 service call` makes one client at depth 10).
 SERVICE_CLIENT_QOS = QUEUED_SERVICE_QOS
 
 
