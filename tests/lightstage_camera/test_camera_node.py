@@ -127,6 +127,24 @@ def test_sample_changes_at_run_time_and_unknown_samples_are_rejected(harness_fac
     np.testing.assert_array_equal(np.frombuffer(bytes(h.images[0].data), '<u2').reshape(120, 120), expected)
 
 
+def test_real_camera_parameters_are_refused_on_the_sim_backend_with_the_reason(harness_factory,
+                                                                              stage_capture):
+    """A GenICam setting on the sim camera was answered successful and ignored."""
+    h = harness_factory(capture_dir=str(stage_capture), sample=0, noise='none')
+    from rclpy.parameter import Parameter
+    for values in ({'camera_features': 'ExposureAuto=Off'}, {'serial_number': '4711'},
+                   {'gain_db': 20.0}, {'pixel_format': 'Mono12', 'sample': 'orange-fake/s1/p02'}):
+        bad = h.camera.set_parameters_atomically([Parameter(k, value=v) for k, v in values.items()])
+        assert not bad.successful, values
+        assert 'used only by the real-camera backends (basler, aravis)' in bad.reason
+        assert 'runs the sim backend' in bad.reason and min(values) in bad.reason
+    assert h.camera.get_parameter('camera_features').value == ''
+    assert str(h.camera.get_parameter('sample').value) == '0'  # refused together, nothing changed
+    ok = h.camera.set_parameters_atomically([Parameter('sample', value='orange-fake/s1/p02'),
+                                             Parameter('frame_id', value='stage_cam')])
+    assert ok.successful, ok.reason  # frame_id: both kinds use it
+
+
 def test_a_missing_capture_leaves_the_node_up_reporting_the_error(harness_factory, stage_capture,
                                                                   tmp_path):
     missing = tmp_path / 'no_capture'

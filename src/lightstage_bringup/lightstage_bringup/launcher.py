@@ -187,6 +187,7 @@ class GraphWatcher:
         graph if any, else those not answering; name of a child that died meanwhile or
         None); an empty first list means all are up.
         """
+        from lightstage_graph.qos import service_client
         from rcl_interfaces.srv import ListParameters
 
         deadline = time.monotonic() + timeout_s
@@ -212,7 +213,7 @@ class GraphWatcher:
                     services = {s for s, _t in self.node.get_service_names_and_types_by_node(n, ns)}
                     service = f'{ns.rstrip("/")}/{n}/list_parameters'
                     if service in services:
-                        clients[n] = self.node.create_client(ListParameters, service)
+                        clients[n] = service_client(self.node, ListParameters, service)
                     elif now - discovered_at[n] > 2.0:  # no parameter services: discoverable is all
                         up.add(n)
                     continue

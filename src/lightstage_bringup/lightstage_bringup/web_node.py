@@ -25,7 +25,7 @@ from lightstage_graph.limits import gain_db_fields
 from lightstage_graph.names import (CALIBRATE_ACTION, CAPTURE_ACTION, CLASSIFY_SERVICE,
                                     DIAGNOSTICS_TOPIC, FRAME_LOST_TOPIC, ILLUMINATION_TOPIC,
                                     IMAGE_TOPIC, RESULT_TOPIC)
-from lightstage_graph.qos import ILLUMINATION_QOS, IMAGE_QOS
+from lightstage_graph.qos import ILLUMINATION_QOS, IMAGE_QOS, service_client
 from lightstage_graph.stamps import stamp_to_ns
 from lightstage_interfaces.action import CalibrateNoise, CaptureModel
 from lightstage_interfaces.msg import ClassificationResult, FrameLost, IlluminationState
@@ -90,7 +90,7 @@ class WebBridge(Node):
         self.create_subscription(FrameLost, FRAME_LOST_TOPIC, self._on_frame_lost, IMAGE_QOS)
         self.create_subscription(ClassificationResult, RESULT_TOPIC, self._on_result, 10)
         self.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, 10)
-        self.classify_client = self.create_client(Classify, CLASSIFY_SERVICE)
+        self.classify_client = service_client(self, Classify, CLASSIFY_SERVICE)
         self.actions = {kind: (ActionClient(self, action, name), action, name) for kind, action, name in
                         (('capture', CaptureModel, CAPTURE_ACTION),
                          ('calibrate', CalibrateNoise, CALIBRATE_ACTION))}
@@ -106,13 +106,13 @@ class WebBridge(Node):
             self.create_subscription(GoalStatusArray, f'{name}/_action/status',
                                      lambda msg, kind=kind: self._on_status(kind, msg),
                                      qos_profile_action_status_default)
-            self._cancel_clients[kind] = self.create_client(CancelGoal, f'{name}/_action/cancel_goal')
-        self._lifecycle = {name: (self.create_client(GetState, f'/{name}/get_state'),
-                                  self.create_client(ChangeState, f'/{name}/change_state'))
+            self._cancel_clients[kind] = service_client(self, CancelGoal, f'{name}/_action/cancel_goal')
+        self._lifecycle = {name: (service_client(self, GetState, f'/{name}/get_state'),
+                                  service_client(self, ChangeState, f'/{name}/change_state'))
                            for name in WATCHED_NODES}
         self._state_pending: dict[str, object] = {}
         from rcl_interfaces.srv import GetParameters
-        self._acquisition_params = self.create_client(GetParameters, '/acquisition/get_parameters')
+        self._acquisition_params = service_client(self, GetParameters, '/acquisition/get_parameters')
         self._defaults_pending = None
         self.create_timer(1.0, self._check_links)
 

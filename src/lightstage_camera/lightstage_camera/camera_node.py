@@ -126,6 +126,22 @@ BACKEND_SETTINGS = ('capture_dir', 'sample', 'noise', 'noise_file', 'seed', 'dim
 CAMERA_SETTINGS = ('serial_number', 'trigger_source', 'pixel_format', 'transport_layer',
                    'camera_features', 'frame_timeout_s', 'reopen_period_s')
 LIVE_CAMERA_SETTINGS = ('exposure_us', 'gain_db')
+# what each kind of backend uses; a change of another kind's parameter is refused with the
+# reason (the backend is read-only: chosen at start-up), not taken and ignored
+REAL_CAMERA_ONLY = CAMERA_SETTINGS + LIVE_CAMERA_SETTINGS
+SIM_ONLY = BACKEND_SETTINGS
+
+
+def other_backend_refusal(names, backend: str) -> str:
+    """The reason a change of `names` is refused on a `backend` camera node: those parameters
+    only the other kind of backend uses ('' when none)."""
+    sim = backend == 'sim'
+    foreign = sorted(n for n in names if n in (REAL_CAMERA_ONLY if sim else SIM_ONLY))
+    if not foreign:
+        return ''
+    used_by = 'the real-camera backends (basler, aravis)' if sim else 'the sim backend'
+    return (f'{", ".join(foreign)}: used only by {used_by}, and this camera node runs the '
+            f'{backend} backend (backend is chosen at start-up)')
 
 
 def noise_calibration(noise_file: str) -> NoiseModel:
@@ -273,6 +289,9 @@ class CameraNode(Node):
         self.calibration_error = ''
 
     def _on_set_parameters(self, params) -> SetParametersResult:
+        refusal = other_backend_refusal([p.name for p in params], self.p('backend'))
+        if refusal:
+            return SetParametersResult(successful=False, reason=refusal)
         if any(p.name == 'camera_info_url' for p in params):
             url = next(p.value for p in params if p.name == 'camera_info_url')
             try:

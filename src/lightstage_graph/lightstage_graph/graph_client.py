@@ -80,13 +80,11 @@ class GraphClient:
 
     # ------------------------------------------------------------------ services
     def service(self, srv_type, name: str):
-        """The client of service `name` (made once). Its reply reader is as deep as a queued
-        service's (`qos.QUEUED_SERVICE_QOS`): many calls in flight may be answered at once
-        (refusals), and the default depth, 10, would drop the oldest of those answers."""
+        """The client of service `name` (made once), its reply reader 1000 deep
+        (`qos.service_client`: many calls in flight may be answered at once)."""
         if name not in self._clients:
-            from .qos import QUEUED_SERVICE_QOS
-            self._clients[name] = self.node.create_client(srv_type, name,
-                                                          qos_profile=QUEUED_SERVICE_QOS)
+            from .qos import service_client
+            self._clients[name] = service_client(self.node, srv_type, name)
         return self._clients[name]
 
     def _unavailable(self, what: str, wait_s: float, hint: str) -> GraphTimeout:

@@ -39,7 +39,7 @@ from .errors import StageError
 from .frames import ImageMatcher
 from .limits import gain_db_fields
 from .names import APPLY_PATTERNS_SERVICE, CAMERA_NODE, FRAME_LOST_TOPIC, IMAGE_TOPIC
-from .qos import IMAGE_QOS
+from .qos import IMAGE_QOS, service_client
 from .stamps import stamp_to_ns
 
 
@@ -48,8 +48,8 @@ class StageClient:
                  camera_node: str = CAMERA_NODE):
         self.matcher = ImageMatcher(image_buffer, clock=lambda: node.get_clock().now().nanoseconds)
         self._start = f'`{start_hint}`' if start_hint else 'the driver and the camera'
-        self._apply_client = node.create_client(ApplyPatterns, APPLY_PATTERNS_SERVICE,
-                                                callback_group=callback_group)
+        self._apply_client = service_client(node, ApplyPatterns, APPLY_PATTERNS_SERVICE,
+                                             callback_group=callback_group)
         images = MutuallyExclusiveCallbackGroup()  # in arrival order, one at a time
         # the reader keeps up to image_buffer images the executor has not taken yet (IMAGE_QOS's
         # 32 is one sequence): a node held up for a moment loses none (depth is not matched
@@ -63,8 +63,8 @@ class StageClient:
         self._lost_sub = node.create_subscription(FrameLost, FRAME_LOST_TOPIC,
                                                   self.matcher.add_lost_message, IMAGE_QOS,
                                                   callback_group=images)
-        self._camera_params = node.create_client(GetParameters, f'{camera_node}/get_parameters',
-                                                 callback_group=callback_group)
+        self._camera_params = service_client(node, GetParameters, f'{camera_node}/get_parameters',
+                                              callback_group=callback_group)
 
     def wait_ready(self, timeout_s: float) -> None:
         """Driver service and camera publisher present within `timeout_s`, or StageError."""

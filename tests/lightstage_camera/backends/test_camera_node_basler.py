@@ -56,3 +56,12 @@ def test_parameters_have_units_and_ranges_and_a_missing_camera_is_fixed_at_run_t
     (live,) = set_(node, gain_db=6.0)
     assert live.successful and node.backend.gain_db == 6.0
     assert node.backend.status().ok   # exposure and gain apply without reopening
+
+
+def test_sim_parameters_are_refused_on_a_real_camera_with_the_reason(node):
+    (bad,) = set_(node, dimmer=0.3)
+    assert not bad.successful
+    assert bad.reason == ('dimmer: used only by the sim backend, and this camera node runs the '
+                          'basler backend (backend is chosen at start-up)')
+    (ok,) = set_(node, gain_db=20.0)
+    assert ok.successful
