@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Run the benchmark scripts (benchmarks/*.py; `_*.py` are their shared modules) one after the
 # other, each to its end, and print each one's wall time and exit status. `make bench` runs
-# every script with --quick (a small run of each: about 6 minutes on 2 cores); BENCH_ARGS
+# every script with --quick (a small run of each: 8.4 min on 2 shared cores); BENCH_ARGS
 # replaces that (e.g. BENCH_ARGS= for the full runs, hours); arguments name the scripts to
 # run (default: all). Exits 1 if any script failed, after running the rest.
 #
