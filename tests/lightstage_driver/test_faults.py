@@ -16,8 +16,6 @@ from lightstage_driver.stage import LightStage
 
 from helpers.driver import wait_until
 
-pytestmark = pytest.mark.process
-
 TIMEOUT_S = 0.1
 RETRIES = 3
 
