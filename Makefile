@@ -25,8 +25,10 @@ test: bootstrap-test lint
 lint: bootstrap-test
 	@.venv/bin/ruff check
 
+# every script in benchmarks/ run to its end with --quick (a small run of each; loopback only):
+# a few minutes. `BENCH_ARGS= make bench` runs them in full (hours); docs/PERFORMANCE.md
 bench: bootstrap-test
-	@for b in benchmarks/bench_*.py; do echo "== $$b"; .venv/bin/python $$b || exit 1; done
+	@bash scripts/run_benchmarks.sh
 
 clean-venv:
 	rm -rf .venv .cache

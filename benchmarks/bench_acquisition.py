@@ -14,6 +14,7 @@ acquisition node as processes in a domain id of its own (LOCALHOST discovery), t
 
     .venv/bin/python benchmarks/bench_acquisition.py [--size 240] [--frames 1 4 16]
         [--calibration-frames 15 30 60 120] [--exposure-us 30000] [--json OUT.json]
+    .venv/bin/python benchmarks/bench_acquisition.py --quick   # 60 px, N 1 2, F 4 x 4 levels
 
 Without ROS (`--core`): the calibration cases FRAMESxLEVELS (default the cases
 120x8 30x8 30x6) through `calibration.calibrate_noise` on the simulated camera's frames (the
@@ -34,11 +35,30 @@ import time
 from pathlib import Path
 
 import numpy as np
+from lightstage_graph.graph_client import GraphClient
+from lightstage_graph.limits import gain_db_fields
 
-sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests')]  # the tests' helpers package
-from helpers.acquisition import StageGraph  # noqa: E402  (the tests' ROS client and node start-up)
-from helpers.suite import fresh_domain_id, write_params  # noqa: E402
-from lightstage_graph.limits import gain_db_fields  # noqa: E402
+from _common import fresh_domain_id, parse_args, start_nodes, write_params
+
+
+class StageGraph(GraphClient):
+    """The benchmark's own ROS participant: starts nodes, sends action goals, sets
+    parameters atomically."""
+
+    def start(self, supervisor, names, params=None, timeout_s: float = 30.0) -> None:
+        start_nodes(supervisor, self, names, self.domain_id, params, timeout_s)
+
+    def action(self, action_type, name: str, goal, timeout_s: float = 120.0):
+        """Send a goal; returns (status, result)."""
+        handle = self.send_goal(action_type, name, goal, wait_s=15.0, timeout_s=15.0)
+        if not handle.accepted:
+            return None, None
+        result = self.result(handle.get_result_async(), timeout_s, f'the result of {name}')
+        return result.status, result.result
+
+    def set_parameters(self, node_name: str, **values):
+        """SetParametersAtomically on a node; returns the one SetParametersResult."""
+        return self.set_parameters_atomically(node_name, values)
 
 
 def main(argv=None) -> int:
@@ -59,7 +79,8 @@ def main(argv=None) -> int:
     p.add_argument('--camera-dimmer', type=float, default=1.0,
                    help='--core: the sim camera\'s dimmer (the target is written for 1.0)')
     p.add_argument('--cause', action='store_true', help='--core: also main\'s rule and variants')
-    args = p.parse_args(argv)
+    args = parse_args(p, argv, size=60, frames=[1, 2], calibration_frames=[4], levels=4,
+                      cases=['8x4'], seeds=2)
     if args.core:
         return core_calibration(args)
 
@@ -97,7 +118,7 @@ def main(argv=None) -> int:
         def run(action_type, name, goal, n_exposures):
             """The action's result (None if the goal was rejected); the time limit grows
             with the exposures the goal takes."""
-            _, result, _ = client.action(action_type, name, goal,
+            _, result = client.action(action_type, name, goal,
                                          timeout_s=120.0 + 5 * n_exposures * frame_s)
             return result
 
@@ -165,7 +186,6 @@ def main(argv=None) -> int:
 
 def core_calibration(args) -> int:
     """The calibration cases through the pure core on sim camera frames (see the docstring)."""
-    from helpers.acquisition import sim_grab
     from lightstage_camera import calibration as cal
     from lightstage_physics.calibration_target import write_calibration_target
     from lightstage_physics.capture_format import load_capture
@@ -194,7 +214,8 @@ def core_calibration(args) -> int:
             stacks = []
 
             def grab(patterns, stacks=stacks):
-                shots = sim_grab(cam, args.exposure_us, args.gain_db)(patterns)
+                shots = [cam.capture(patterns[:, j], args.exposure_us, args.gain_db)
+                         for j in range(patterns.shape[1])]
                 stacks.append(np.array([mono16_to_gray(f, cam.bit_depth) for f in shots]))
                 return shots
 

@@ -10,7 +10,7 @@ time (each waits for its frame); frames/s = a burst of triggers handed over at o
 the last frame is delivered. Run it in a private network namespace (loopback only):
 
     unshare --net sh -c 'ip link set lo up && .venv/bin/python benchmarks/bench_camera.py'
-        [--triggers 200] [--burst 200] [--json OUT.json]
+        [--triggers 200] [--burst 200] [--json OUT.json] [--quick: 10 and 10]
 """
 from __future__ import annotations
 
@@ -29,6 +29,8 @@ import numpy as np
 os.environ.setdefault('PYLON_CAMEMU', '1')  # before pylon's transport layer is first created
 
 from lightstage_camera.camera_backend import Trigger
+
+from _common import parse_args
 
 
 class Timed:
@@ -123,7 +125,7 @@ def main(argv=None) -> int:
     p.add_argument('--burst', type=int, default=200, help='triggers of the frames/s burst per case')
     p.add_argument('--exposure-us', type=int, default=1000)
     p.add_argument('--json', default='', help='also write the results here')
-    args = p.parse_args(argv)
+    args = parse_args(p, argv, triggers=10, burst=10)
     interfaces = sorted(name for _i, name in socket.if_nameindex())
     if interfaces != ['lo']:
         print(f'refusing to enumerate cameras with network interfaces {interfaces}: run in a private '

@@ -13,6 +13,7 @@ the queue.
 
     .venv/bin/python benchmarks/bench_classify_concurrency.py [--clients 1 4 16] [--calls 8]
         [--timeout-s 120] [--json OUT.json]
+    .venv/bin/python benchmarks/bench_classify_concurrency.py --quick   # 1 and 2 clients, 2 calls
 """
 from __future__ import annotations
 
@@ -26,9 +27,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from lightstage_graph.graph_client import GraphClient
 
-sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests')]
-from helpers.suite import GraphClient, fresh_domain_id, start_nodes, write_params  # noqa: E402
+from _common import fresh_domain_id, parse_args, start_nodes, write_params
 
 
 def _artifact(folder: Path) -> tuple[Path, Path]:
@@ -89,7 +90,7 @@ def main(argv=None) -> int:
     p.add_argument('--timeout-s', type=float, default=120.0, help='each call\'s time limit')
     p.add_argument('--domain-id', type=int, default=None)
     p.add_argument('--json', default='', help='also write the figures here')
-    args = p.parse_args(argv)
+    args = parse_args(p, argv, clients=[1, 2], calls=2)
     domain_id = args.domain_id if args.domain_id is not None else fresh_domain_id()
     with tempfile.TemporaryDirectory() as tmp:
         capture, artifact = _artifact(Path(tmp))

@@ -16,6 +16,7 @@ for 800 px models.
 
 Usage (docs/SEARCH.md, "Searching on a Dask cluster"; the full 8 columns take ~3 x 7-15 min):
     .venv/bin/python benchmarks/bench_dask.py --columns 2 [--capture DIR]
+    .venv/bin/python benchmarks/bench_dask.py --quick   # 1 column, 10 splits, a small capture
 The machine may be shared: the load average is printed beside the figures.
 """
 from __future__ import annotations
@@ -30,16 +31,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from lightstage_physics.capture_format import load_capture
+from mux_trainer.cluster import dask_cluster, shared_bytes
+from mux_trainer.data import search_data
+from mux_trainer.greedy import GreedyPatternSelector
+from mux_trainer.search_params import Execution, SplitScoring
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / 'benchmarks'))
-
-from bench_search import default_capture  # noqa: E402
-from lightstage_physics.capture_format import load_capture  # noqa: E402
-from mux_trainer.cluster import dask_cluster, shared_bytes  # noqa: E402
-from mux_trainer.data import search_data  # noqa: E402
-from mux_trainer.greedy import GreedyPatternSelector  # noqa: E402
-from mux_trainer.search_params import Execution, SplitScoring  # noqa: E402
+from _common import capture_or_default, parse_args
 
 DASK = [sys.executable, '-m', 'dask']
 MB = 1e6
@@ -87,8 +85,8 @@ def main(argv=None) -> int:
     p.add_argument('--repeats', type=int, default=400)
     p.add_argument('--noise', default='sigma3')
     p.add_argument('--seed', type=int, default=0)
-    args = p.parse_args(argv)
-    capture = Path(args.capture) if args.capture else default_capture()
+    args = parse_args(p, argv, columns=1, repeats=10)
+    capture = capture_or_default(args.capture, args.quick)
     data = search_data(load_capture(capture, downscale_to=120), args.noise)
     n, px = data.basis.shape[2], data.basis.shape[3]
     print(f'data: {capture}, {len(data.class_names)} classes, {n} samples, '

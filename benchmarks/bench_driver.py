@@ -8,8 +8,9 @@ byte). A pty moves bytes without baud timing, so the Python simulator can beat t
 limit unless `--emulate-baud` makes it wait the wire time; simavr simulates the UART's
 baud timing itself.
 
-    PYTHONPATH=src/lightstage_driver .venv/bin/python benchmarks/bench_driver.py --backend python
-    PYTHONPATH=src/lightstage_driver .venv/bin/python benchmarks/bench_driver.py --backend avr
+    .venv/bin/python benchmarks/bench_driver.py --backend python
+    .venv/bin/python benchmarks/bench_driver.py --backend avr
+    .venv/bin/python benchmarks/bench_driver.py --quick   # python backend, 20 round trips
 """
 from __future__ import annotations
 
@@ -21,6 +22,8 @@ import numpy as np
 
 from lightstage_driver import protocol as p
 from lightstage_driver.stage import LightStage
+
+from _common import parse_args
 
 FIRE_EXPOSURE_US = 20     # shortest exposure: the figures are about the link, not the exposure
 
@@ -54,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--baud', type=int, default=115200)
     parser.add_argument('--emulate-baud', action='store_true',
                         help='python backend: delay replies by the wire time at --baud')
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv, n=20)
 
     backend = make_backend(args.backend, args.baud if args.emulate_baud else 0)
     backend.start()

@@ -15,7 +15,8 @@ of 20 us, what one classify image costs the stage). Backends:
 
 The last column is the limit set by the bytes alone on a real 115200 8N1 line.
 
-    PYTHONPATH=src/lightstage_driver .venv/bin/python benchmarks/bench_firmware.py [-n 300]
+    .venv/bin/python benchmarks/bench_firmware.py [-n 300]
+    .venv/bin/python benchmarks/bench_firmware.py --quick   # -n 20
 """
 from __future__ import annotations
 
@@ -29,6 +30,8 @@ from lightstage_driver import protocol as p
 from lightstage_driver.sim_backend import PythonSimBackend
 from lightstage_driver.simavr_backend import SimavrBackend, missing_tools
 from lightstage_driver.stage import LightStage
+
+from _common import parse_args
 from bench_driver import timed
 
 BAUD = 115200
@@ -77,7 +80,7 @@ def measure(make, patterns: np.ndarray) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('-n', type=int, default=300, help='round trips per command and backend')
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv, n=20)
     rng = np.random.default_rng(0)
     patterns = (rng.random((args.n, 32)) > 0.5).astype(float)
     patterns[:, 0] = 1.0       # never all-off, so every shown word is visible on the pins

@@ -10,7 +10,7 @@ a compile (no cache) and a cache load (measured in subprocesses with a fresh
 NUMBA_CACHE_DIR).
 
     .venv/bin/python benchmarks/bench_hog.py [--images 512] [--repeats 9]
-(with src/mux_classifier on PYTHONPATH if the package is not installed)
+    .venv/bin/python benchmarks/bench_hog.py --quick   # 16 images, 1 run
 """
 from __future__ import annotations
 
@@ -20,10 +20,9 @@ import sys
 import time
 
 import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "src", "mux_classifier"))
-
 from mux_classifier.hog import HogConfig, hog_batch, hog_batch_numpy, hog_reference
+
+from _common import parse_args
 
 FIRST_CALL = """
 import time, numpy as np
@@ -39,8 +38,7 @@ def first_call_seconds() -> tuple[float, float]:
     import subprocess
     import tempfile
     with tempfile.TemporaryDirectory() as cache:
-        env = dict(os.environ, NUMBA_CACHE_DIR=cache,
-                   PYTHONPATH=os.pathsep.join([sys.path[0], os.environ.get("PYTHONPATH", "")]))
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
         runs = [float(subprocess.run([sys.executable, "-c", FIRST_CALL], env=env, check=True,
                                      capture_output=True, text=True).stdout) for _ in range(2)]
     return runs[0], runs[1]
@@ -63,7 +61,7 @@ def main(argv=None) -> int:
                         help="images timed for skimage (slow)")
     parser.add_argument("--repeats", type=int, default=9, help="runs per figure")
     parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv, images=16, reference_images=4, repeats=1)
 
     rng = np.random.default_rng(args.seed)
     images = rng.uniform(0, 1023, (args.images, 120, 120)).astype(np.float32)

@@ -8,7 +8,7 @@ other processes hits them alike. Prints ms per 1000 images (best of the runs) fo
 and large objects, and the kernel's largest deviation from the reference (in histogram bins).
 
     .venv/bin/python benchmarks/bench_intensity_stats.py [--images 512] [--repeats 9]
-(with src/mux_classifier on PYTHONPATH if the package is not installed)
+    .venv/bin/python benchmarks/bench_intensity_stats.py --quick   # 16 images, 1 run
 """
 from __future__ import annotations
 
@@ -18,12 +18,11 @@ import sys
 import time
 
 import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "src", "mux_classifier"))
-
 from mux_classifier.hog import hog_batch
 from mux_classifier.intensity_stats import (N_BINS, intensity_stats_images,
                                             intensity_stats_images_numpy)
+
+from _common import parse_args
 
 
 def objects(n: int, extent: tuple[int, int], seed: int) -> np.ndarray:
@@ -44,7 +43,7 @@ def main(argv=None) -> int:
                         help="images timed for the numpy reference (slow)")
     parser.add_argument("--repeats", type=int, default=9, help="interleaved runs per figure")
     parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv, images=16, reference_images=4, repeats=1)
 
     print(f"120x120 float32 images; numpy {np.__version__}; {args.repeats} interleaved runs; "
           f"cpus {os.cpu_count()}; load average {os.getloadavg()[0]:.2f}")

@@ -10,7 +10,10 @@ alike. Prints the median and the 90th percentile ms per sample.
 
     .venv/bin/python benchmarks/bench_learned_classify.py out/demo/learned_sigma3.npz \\
         out/demo/greedy_sigma3.npz [--samples 200] [--frame-px 120]
-(with src/mux_classifier on PYTHONPATH if the package is not installed)
+    .venv/bin/python benchmarks/bench_learned_classify.py --quick   # 20 samples
+
+Without artifacts it first trains a learned and a greedy one (4 images, 20 inner splits) on
+a small synthetic capture, and times those.
 """
 from __future__ import annotations
 
@@ -18,13 +21,13 @@ import argparse
 import os
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "src", "mux_classifier"))
-
 from mux_classifier.artifact import TrainedArtifact
 from mux_classifier.inference import classify_frames
+
+from _common import parse_args, small_capture
 
 
 def frames(k: int, size: int, rng) -> list[np.ndarray]:
@@ -35,12 +38,27 @@ def frames(k: int, size: int, rng) -> list[np.ndarray]:
     return list((np.clip(images, 0, 1023).astype(np.uint16) << 6))
 
 
+def small_artifacts() -> list[str]:
+    """A learned and a greedy artifact (4 images, 20 inner splits) trained on the small
+    capture, in a temporary folder."""
+    import tempfile
+    from mux_trainer.training import train_from_capture
+    folder = Path(tempfile.mkdtemp(prefix="bench-learned-classify-"))
+    paths = []
+    for method in ("learned", "greedy"):
+        paths.append(str(folder / f"{method}.npz"))
+        train_from_capture(small_capture(), paths[-1], method=method, max_images=4, repeats=20)
+    return paths
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("artifacts", nargs="+")
+    p.add_argument("artifacts", nargs="*", help="artifact files (default: train two, see above)")
     p.add_argument("--samples", type=int, default=200)
     p.add_argument("--frame-px", type=int, default=120)
-    args = p.parse_args(argv)
+    args = parse_args(p, argv, samples=20)
+    if not args.artifacts:
+        args.artifacts = small_artifacts()
     rng = np.random.default_rng(0)
     arts = [TrainedArtifact.load(path) for path in args.artifacts]
     times = [[] for _ in arts]

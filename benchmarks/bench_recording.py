@@ -21,6 +21,7 @@ noise compresses little; these compress as the camera's frames do).
     .venv/bin/python benchmarks/bench_recording.py
     .venv/bin/python benchmarks/bench_recording.py --images 100 --size 800 --rates 30 60 --bag bags/sim_session
     .venv/bin/python benchmarks/bench_recording.py --parts size verify     # 3 and 4 only (~1 min)
+    .venv/bin/python benchmarks/bench_recording.py --quick   # 20 images of 200 px, 30 Hz
 """
 from __future__ import annotations
 
@@ -36,11 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
+from lightstage_graph.graph_client import GraphClient
 from lightstage_graph.ros_env import apply_ros_environment, ros_environment
 
-sys.path[:0] = [str(Path(__file__).resolve().parent.parent / 'tests')]  # the tests' helpers package
-from helpers.recording import bag_results  # noqa: E402  (the tests' bag and ROS helpers)
-from helpers.suite import GraphClient, write_params  # noqa: E402
+from _common import bag_results, parse_args, write_params
 
 
 def frames(n: int, size: int, seed: int = 0) -> list[bytes]:
@@ -217,7 +217,7 @@ def main(argv=None) -> int:
     p.add_argument('--parts', nargs='+', default=['writer', 'recorder', 'size', 'verify'],
                    choices=['writer', 'recorder', 'size', 'verify'])
     p.add_argument('--domain-id', type=int, default=int(os.environ.get('ROS_DOMAIN_ID') or 61))
-    args = p.parse_args(argv)
+    args = parse_args(p, argv, images=20, size=200, rates=[30.0], full_size=200)
     apply_ros_environment(args.domain_id)
     with tempfile.TemporaryDirectory() as tmp:
         if {'writer', 'recorder'} & set(args.parts):

@@ -6,7 +6,8 @@ Fast path: downscale the models once (ModelSet.downscaled), then render at 120 x
 add noise whose variance is scaled by the downscale's factor (noise_scale). Both produce
 the same statistics away from saturation (tests/lightstage_physics/test_lowres.py).
 
-    PYTHONPATH=src/lightstage_physics .venv/bin/python benchmarks/bench_render.py [--size 240]
+    .venv/bin/python benchmarks/bench_render.py [--size 240] [--agreement DRAWS]
+    .venv/bin/python benchmarks/bench_render.py --quick   # 4 samples, 1 run, 20 draws
 """
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ from lightstage_physics.noise import preset
 from lightstage_physics.render import render_noisy
 from lightstage_physics.rig import Rig
 from lightstage_physics.scene_models import ModelSet
+
+from _common import parse_args
 
 
 def make_models(n: int, size: int, seed: int = 0) -> ModelSet:
@@ -75,7 +78,7 @@ def main(argv=None) -> int:
     parser.add_argument("--noise", default="sigma3")
     parser.add_argument("--agreement", type=int, default=0, metavar="DRAWS",
                         help="also check per-pixel statistics of both paths over DRAWS draws")
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv, samples=4, repeats=1, agreement=20)
     if args.agreement:
         agreement(args.size, args.agreement, args.noise)
     noise = preset(args.noise)

@@ -12,6 +12,10 @@ counts the images played, so a loss is the classifier's, not the player's.
 
     make demo     # once: out/demo/stage_session, replay_params.yaml, demo_results.json
     .venv/bin/python benchmarks/bench_replay_labels.py [--runs 4] [--demo-dir out/demo]
+
+`--quick` (one replay per arm) without --demo-dir replays the bundled session instead
+(bags/sim_session: 4 classifications, into its own bags/sim_session_classifier.npz), so it
+needs no `make demo`.
 """
 from __future__ import annotations
 
@@ -24,6 +28,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from _common import ROOT, parse_args, write_params
 
 VENV_BIN = Path(sys.executable).parent
 MULTI_THREADED = ('import sys; from lightstage_graph.spin import init_node, spin_until_stopped; '
@@ -47,7 +53,8 @@ def start_graph(arm: str, params: Path, domain_id: int, workdir: Path, env: dict
                              stderr=subprocess.DEVNULL) for a in argv]
 
 
-def replay(arm: str, demo: Path, domain_id: int, want: int, workdir: Path) -> tuple[int, int]:
+def replay(arm: str, session: Path, params: Path, domain_id: int, want: int,
+           workdir: Path) -> tuple[int, int]:
     """One replay: (labels received, images a deep reader of its own received)."""
     import rclpy
     from rclpy.context import Context
@@ -57,7 +64,7 @@ def replay(arm: str, demo: Path, domain_id: int, want: int, workdir: Path) -> tu
     from lightstage_interfaces.msg import ClassificationResult
     from lightstage_graph.ros_env import ros_environment
     env = ros_environment(domain_id)
-    procs = start_graph(arm, demo / 'replay_params.yaml', domain_id, workdir, env)
+    procs = start_graph(arm, params, domain_id, workdir, env)
     ctx = Context()
     rclpy.init(context=ctx, domain_id=domain_id)
     node = rclpy.create_node('bench_replay_labels', context=ctx)
@@ -72,7 +79,7 @@ def replay(arm: str, demo: Path, domain_id: int, want: int, workdir: Path) -> tu
         while node.count_publishers('/lightstage/result') == 0 and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.1)
         play = subprocess.Popen(
-            [str(VENV_BIN / 'lightstage'), 'play', str(demo / 'stage_session'), '--topics',
+            [str(VENV_BIN / 'lightstage'), 'play', str(session), '--topics',
              '/illumination', '/camera/image_raw', '--wait-for', '/illumination',
              '/camera/image_raw', '--delay-s', '1', '--domain-id', str(domain_id)],
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -94,19 +101,28 @@ def replay(arm: str, demo: Path, domain_id: int, want: int, workdir: Path) -> tu
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
-    p.add_argument('--demo-dir', default='out/demo', type=Path)
+    p.add_argument('--demo-dir', type=Path, help='`make demo`\'s output (default out/demo)')
     p.add_argument('--runs', type=int, default=4, help='replays per arm (default 4)')
     p.add_argument('--arms', nargs='*', default=['shipped', 'multi_threaded'],
                    choices=['shipped', 'multi_threaded'])
     p.add_argument('--domain-id', type=int, default=57)
-    args = p.parse_args(argv)
+    args = parse_args(p, argv, runs=1)
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(args.domain_id))
-    calls = json.loads((args.demo_dir / 'demo_results.json').read_text())['on_stage']['greedy']['calls']
     totals = {arm: [] for arm in args.arms}
     with tempfile.TemporaryDirectory(prefix='bench_replay_') as tmp:
+        if args.quick and args.demo_dir is None:
+            session = ROOT / 'bags' / 'sim_session'
+            params = write_params(Path(tmp) / 'replay_params.yaml', {'classifier': {
+                'artifact_path': str(ROOT / 'bags' / 'sim_session_classifier.npz'),
+                'classify_observed': True}})
+            calls = [None] * 4  # the bundled session's classifications (bags/README.md)
+        else:
+            demo = (args.demo_dir or Path('out/demo')).resolve()
+            session, params = demo / 'stage_session', demo / 'replay_params.yaml'
+            calls = json.loads((demo / 'demo_results.json').read_text())['on_stage']['greedy']['calls']
         for run in range(args.runs):
             for arm in args.arms:
-                got, images = replay(arm, args.demo_dir.resolve(), args.domain_id, len(calls), Path(tmp))
+                got, images = replay(arm, session, params, args.domain_id, len(calls), Path(tmp))
                 totals[arm].append(got)
                 print(f'run {run} {arm:15s} {got:3d} of {len(calls)} labels '
                       f'({images} images played)', flush=True)

@@ -27,7 +27,8 @@ the Newton loop moved into one compiled kernel) on the same candidates, interlea
 Usage (what docs/SEARCH.md reports; [3] adds ~20 min, so it is skipped here):
     .venv/bin/python benchmarks/bench_search.py --jobs 2 --skip-check [--capture DIR] [--old-svm REV]
 Without --capture the synthetic dataset (the same as `make demo`'s) is generated once into
-.cache/bench_synth (`lightstage synth`, about 2-3 minutes on 2 cores). Timings on a machine
+.cache/bench_synth (`lightstage synth`, about 2-3 minutes on 2 cores); `--quick` measures
+[1] and [3] on a small capture instead and skips [2]. Timings on a machine
 shared with other work are inflated: the load average is printed at the start and the end.
 """
 from __future__ import annotations
@@ -42,35 +43,24 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-for pkg in ('lightstage_physics', 'mux_classifier', 'mux_trainer'):
-    sys.path.insert(0, str(ROOT / 'src' / pkg))
+from lightstage_physics.capture_format import load_capture
+from mux_classifier.hog import hog_batch, hog_batch_numpy, hog_reference
+from threadpoolctl import threadpool_limits
+from mux_trainer.data import search_data
+from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk
+from mux_trainer.greedy import REFINE_TOP, GreedyPatternSelector
+from mux_trainer.candidate_patterns import site_pattern_candidates
+from mux_trainer.reference import reference_candidate_scores
+from mux_trainer.search_params import Execution, SplitScoring
+from mux_trainer.rendering import SearchData, add_noise, clean_site_images
 
-from lightstage_physics.capture_format import load_capture  # noqa: E402
-from mux_classifier.hog import hog_batch, hog_batch_numpy, hog_reference  # noqa: E402
-from threadpoolctl import threadpool_limits  # noqa: E402
-from mux_trainer.data import search_data  # noqa: E402
-from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk  # noqa: E402
-from mux_trainer.greedy import REFINE_TOP, GreedyPatternSelector  # noqa: E402
-from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
-from mux_trainer.reference import reference_candidate_scores  # noqa: E402
-from mux_trainer.search_params import Execution, SplitScoring  # noqa: E402
-from mux_trainer.rendering import SearchData, add_noise, clean_site_images  # noqa: E402
+from _common import ROOT, capture_or_default, parse_args
 
 PAPER_SPLITS = 400
 # the default search's columns (sites lit, site 0 first) on the default synthetic dataset,
 # noise sigma3, seed 0, as recorded in docs/SEARCH.md before the compiled kernel
 RECORDED_COLUMNS = ('10001111', '00011111', '10001111', '10001111', '00001011', '10011111',
                     '00001101', '10001111')
-
-
-def default_capture() -> Path:
-    path = ROOT / '.cache' / 'bench_synth'
-    if not (path / 'rig.yaml').exists():
-        from lightstage_physics.synth import generate
-        print(f'generating the synthetic dataset into {path} ...', flush=True)
-        generate(path)
-    return path
 
 
 def fmt_breakdown(t: dict, n: int, scale_classifier: float = 1.0) -> str:
@@ -118,9 +108,10 @@ def main(argv=None) -> int:
     p.add_argument('--skip-check', action='store_true', help='skip the reduced-problem check')
     p.add_argument('--skimage-images', type=int, default=40,
                    help='images timed with skimage for [1] (scaled to a candidate)')
-    args = p.parse_args(argv)
+    args = parse_args(p, argv, fast_candidates=4, ref_candidates=1, ref_splits=2, skip_full=True,
+                      check_sites=3, check_splits=4, check_columns=1, skimage_images=4)
 
-    capture = Path(args.capture) if args.capture else default_capture()
+    capture = capture_or_default(args.capture, args.quick)
     t0 = time.perf_counter()
     data = search_data(load_capture(capture, downscale_to=120), args.noise)
     print(f'data: {capture}: {data.n_samples} samples, {len(data.class_names)} classes, '

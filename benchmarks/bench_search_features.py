@@ -7,6 +7,7 @@
     extractor, one after the other: wall seconds.
 
     .venv/bin/python benchmarks/bench_search_features.py [--capture DIR] [--full]
+    .venv/bin/python benchmarks/bench_search_features.py --quick   # [1] on a small capture
 
 Without --capture it uses the default synthetic dataset of benchmarks/bench_search.py.
 """
@@ -17,12 +18,9 @@ import os
 import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_search import default_capture, fmt_breakdown
+from bench_search import fmt_breakdown
 from lightstage_physics.capture_format import load_capture
 from mux_trainer.candidate_patterns import site_pattern_candidates
 from mux_trainer.data import search_data
@@ -30,6 +28,8 @@ from mux_trainer.evaluation import CandidateEvaluator, score_candidate_chunk
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.search_params import Execution
 from mux_trainer.rendering import compile_kernels
+
+from _common import capture_or_default, parse_args
 
 
 def main(argv=None) -> int:
@@ -41,10 +41,10 @@ def main(argv=None) -> int:
     p.add_argument('--rounds', type=int, default=5)
     p.add_argument('--jobs', type=int, default=2, help='--full: joblib workers')
     p.add_argument('--full', action='store_true', help='also the whole default search per extractor')
-    args = p.parse_args(argv)
+    args = parse_args(p, argv, candidates=2, rounds=1)
     names = [n.strip() for n in args.features.split(',') if n.strip()]
 
-    capture = Path(args.capture) if args.capture else default_capture()
+    capture = capture_or_default(args.capture, args.quick)
     base = search_data(load_capture(capture, downscale_to=120), args.noise)
     compile_kernels()
     print(f'data: {capture}: {base.n_samples} samples, {len(base.class_names)} classes; cpus '

@@ -23,6 +23,7 @@ extractor's transform time in ms per 800 images of 120 x 120.
     .venv/bin/python benchmarks/compare_features.py [--types coin,note,green_apple,banana]
         [--samples 2] [--poses 8] [--splits 5] [--features hog_grid,pooled_hog_stats,...]
         [--holdout poses|instances]
+    .venv/bin/python benchmarks/compare_features.py --quick   # 2 types, 2 features, 2 lights, canonical
 """
 from __future__ import annotations
 
@@ -40,6 +41,8 @@ from mux_classifier.features import EXTRACTORS, extractor, features_for_split
 from mux_trainer.rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
                                    standard_normal)
 from mux_trainer.snr_optimal import s_matrix_for_sites
+
+from _common import parse_args
 
 IMAGE_SIZE = 120
 DOWNSCALE_NOISE = 0.25  # variance factor of a 2 x 2 area mean (240 px capture -> 120 px)
@@ -123,7 +126,9 @@ def main(argv=None) -> int:
                         help="poses: --splits random splits of held-out pose indices (the "
                              "paper's protocol; test objects were seen in other poses); "
                              "instances: leave one physical sample out (unseen objects)")
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv, types='banana,orange', poses=4, splits=2,
+                      features='hog_grid,intensity_stats', illuminations='naive,colour_all',
+                      placements='canonical')
     types = tuple(t for t in args.types.split(",") if t)
     features = [f for f in args.features.split(",") if f]
     for f in features:

@@ -14,6 +14,7 @@ and accuracy of the answers that reach the target (accepted: the rest are unsure
 Prints one row per method and fold and the fold means; --json writes every figure.
 
     .venv/bin/python benchmarks/confidence_benchmark.py                 # quick: 2 folds, 60 px
+    .venv/bin/python benchmarks/confidence_benchmark.py --quick         # make bench: 2 fruit, tiny
     .venv/bin/python benchmarks/confidence_benchmark.py --size 240 --folds 4 --repeats 100
 """
 from __future__ import annotations
@@ -25,6 +26,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from _common import parse_args as parse_with_quick
 
 METHODS = ('greedy', 'snr_optimal', 'naive')
 
@@ -48,7 +51,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--jobs', type=int, default=2)
     p.add_argument('--json', help='write every figure to this file')
-    return p.parse_args(argv)
+    return parse_with_quick(p, argv, types='banana,orange', samples=2, poses=2, repeats=10,
+                            max_columns=2, n_renders=1, jobs=1)
 
 
 def build(method: str, args):

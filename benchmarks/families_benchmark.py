@@ -257,10 +257,11 @@ def main(argv=None) -> int:
                         'and seeds; run nothing (e.g. after workers on parts of the seeds wrote '
                         'files that were concatenated)')
     p.add_argument('--quick', action='store_true',
-                   help='a few minutes: 3 families, 2 folds, 40 inner splits')
+                   help='a small run of the same measurement, as `make bench` runs it: 1 family, '
+                        '2 folds, 20 inner splits, 2 poses per sample')
     args = p.parse_args(argv)
     if args.quick:
-        args.seeds, args.folds, args.n_repeats = args.seeds[:3], 2, 40
+        args.seeds, args.folds, args.n_repeats, args.poses = args.seeds[:1], 2, 20, 2
     args.folds = args.samples if args.folds is None else args.folds
     unknown = set(args.methods) - set(METHODS)
     if unknown:

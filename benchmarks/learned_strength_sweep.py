@@ -6,9 +6,9 @@ for each split seed runs `learned_vs_greedy.run_capture` (the same held-out spli
 noise and n_renders for every method) and prints a table of held-out accuracy at 4 and 8
 exposures, means over seeds; writes the figures as JSON and the plot as PNG.
 
-    PYTHONPATH=src/lightstage_physics:src/mux_classifier:src/mux_trainer \\
-        .venv/bin/python benchmarks/learned_strength_sweep.py /work/data/sweep \\
+    .venv/bin/python benchmarks/learned_strength_sweep.py DIR/sweep \\
         --strengths 0.05,0.1,0.2,0.3,0.5 --seeds 0,1 --png sweep.png
+    .venv/bin/python benchmarks/learned_strength_sweep.py --quick   # one strength, one seed, small
 """
 from __future__ import annotations
 
@@ -19,9 +19,9 @@ import subprocess
 import sys
 
 import numpy as np
-
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from learned_vs_greedy import add_method_arguments, run_capture
+
+from _common import ROOT, parse_args
 
 METHODS = ('greedy', 'snr_optimal', 'learned')
 
@@ -37,7 +37,8 @@ def make_capture(path, strength, args):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    p.add_argument('out', help='folder for the captures (one per strength)')
+    p.add_argument('out', nargs='?', help='folder for the captures (one per strength; default '
+                   '.cache/bench_sweep, with --quick .cache/bench_quick_sweep)')
     p.add_argument('--strengths', default='0.05,0.1,0.2,0.3,0.5')
     p.add_argument('--seeds', default='0,1')
     p.add_argument('--types', default='coin,note,seal')
@@ -48,7 +49,9 @@ def main(argv=None):
     p.add_argument('--merge', help='comma-separated JSONs this script wrote (e.g. one per split '
                    'seed, run side by side): print their table and plot, run nothing')
     add_method_arguments(p, default_methods=','.join(METHODS))
-    args = p.parse_args(argv)
+    args = parse_args(p, argv, strengths='0.5', seeds='0', types='coin,note', samples=2, poses=3,
+                      n_repeats=20, exposures=[4])
+    args.out = args.out or str(ROOT / '.cache' / ('bench_quick_sweep' if args.quick else 'bench_sweep'))
     args.methods = args.methods.split(',')
     args.learned_starts = args.learned_starts.split(',')
     strengths = [float(s) for s in args.strengths.split(',')]

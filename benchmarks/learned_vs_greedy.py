@@ -23,8 +23,9 @@ Prints held-out accuracy, the inner estimate (the method's own split accuracy at
 exposure count) and training seconds per method and exposure count, and writes the figures
 as JSON with --json.
 
-    PYTHONPATH=src/lightstage_physics:src/mux_classifier:src/mux_trainer \\
-        .venv/bin/python benchmarks/learned_vs_greedy.py /work/data/weak0.2 [--seed 0]
+    .venv/bin/python benchmarks/learned_vs_greedy.py DIR [DIR ...] [--seed 0]
+    .venv/bin/python benchmarks/learned_vs_greedy.py --quick   # a small capture, 4 exposures, 20 splits
+Without a capture: the default synthetic dataset (benchmarks/_common.py, `default_capture`).
 """
 from __future__ import annotations
 
@@ -44,6 +45,8 @@ from mux_trainer.learned_schedule import DEFAULT_STEPS
 from mux_trainer.learned import (Descent, Head, LearnedIlluminationClassifier, Starts,
                                  evaluate_learned_heldout)
 from mux_trainer.search_params import Execution, SplitScoring
+
+from _common import capture_or_default, parse_args
 
 
 def classify_ms(model, test, seed, repeats=20) -> float:
@@ -195,11 +198,12 @@ def add_method_arguments(p, default_methods='greedy,snr_optimal,learned,learned_
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    p.add_argument('captures', nargs='+')
+    p.add_argument('captures', nargs='*', help='capture folders (default: the synthetic dataset)')
     p.add_argument('--seed', type=int, default=0)
     add_method_arguments(p)
     p.add_argument('--json', help='write the figures here')
-    args = p.parse_args(argv)
+    args = parse_args(p, argv, n_repeats=20, exposures=[4])
+    args.captures = args.captures or [str(capture_or_default(None, args.quick))]
     args.methods = args.methods.split(',')
     args.learned_starts = args.learned_starts.split(',')
     results = {}

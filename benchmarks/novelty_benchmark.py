@@ -24,6 +24,7 @@ one-class SVM), all thresholded alike: the plain (1 - rate) quantile of held-out
 
     .venv/bin/python benchmarks/novelty_benchmark.py            # about 5 min on 2 cores
     .venv/bin/python benchmarks/novelty_benchmark.py --compare  # + the alternatives
+    .venv/bin/python benchmarks/novelty_benchmark.py --quick    # make bench: 3 types, 1 seed each
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from _common import parse_args as parse_with_quick
 from mux_trainer.novelty_fit import UNKNOWN_TEST_STREAM as TEST_STREAM  # the test renders' noise
 
 
@@ -57,7 +59,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument('--work-dir', help='where to write the captures (default: a temporary folder)')
     p.add_argument('--jobs', type=int, default=1, help='render jobs (1)')
     p.add_argument('--json', help='write every figure to this file')
-    return p.parse_args(argv)
+    return parse_with_quick(p, argv, tune_seeds='0', report_seeds='1', samples=2, poses=2,
+                            types='banana,orange,coin', families='0', columns=2, train_renders=1,
+                            test_renders=1)
 
 
 def _ints(text: str) -> list[int]:

@@ -19,32 +19,29 @@ The last lines summarise over columns. --save writes every score to an .npz.
 
 Usage: .venv/bin/python benchmarks/rank_agreement.py [--capture DIR] [--columns 8] [--jobs 2]
 About 4 minutes per column on 2 cores (the SVM over 254 x 400 splits dominates).
+--quick: 1 column, 10 splits, ridge 0.5 (the screen's), slack 0, on a small capture.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 from joblib import Parallel, delayed
 from scipy.stats import spearmanr
 from threadpoolctl import threadpool_limits
 
-ROOT = Path(__file__).resolve().parents[1]
-for pkg in ('lightstage_physics', 'mux_classifier', 'mux_trainer'):
-    sys.path.insert(0, str(ROOT / 'src' / pkg))
-
-from bench_search import default_capture  # noqa: E402
-from lightstage_physics.capture_format import load_capture  # noqa: E402
-from mux_trainer.data import search_data  # noqa: E402
-from mux_trainer.evaluation import CandidateEvaluator  # noqa: E402
-from mux_trainer.greedy import (REFINE_BATCH, REFINE_MAX, REFINE_TOP,  # noqa: E402
+from lightstage_physics.capture_format import load_capture
+from mux_trainer.data import search_data
+from mux_trainer.evaluation import CandidateEvaluator
+from mux_trainer.greedy import (REFINE_BATCH, REFINE_MAX, REFINE_TOP,
                                 could_still_win)
-from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402
-from mux_trainer.rendering import add_noise, clean_site_images, image_features  # noqa: E402
-from mux_trainer.split_scoring import RidgeSplitScorer, SquaredHingeSplitScorer  # noqa: E402
+from mux_trainer.candidate_patterns import site_pattern_candidates
+from mux_trainer.rendering import add_noise, clean_site_images, image_features
+from mux_trainer.split_scoring import RidgeSplitScorer, SquaredHingeSplitScorer
+
+from _common import capture_or_default, parse_args
 
 
 def sites(pattern) -> str:
@@ -89,14 +86,15 @@ def main(argv=None) -> int:
     p.add_argument('--slacks', default='0,1,2', help='refinement race slacks to replay')
     p.add_argument('--save', help='write all scores per column to this .npz')
     p.add_argument('--jobs', type=int, default=2)
-    args = p.parse_args(argv)
+    p.add_argument('--splits', type=int, default=400, help='splits per candidate (the search\'s 400)')
+    args = parse_args(p, argv, columns=1, splits=10, alphas='0.5', slacks='0')
 
     alphas = [float(a) for a in args.alphas.split(',')]
     slacks = [float(v) for v in args.slacks.split(',')]
-    capture = args.capture or default_capture()
+    capture = capture_or_default(args.capture, args.quick)
     data = search_data(load_capture(capture, downscale_to=120), args.noise)
     W = site_pattern_candidates()
-    ev = CandidateEvaluator(data, n_repeats=400, seed=args.seed)
+    ev = CandidateEvaluator(data, n_repeats=args.splits, seed=args.seed)
     screen_name = f'ridge {ev.scorer.alpha:g}'
     if ev.scorer.alpha not in alphas:
         alphas.append(ev.scorer.alpha)
@@ -105,7 +103,7 @@ def main(argv=None) -> int:
     scorers = {'svm': SquaredHingeSplitScorer(C=1.0)}
     scorers.update({f'ridge {a:g}': RidgeSplitScorer(alpha=a) for a in alphas})
     print(f'{capture} at {args.noise}: {data.n_samples} samples, {W.shape[1]} candidates '
-          f'x 400 splits per column, exact linear SVM (C=1) vs ridge alpha {alphas}', flush=True)
+          f'x {args.splits} splits per column, exact linear SVM (C=1) vs ridge alpha {alphas}', flush=True)
     columns = np.zeros((data.n_sites, 0), np.float32)
     worst = {a: 0 for a in alphas}
     total_t = time.perf_counter()

@@ -9,7 +9,8 @@ accuracy of a linear SVM over repeated 75 / 25 pose splits (the same pose indice
 every class), plus the held-out-instance accuracy (train on some physical samples, test on
 the others; the paper's captured-imagery experiment).
 
-    PYTHONPATH=src/lightstage_physics:src/mux_classifier .venv/bin/python benchmarks/synth_difficulty.py [CAPTURE]
+    .venv/bin/python benchmarks/synth_difficulty.py [CAPTURE] [--splits 20]
+    .venv/bin/python benchmarks/synth_difficulty.py --quick   # a small capture, 2 splits
 """
 from __future__ import annotations
 
@@ -27,6 +28,8 @@ from lightstage_physics.capture_format import load_capture
 from lightstage_physics.noise import preset
 from lightstage_physics.render import render_noisy
 from lightstage_physics.rig import led_index
+
+from _common import parse_args, small_capture
 
 
 def hog_features(images: np.ndarray) -> np.ndarray:
@@ -104,7 +107,9 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--C", type=float, default=1.0)
     parser.add_argument("--only", default="", help="comma-separated substrings of pattern names")
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv, splits=2)
+    if args.capture is None and args.quick:
+        args.capture = str(small_capture())
     if args.capture is None:
         from lightstage_physics.synth import generate
         tmp = tempfile.mkdtemp(prefix="synth_")

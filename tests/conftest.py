@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from helpers.markers import ProcessGuard, declares_process
 from helpers.workers import xdist_worker
 from lightstage_graph.ros_env import apply_ros_environment
 
@@ -43,15 +44,15 @@ def pytest_report_header(config):
             f'namespace; scripts/run_tests.sh runs the suite in one where the platform allows')
 
 
-# A test module that names any of these starts processes (node graphs, CLIs, Dask, simavr, a
-# browser) in some test: all its tests are `process` (pytest.ini), so a new test there cannot
-# slip into the fast selection. Whole modules, not functions: a test often reaches them
-# through a module's own helper.
-STARTS_PROCESSES = re.compile(
-    r'\b(subprocess|Popen|Supervisor|start_nodes|running_nodes|lightstage_command|launcher_argv'
-    r'|GraphClient|GraphWatcher|dask_scheduler|SimavrBackend|Chromium|rclpy)\b')
-SIMAVR_FIXTURES = {'avr', 'wire'}          # tests/lightstage_driver/firmware/conftest.py
-SIMAVR_PARAMETRIZED = {'firmware': 'avr'}  # tests/lightstage_driver/conftest.py's backends
+# A test module whose tests start processes (node graphs, CLIs, Dask, simavr, a browser)
+# declares it: `pytestmark = pytest.mark.process` (tests/helpers/markers.py); a module where
+# one test does marks that test. Tests that use a fixture that starts the firmware (simavr, or
+# the Python simulator's process) are `process` too, wherever they are. Every `fast` test runs
+# under `ProcessGuard`, which fails it if it starts a process all the same.
+PROCESS_FIXTURES = {
+    'avr', 'wire',      # tests/lightstage_driver/firmware/conftest.py: the AVR in simavr
+    'firmware', 'sim',  # tests/lightstage_driver/conftest.py: either firmware as a process
+}
 NOT_FAST = ('ros', 'process', 'slow')
 
 # Tests that start no process but compute for seconds (searches, training, statistics over many
@@ -111,8 +112,8 @@ def pytest_configure(config):
 
 
 @functools.lru_cache(maxsize=None)
-def _module_starts_processes(path) -> bool:
-    return bool(STARTS_PROCESSES.search(path.read_text()))
+def _module_declares_process(path) -> bool:
+    return declares_process(path.read_text())
 
 
 def _slow_module(path) -> bool:
@@ -125,26 +126,22 @@ def _slow(item) -> bool:
 
 
 def _starts_processes(item) -> bool:
-    if _module_starts_processes(item.path) or SIMAVR_FIXTURES & set(item.fixturenames):
-        return True
-    params = getattr(item, 'callspec', None)
-    return any(params is not None and params.params.get(name) == value
-               for name, value in SIMAVR_PARAMETRIZED.items())
+    return bool(PROCESS_FIXTURES & set(item.fixturenames))
 
 
 def pytest_ignore_collect(collection_path, config):
     """`-m fast` does not even import the modules it would run nothing of (their imports,
     rclpy's among them, cost seconds of the inner loop)."""
     if (config.option.markexpr == 'fast' and collection_path.name.startswith('test_')
-            and (_module_starts_processes(collection_path) or _slow_module(collection_path))):
+            and (_module_declares_process(collection_path) or _slow_module(collection_path))):
         return True
     return None
 
 
 def pytest_collection_modifyitems(config, items):
-    """Markers by what a test does, so that none is forgotten: `process` and `slow` (above),
-    and `fast` for every test that is neither `ros`, `process` nor `slow` (the inner loop:
-    `-m fast`)."""
+    """Markers by what a test does, so that none is forgotten: `process` for the tests of
+    the firmware fixtures and `slow` (above; a module's own `pytestmark` declares `process`), and `fast`
+    for every test that is neither `ros`, `process` nor `slow` (the inner loop: `-m fast`)."""
     for item in items:
         if _starts_processes(item):
             item.add_marker('process')
@@ -152,6 +149,20 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker('slow')
         if not any(item.get_closest_marker(name) for name in NOT_FAST):
             item.add_marker('fast')
+
+
+@pytest.fixture(autouse=True)
+def process_guard(request, monkeypatch):
+    """A `fast` test starts no process (tests/helpers/markers.py): under the guard, a process
+    start raises and fails the test, even where the code under test catches the error."""
+    if request.node.get_closest_marker('fast') is None:
+        yield None
+        return
+    guard = ProcessGuard(request.node.nodeid).install(monkeypatch)
+    yield guard
+    if guard.attempts:
+        pytest.fail(f'{request.node.nodeid} is not marked `process` but started processes '
+                    f'({", ".join(guard.attempts)}): add `pytestmark = pytest.mark.process` to its module')
 
 
 @pytest.fixture(scope='session', autouse=True)

@@ -7,6 +7,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.process
+
 SRC = Path(__file__).resolve().parents[1] / 'src'
 # modules that are ROS by design besides the nodes: the graph contract's rclpy parts (QoS
 # profiles, the node main, a worker thread's result awaited in the executor, the stage

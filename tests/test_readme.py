@@ -24,6 +24,8 @@ import pytest
 
 from helpers.suite import fresh_domain_id
 
+pytestmark = pytest.mark.process
+
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / 'README.md'
 # first line of a block -> why this test does not run it

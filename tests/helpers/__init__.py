@@ -9,6 +9,8 @@ Shared by several packages' tests:
   dask_cluster        a real Dask scheduler and workers as processes
   proc_sockets        which sockets a process holds (nothing listens beyond loopback)
   artifact_mutations  Hypothesis strategies for malformed artifact files
+  markers             the `process` marker a module declares, the guard that keeps fast tests from starting processes
+  script_help         a script's --help with its imports stood in (tests/test_benchmarks.py)
 One package's tests (tests/<package>/...):
   bringup, web, browser              lightstage_bringup (launcher, `lightstage web`/`view`, Chromium)
   camera, acquisition, emulated_cameras  lightstage_camera (models, frame sources, pylon/Aravis emulation)

@@ -17,7 +17,7 @@ from helpers.ros import child_environment
 from helpers.suite import fresh_domain_id, lightstage_command, write_params
 from lightstage_physics.calibration_target import write_calibration_target
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 
 @pytest.fixture(scope='module')

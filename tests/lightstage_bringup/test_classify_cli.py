@@ -1,9 +1,12 @@
 """`lightstage classify` without a graph: argument checks and the printed answer."""
 import subprocess
 
+import pytest
 from lightstage_bringup import classify_cli
 
 from helpers.suite import lightstage_command
+
+pytestmark = pytest.mark.process
 
 
 def test_answer_lists_the_label_then_scores_best_first():

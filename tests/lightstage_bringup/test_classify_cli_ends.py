@@ -17,7 +17,7 @@ from lightstage_bringup.supervisor import Supervisor
 from helpers.suite import (GraphClient, fresh_domain_id, lightstage_command, stage_graph_params,
                            start_nodes, write_params)
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 STUCK = '''
 import sys, time

@@ -16,7 +16,7 @@ from lightstage_bringup import launcher
 
 from helpers.suite import REPO
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 FAKE = 'bringup_fake_node'
 

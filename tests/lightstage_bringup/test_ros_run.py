@@ -17,7 +17,7 @@ import yaml
 from helpers.ros import running_nodes
 from helpers.suite import REPO, GraphClient, fresh_domain_id
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 SHIPPED_YAML = REPO / 'src' / 'lightstage_bringup' / 'config' / 'lightstage.yaml'
 VENV = Path(sys.prefix)  # the suite runs with the venv's interpreter

@@ -15,6 +15,8 @@ from lightstage_graph.exits import describe_exit
 
 from helpers.bringup import pid_alive
 
+pytestmark = pytest.mark.process
+
 PY = sys.executable
 
 

@@ -19,7 +19,7 @@ from helpers.proc_sockets import sockets_of
 from helpers.suite import REPO, GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
 from helpers.web import served
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 SUBPROTOCOL = 'foxglove.websocket.v1'   # the only name the released clients offer
 MESSAGE_DATA = 0x01   # binary opcode: subscription id (u32), log time (u64), payload

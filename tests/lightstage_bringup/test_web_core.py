@@ -17,6 +17,8 @@ from lightstage_bringup.web_state import (Illumination, PageState, RequestError,
                                           calibrate_progress, capture_goal, capture_progress,
                                           classify_request, display_image)
 
+pytestmark = pytest.mark.process
+
 STAMP = 1_795_000_000_123_456_789   # past 2**53: the page gets stamps as strings
 
 

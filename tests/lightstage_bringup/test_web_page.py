@@ -25,7 +25,7 @@ from helpers.proc_sockets import sockets_of
 from helpers.suite import GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
 from helpers.web import served
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 DRIVER_STATUS = 'driver: light stage link'
 

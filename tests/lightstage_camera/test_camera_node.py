@@ -6,7 +6,7 @@ from lightstage_camera.sim_camera import SimCamera
 
 from helpers.suite import fresh_domain_id
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 OK, ERROR = DiagnosticStatus.OK, DiagnosticStatus.ERROR
 
 

@@ -14,7 +14,7 @@ from lightstage_bringup.supervisor import Supervisor
 from helpers.driver import child_pids
 from helpers.suite import GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 LINK_DOWN = 'the link to the stage is down'
 

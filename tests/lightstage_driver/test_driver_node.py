@@ -14,7 +14,7 @@ from lightstage_driver.sim_backend import PythonSimBackend
 
 from helpers.driver import child_pids, distinct_words, wait_until
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 rclpy = pytest.importorskip('rclpy')
 interfaces = pytest.importorskip('lightstage_interfaces.srv')

@@ -10,7 +10,7 @@ from helpers.suite import GraphClient, fresh_domain_id, start_nodes, write_param
 
 from lightstage_driver.driver_node import ON_ACTIVATE, ON_CONFIGURE, PARAMETERS, refused_change
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 
 def test_the_parameters_taken_at_a_transition_are_the_ones_read_there():

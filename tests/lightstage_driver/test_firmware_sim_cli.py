@@ -3,9 +3,12 @@ import os
 import subprocess
 import sys
 
+import pytest
 from lightstage_driver.stage import LightStage
 
 from helpers.suite import REPO
+
+pytestmark = pytest.mark.process
 
 SRC = REPO / 'src' / 'lightstage_driver'
 

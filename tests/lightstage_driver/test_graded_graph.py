@@ -17,7 +17,7 @@ from lightstage_driver.sim_backend import PythonSimBackend
 
 from helpers.driver import wait_until
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 rclpy = pytest.importorskip('rclpy')
 
 from helpers.graded_pins import on_times_us  # noqa: E402

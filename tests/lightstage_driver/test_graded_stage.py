@@ -15,6 +15,8 @@ from helpers.driver import wait_until
 
 from helpers.graded_pins import on_times_us
 
+pytestmark = pytest.mark.process
+
 # off-instants are placed on 0.5 us ticks, at least one shift-out apart (schedule.py)
 TOLERANCE_US = 0.5 + sched.SHIFT_TICKS / sched.TICKS_PER_US
 

@@ -9,6 +9,8 @@ from lightstage_driver.errors import NakError
 
 from helpers.driver import wait_until
 
+pytestmark = pytest.mark.process
+
 
 def raw_exchange(stage, frame: bytes, replies: int, timeout_s: float = 1.0) -> list:
     """Write a frame as is and collect the next `replies` frames."""

@@ -14,6 +14,8 @@ from lightstage_driver.stage import LightStage
 
 from helpers.driver import distinct_words, wait_until
 
+pytestmark = pytest.mark.process
+
 
 def one_hot(*leds):
     pattern = np.zeros(32)

@@ -12,6 +12,8 @@ from mux_classifier.classifier_node import PARAMETERS as CLASSIFIER
 
 from helpers.suite import REPO, fresh_domain_id
 
+pytestmark = pytest.mark.process
+
 
 @pytest.mark.parametrize('table, values, message', [
     (CLASSIFIER, {'timeout_s': 1.0e9}, 'timeout_s: 1000000000.0 is out of range: give a number in '

@@ -16,6 +16,8 @@ from helpers.proc_sockets import (InetSocket, ephemeral_port_low, listening_beyo
 from helpers.ros import running_nodes
 from helpers.suite import GraphClient, fresh_domain_id
 
+pytestmark = pytest.mark.process
+
 DRIVER = {'driver': 'ros_fake_driver_node'}
 NS = '{http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles}'
 

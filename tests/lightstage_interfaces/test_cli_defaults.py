@@ -16,7 +16,7 @@ from helpers.suite import fresh_domain_id, write_params
 from lightstage_physics.calibration_target import write_calibration_target
 from lightstage_physics.capture_format import load_capture
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 CAPTURE_GAIN_DB, CALIBRATION_GAIN_DB = 12.0, 9.0
 CAPTURE_ACTION, CALIBRATE_ACTION = '/lightstage/capture_model', '/lightstage/calibrate_noise'

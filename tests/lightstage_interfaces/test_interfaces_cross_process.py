@@ -14,7 +14,7 @@ import yaml
 from helpers.ros import running_nodes
 from helpers.suite import GraphClient, fresh_domain_id
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 # driver implementations: module whose main() runs it, its parameters
 DRIVERS = {

@@ -5,7 +5,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from helpers.suite import REPO
+
+pytestmark = pytest.mark.process
 
 SRC = REPO / 'src' / 'lightstage_interfaces'
 PREFIX = Path(sys.prefix)

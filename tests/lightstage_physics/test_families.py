@@ -82,6 +82,7 @@ def test_samples_of_one_class_differ_and_poses_of_one_sample_differ():
     assert g0 != g1
 
 
+@pytest.mark.process  # the CLI's joblib run starts loky's resource tracker, even with --jobs 1
 def test_synth_family_writes_a_loadable_capture_with_its_description(tmp_path):
     out = tmp_path / 'fam'
     assert synth_main([str(out), '--family', '3', '--strength', '0.7', '--samples', '2',

@@ -16,6 +16,8 @@ from helpers.recording import (apply_event, classify_event, fields_equal, illumi
                                mcap_ros2_decode, recover, result)
 from helpers.suite import lightstage_command
 
+pytestmark = pytest.mark.process
+
 T0 = 1_700_000_000_000_000_000
 TOPICS = {'/illumination': 'lightstage_interfaces/msg/IlluminationState',
           '/image_raw': 'sensor_msgs/msg/Image',

@@ -7,10 +7,13 @@ import shutil
 import struct
 import subprocess
 
+import pytest
 from lightstage_recording import BagReader
 from lightstage_recording.scan import FileScan
 from helpers.recording import REPO
 from helpers.suite import lightstage_command
+
+pytestmark = pytest.mark.process
 
 BAG = REPO / 'bags' / 'sim_session'
 # the bundled bag's own count (bags/README.md: re-recorded when an interface changes)

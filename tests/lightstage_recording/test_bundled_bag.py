@@ -7,6 +7,8 @@ from lightstage_recording import BagReader
 from helpers.recording import (REPO, assert_replayed_results_match, bag_results, mcap_ros2_decode,
                                replay_into_observing_classifier)
 
+pytestmark = pytest.mark.process
+
 BAG = REPO / 'bags' / 'sim_session'
 ARTIFACT = REPO / 'bags' / 'sim_session_classifier.npz'
 

@@ -23,7 +23,7 @@ from helpers.recording import bag_results
 from lightstage_graph.graph_client import GraphTimeout
 from helpers.suite import GraphClient, fresh_domain_id, lightstage_command
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 # 15 of the stage capture's 24 models, both types and variants
 SAMPLES = [f'{kind}/s{s}/p{p:02d}' for kind in ('banana-fake', 'banana-real', 'orange-fake',

@@ -16,6 +16,8 @@ from helpers.recording import REPO, classify_event, illumination
 from helpers.suite import lightstage_command
 from test_reader_recipes import _check  # every decoded message equal to rclpy's decoding
 
+pytestmark = pytest.mark.process
+
 BUNDLED = REPO / 'bags' / 'sim_session'  # recorded by `lightstage record` with its defaults
 BAG_MESSAGES = BagReader(BUNDLED).info().message_count
 EVENT_TOPIC = '/lightstage/classify/_service_event'

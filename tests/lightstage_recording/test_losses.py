@@ -12,6 +12,8 @@ from lightstage_recording.qos import QosProfile
 from lightstage_recording.recording import Recording
 from helpers.recording import classify_event, illumination, image
 
+pytestmark = pytest.mark.process
+
 CLASSIFY = '/lightstage/classify/_service_event'
 CLASSIFY_EVENT = 'lightstage_interfaces/srv/Classify_Event'
 

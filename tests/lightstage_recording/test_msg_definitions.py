@@ -4,6 +4,8 @@ import pytest
 
 from lightstage_recording import msg_definitions as md
 
+pytestmark = pytest.mark.process
+
 SEP = '=' * 80
 
 

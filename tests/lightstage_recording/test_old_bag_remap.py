@@ -15,7 +15,7 @@ from lightstage_graph.ros_env import ros_environment
 from helpers.recording import image
 from helpers.suite import GraphClient, fresh_domain_id, lightstage_command
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 OLD_IMAGE_TOPIC = '/image_raw'   # where the camera published before
 T0 = 1_700_000_000_000_000_000

@@ -13,6 +13,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from lightstage_recording import BagReader, BagWriter
 from helpers.recording import REPO, apply_event, classify_event, illumination, result
 
+pytestmark = pytest.mark.process
+
 BAG = REPO / 'bags' / 'sim_session'
 DOC = REPO / 'docs' / 'RECORDING.md'
 

@@ -20,7 +20,7 @@ from helpers.recording import assert_replayed_results_match, bag_results, replay
 from helpers.suite import (GraphClient, fresh_domain_id, lightstage_command, stage_graph_params, start_nodes,
                            write_params)
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 SAMPLES = ['banana-fake/s0/p01', 'orange-real/s1/p02', 'banana-real/s1/p00', 'orange-fake/s0/p00']
 RECORDED = ['/illumination', '/camera/image_raw', '/lightstage/result',

@@ -12,7 +12,7 @@ from lightstage_graph.ros_env import ros_environment
 from helpers.recording import illumination, recover
 from helpers.suite import GraphClient, fresh_domain_id, lightstage_command, write_params
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 
 def _readable(bag, topic):

@@ -9,6 +9,8 @@ from lightstage_recording.player_node import PlayerError, check_remaps
 
 from helpers.suite import REPO
 
+pytestmark = pytest.mark.process
+
 BAG = REPO / 'bags' / 'sim_session'
 TYPES = {'/illumination': 'lightstage_interfaces/msg/IlluminationState',
          '/camera/image_raw': 'sensor_msgs/msg/Image',

@@ -5,6 +5,8 @@ from lightstage_recording import QosProfile
 from lightstage_recording.recording import (TopicSelector, is_hidden, playback_delay_s, playback_qos,
                                           select_play_topics, subscription_qos)
 
+pytestmark = pytest.mark.process
+
 IMG = 'sensor_msgs/msg/Image'
 EVENT = 'lightstage_interfaces/srv/Classify_Event'
 

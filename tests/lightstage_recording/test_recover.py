@@ -13,6 +13,8 @@ from lightstage_recording import bag_cli
 from helpers.recording import image, recover
 from helpers.write_faults import FailingDisk
 
+pytestmark = pytest.mark.process
+
 T0 = 1_700_000_000_000_000_000
 IMG = 'sensor_msgs/msg/Image'
 

@@ -22,6 +22,8 @@ from lightstage_recording import BagError, BagReader, BagWriter
 from helpers.recording import illumination
 from helpers.suite import fresh_domain_id, lightstage_command
 
+pytestmark = pytest.mark.process
+
 GIB = 1 << 30
 LIMIT_TEXT = '268435456 bytes (256 MiB)'
 

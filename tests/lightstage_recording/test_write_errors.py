@@ -16,6 +16,8 @@ from lightstage_recording.recording import Recording
 from helpers.recording import REPO, illumination, image, recover
 from helpers.write_faults import FailingDisk
 
+pytestmark = pytest.mark.process
+
 T0 = 1_700_000_000_000_000_000
 ILLUM = 'lightstage_interfaces/msg/IlluminationState'
 IMG = 'sensor_msgs/msg/Image'

@@ -4,7 +4,7 @@ import pytest
 
 from helpers.suite import fresh_domain_id
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 
 @pytest.fixture

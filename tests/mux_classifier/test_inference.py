@@ -15,6 +15,8 @@ from mux_classifier.inference import (ImageMatcher, InferenceError, MissingImage
 
 from helpers.suite import TRAIN_SITE_PATTERNS
 
+pytestmark = pytest.mark.process
+
 
 def test_plan_takes_the_first_k_patterns_k_a_trained_count_and_the_artifacts_setting(stage_artifact):
     assert stage_artifact.n_images == [4, 8]

@@ -30,7 +30,7 @@ from helpers.artifact_mutations import mutated_artifacts
 from helpers.suite import (GraphClient, classify_on_the_stage_graph, fresh_domain_id, stage_graph_params,
                            start_nodes, write_params)
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 # samples of both object types and both variants; the classifier was trained on these poses
 # with fresh noise, so the labels are the ones it should give back

@@ -5,7 +5,7 @@ authors' rig); the stage lights the learned levels in image order."""
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 rclpy = pytest.importorskip('rclpy')
 
 

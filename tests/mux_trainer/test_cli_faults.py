@@ -21,6 +21,8 @@ import mux_trainer.training as training
 from mux_trainer.cli import eval_main, train_main
 
 from helpers.trainer import TINY
+
+pytestmark = pytest.mark.process
 TRAIN = ['--repeats', '6', '--max-images', '2', '--fixed-count', *TINY]
 EVAL = ['--no-answers', '--repeats', '4', '--max-images', '1', '--renders', '1', '--methods', 'naive,greedy',
         '--no-plots', *TINY]

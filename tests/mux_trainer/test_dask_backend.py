@@ -2,6 +2,8 @@
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.process
+
 distributed = pytest.importorskip('distributed')
 
 from mux_trainer.candidate_patterns import site_pattern_candidates  # noqa: E402

@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.process
+
 distributed = pytest.importorskip('distributed')
 
 from mux_trainer.cli import train_main  # noqa: E402

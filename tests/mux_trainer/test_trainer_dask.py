@@ -9,7 +9,7 @@ from helpers.suite import GraphClient, fresh_domain_id
 
 distributed = pytest.importorskip('distributed')
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 TRAIN = '/lightstage/train'
 
 

@@ -10,7 +10,7 @@ import pytest
 from helpers.ros import child_environment
 from helpers.suite import GraphClient, fresh_domain_id
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 TRAIN = '/lightstage/train'
 
 

@@ -21,7 +21,7 @@ from lightstage_physics.noise import PAPER_CALIBRATION, SETTINGS, load_noise_fil
 from lightstage_camera.sim_camera import frame_moments
 from helpers.suite import fresh_domain_id, lightstage_command, write_params
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 SAMPLE = 'banana-real/s0/p00'
 EXPOSURE_US, GAIN_DB = 5000, 15.0  # short exposures keep the test fast; noise follows them

@@ -14,7 +14,7 @@ from helpers.acquisition import StageGraph
 from helpers.ros import child_environment
 from helpers.suite import fresh_domain_id, write_params
 
-pytestmark = pytest.mark.ros
+pytestmark = [pytest.mark.ros, pytest.mark.process]
 
 
 def test_a_stop_during_a_capture_aborts_it_with_the_reason_and_exits_0(tmp_path):

@@ -22,7 +22,7 @@ from lightstage_physics.noise import load_noise_file
 from lightstage_camera.sim_camera import SimCamera, encode_mono16
 from helpers.suite import GraphClient, fresh_domain_id, lightstage_command, start_nodes, write_params
 
-pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT, pytest.mark.process]
 
 SAMPLE = 'orange-real/s1/p02'
 

@@ -6,7 +6,7 @@ import pytest
 from helpers.emulated_cameras import PYLON_TIMEOUT
 from helpers.suite import fresh_domain_id
 
-pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT]
+pytestmark = [pytest.mark.ros, pytest.mark.usefixtures('private_network'), PYLON_TIMEOUT, pytest.mark.process]
 
 
 @pytest.fixture

@@ -10,7 +10,7 @@ from lightstage_driver.simavr_backend import SimavrBackend, firmware_dir, missin
 
 from helpers.firmware_wire import Wire
 
-pytestmark = pytest.mark.skipif(bool(missing_tools()), reason=f'AVR toolchain missing: {missing_tools()}')
+pytestmark = [pytest.mark.skipif(bool(missing_tools()), reason=f'AVR toolchain missing: {missing_tools()}'), pytest.mark.process]
 
 
 def read_intel_hex(path):
