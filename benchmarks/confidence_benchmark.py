@@ -30,6 +30,7 @@ import numpy as np
 from _common import parse_args as parse_with_quick
 
 METHODS = ('greedy', 'snr_optimal', 'naive')
+OTHER_METHODS = ('learned',)  # by --methods: LED levels learned, --learned-exposures images
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -47,7 +48,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument('--max-columns', type=int, default=4,
                    help='pattern columns of greedy and SNR-optimal (4, 16 exposures)')
     p.add_argument('--n-renders', type=int, default=4, help='noise draws of the test renders (4)')
-    p.add_argument('--methods', default=','.join(METHODS), help='methods (greedy,snr_optimal,naive)')
+    p.add_argument('--methods', default=','.join(METHODS), help='methods, of greedy,snr_optimal,naive,learned '
+                   '(default: greedy,snr_optimal,naive)')
+    p.add_argument('--learned-exposures', type=int, default=8,
+                   help='exposures of the learned method (8, as the demo\'s)')
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--jobs', type=int, default=2)
     p.add_argument('--json', help='write every figure to this file')
@@ -65,6 +69,9 @@ def build(method: str, args):
         return GreedyPatternSelector(mode='per_colour', max_patterns=args.max_columns, **common)
     if method == 'snr_optimal':
         return SnrOptimalClassifier(n_images=args.max_columns, **common)
+    if method == 'learned':
+        from mux_trainer.learned_method import build_learned
+        return build_learned(args.learned_exposures, seed=args.seed, n_repeats=args.repeats)
     return NaiveClassifier(**common)
 
 
@@ -72,7 +79,8 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     from lightstage_physics import synth
     from lightstage_physics.capture_format import load_capture
-    from mux_trainer.calibration import (calibrate_pattern_model, calibration_error_floor,
+    from mux_trainer.calibration import (calibrate_learned_model, calibrate_pattern_model,
+                                         calibration_error_floor, evaluate_learned_answers,
                                          evaluate_anytime, pooled_calibration_error)
     from mux_trainer.data import search_data
 
@@ -98,9 +106,11 @@ def main(argv=None) -> int:
         for method in methods:
             t0 = time.perf_counter()
             model = build(method, args).fit(train_data)
-            confidence = calibrate_pattern_model(model)
+            learned = method == 'learned'
+            confidence = (calibrate_learned_model if learned else calibrate_pattern_model)(model)
             seconds = time.perf_counter() - t0
-            r = evaluate_anytime(model, confidence, test_data, args.n_renders, args.seed)
+            r = (evaluate_learned_answers if learned else evaluate_anytime)(
+                model, confidence, test_data, args.n_renders, args.seed)
             r.update(method=method, fold=fold, train_seconds=seconds,
                      trained_estimate=confidence.estimate)
             rows.append(r)

@@ -85,3 +85,15 @@ def test_one_image_count_accepts_at_nine_in_ten():
     assert target == ACCEPT_PROBABILITY == 0.9
     assert measured['anytime_mean_images'] == measured['full_images'] == 1
     assert measured['anytime_accuracy'] == measured['full_accuracy'] == 2 / 3
+
+
+def test_answers_of_one_image_count_are_their_own_anytime_answers():
+    from mux_trainer.calibration import answers_figures
+    p = np.array([[0.95, 0.05], [0.6, 0.4], [0.2, 0.8], [0.7, 0.3]])
+    y = np.array([0, 1, 1, 0])
+    a = answers_figures([p], np.array([8]), y, 0.9)
+    assert a['anytime_accuracy'] == a['full_accuracy'] == 0.75
+    assert a['anytime_mean_images'] == a['budget_images'] == 8
+    assert a['accepted_share'] == 0.25 and a['accepted_accuracy'] == 1.0  # only 0.95 >= 0.9
+    assert a['full_calibration_error'] == pytest.approx(expected_calibration_error(p, y))
+    assert [c['accuracy'] for c in a['coverage_curve']][-1] == 0.75

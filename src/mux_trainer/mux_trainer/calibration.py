@@ -26,7 +26,8 @@ from scipy.optimize import minimize_scalar
 __all__ = ["ACCEPT_PROBABILITY", "DEFAULT_SPLITS", "DEFAULT_TOLERANCE", "calibrate_learned_model",
            "calibrate_pattern_model", "choose_stop", "confidence_from_scores",
            "calibration_error_floor", "coverage_curve", "evaluate_anytime", "fit_temperature",
-           "held_out_scores", "pooled_calibration_error", "reliability_bins"]
+           "held_out_scores", "pooled_calibration_error", "reliability_bins",
+           "answers_figures", "evaluate_learned_answers"]
 
 DEFAULT_SPLITS = 8        # inner splits refitted per column count
 DEFAULT_TOLERANCE = 0.01  # accuracy the anytime rule may give up against the full count
@@ -207,7 +208,34 @@ def evaluate_anytime(model, confidence: Confidence, test_data, n_renders: int = 
     y = np.concatenate(labels)
     probabilities = [np.vstack(p) for p in steps_probs]
     steps = np.array([c * per for c in columns])
-    stop, predicted, reached = anytime_outcomes(probabilities, confidence.stop_probability)
+    return answers_figures(probabilities, steps, y, confidence.stop_probability)
+
+
+def evaluate_learned_answers(model, confidence: Confidence, test_data, n_renders: int = 4,
+                             seed: int = 0) -> dict:
+    """`evaluate_anytime` of a fitted learned model (`mux_trainer.learned`, one image count):
+    its calibrated answers on held-out renders under its LED levels (`holdout.test_images`,
+    the renders `evaluate_learned_heldout` scores)."""
+    from .holdout import test_images
+    from .learned.head import learned_data, stack_features
+    k = int(model.best_n_patterns_)
+    data = learned_data(test_data)
+    parts, labels = [], []
+    for r in range(int(n_renders)):
+        images = test_images(test_data, 'joint', model.patterns_, r, seed)
+        scores = model.model_.scores_from_features(
+            stack_features(data, images, model.model_.ratio_offset))
+        parts.append(confidence.probabilities(scores, k))
+        labels.append(np.asarray(test_data.labels))
+    return answers_figures([np.vstack(parts)], np.array([k]), np.concatenate(labels),
+                           confidence.stop_probability)
+
+
+def answers_figures(probabilities: list[np.ndarray], steps: np.ndarray, y: np.ndarray,
+                    stop_probability: float) -> dict:
+    """Plain JSON of calibrated answers: ``probabilities`` per image count ``steps`` (the
+    same answers at each), their class indices ``y``, the anytime target."""
+    stop, predicted, reached = anytime_outcomes(probabilities, stop_probability)
     at_stop = np.stack([probabilities[s][j] for j, s in enumerate(stop)])
     full = probabilities[-1]
     coverage = {}
@@ -218,7 +246,7 @@ def evaluate_anytime(model, confidence: Confidence, test_data, n_renders: int = 
                             if kept.any() else None}
     return {
         'answers': int(y.size), 'budget_images': int(steps[-1]),
-        'stop_probability': float(confidence.stop_probability),
+        'stop_probability': float(stop_probability),
         'full_accuracy': float((full.argmax(axis=1) == y).mean()),
         'full_calibration_error': expected_calibration_error(full, y),
         'anytime_accuracy': float((predicted == y).mean()),
