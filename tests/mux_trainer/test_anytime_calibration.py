@@ -97,3 +97,14 @@ def test_answers_of_one_image_count_are_their_own_anytime_answers():
     assert a['accepted_share'] == 0.25 and a['accepted_accuracy'] == 1.0  # only 0.95 >= 0.9
     assert a['full_calibration_error'] == pytest.approx(expected_calibration_error(p, y))
     assert [c['accuracy'] for c in a['coverage_curve']][-1] == 0.75
+
+
+def test_answers_all_right_are_not_made_certain():
+    # 200 held-out answers, every one right: the log loss alone wants T -> 0 (probability 1)
+    rng = np.random.default_rng(2)
+    scores = rng.normal(0, 1, (200, 3))
+    labels = scores.argmax(axis=1)
+    t = fit_temperature(scores, labels)
+    top = softmax(scores, t).max(axis=1)
+    assert top.mean() == pytest.approx(201 / 202, abs=1e-6)   # Laplace: (right + 1) / (n + 2)
+    assert top.min() < 0.999

@@ -35,7 +35,10 @@ DEFAULT_TOLERANCE = 0.01  # accuracy the anytime rule may give up against the fu
 
 def fit_temperature(scores: np.ndarray, labels: np.ndarray) -> float:
     """The temperature T minimising the log loss of softmax(scores / T) on (scores (n, C),
-    labels (n,) class indices), searched over log T in [-3, 3] (decades)."""
+    labels (n,) class indices), searched over log T in [-3, 3] (decades), then raised where
+    needed so that the answers' mean top probability is at most (right + 1) / (n + 2)
+    (Laplace's rule of succession): held-out answers all right would otherwise drive T to
+    its lower bound and every later answer, wrong ones too, to a probability of 1."""
     scores = np.asarray(scores, dtype=np.float64)
     labels = np.asarray(labels, dtype=int)
 
@@ -43,9 +46,20 @@ def fit_temperature(scores: np.ndarray, labels: np.ndarray) -> float:
         p = softmax(scores, 10.0 ** log_t)[np.arange(labels.size), labels]
         return float(-np.log(np.clip(p, 1e-300, None)).mean())
 
-    best = minimize_scalar(loss, bounds=(-3.0, 3.0), method="bounded",
-                           options={"xatol": 1e-4})
-    return float(10.0 ** best.x)
+    def mean_top(log_t: float) -> float:
+        return float(softmax(scores, 10.0 ** log_t).max(axis=1).mean())
+
+    log_t = minimize_scalar(loss, bounds=(-3.0, 3.0), method="bounded",
+                            options={"xatol": 1e-4}).x
+    right = int((scores.argmax(axis=1) == labels).sum())
+    bound = (right + 1) / (labels.size + 2)
+    if mean_top(log_t) > bound:  # mean_top falls as T grows: bisect up to the bound
+        lo, hi = log_t, 3.0
+        for _ in range(60):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if mean_top(mid) > bound else (lo, mid)
+        log_t = hi
+    return float(10.0 ** log_t)
 
 
 def _fit_and_score(make_classifier, X, y, test):
