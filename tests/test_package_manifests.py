@@ -25,7 +25,7 @@ ROSDEP_KEYS = {
     'lz4': 'python3-lz4', 'zstandard': 'python3-zstandard',
 }
 # import name -> pip distribution, for the libraries rosdep has no key for
-PIP_ONLY = {'jax': 'jax', 'mcap': 'mcap', 'threadpoolctl': 'threadpoolctl'}
+PIP_ONLY = {'jax': 'jax', 'optax': 'optax', 'mcap': 'mcap', 'threadpoolctl': 'threadpoolctl'}
 # imported only where an optional feature is used: import name -> the workspace's extra
 OPTIONAL = {'pypylon': 'requirements-camera.txt', 'gi': 'requirements-camera.txt',
             'distributed': 'requirements-cluster.txt'}
