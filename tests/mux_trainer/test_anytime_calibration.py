@@ -106,5 +106,5 @@ def test_answers_all_right_are_not_made_certain():
     labels = scores.argmax(axis=1)
     t = fit_temperature(scores, labels)
     top = softmax(scores, t).max(axis=1)
-    assert top.mean() == pytest.approx(201 / 202, abs=1e-6)   # Laplace: (right + 1) / (n + 2)
+    assert top.mean() == pytest.approx(201 / 202, abs=1e-6)   # Laplace: (n + 1) / (n + 2)
     assert top.min() < 0.999

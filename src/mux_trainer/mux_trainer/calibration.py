@@ -35,10 +35,10 @@ DEFAULT_TOLERANCE = 0.01  # accuracy the anytime rule may give up against the fu
 
 def fit_temperature(scores: np.ndarray, labels: np.ndarray) -> float:
     """The temperature T minimising the log loss of softmax(scores / T) on (scores (n, C),
-    labels (n,) class indices), searched over log T in [-3, 3] (decades), then raised where
-    needed so that the answers' mean top probability is at most (right + 1) / (n + 2)
-    (Laplace's rule of succession): held-out answers all right would otherwise drive T to
-    its lower bound and every later answer, wrong ones too, to a probability of 1."""
+    labels (n,) class indices), searched over log T in [-3, 3] (decades). Where every
+    answer is right, the log loss has no minimum inside (it falls as T -> 0, every later
+    answer, wrong ones too, at a probability of 1): T is then the one whose mean top
+    probability is (n + 1) / (n + 2), Laplace's rule of succession."""
     scores = np.asarray(scores, dtype=np.float64)
     labels = np.asarray(labels, dtype=int)
 
@@ -53,7 +53,7 @@ def fit_temperature(scores: np.ndarray, labels: np.ndarray) -> float:
                             options={"xatol": 1e-4}).x
     right = int((scores.argmax(axis=1) == labels).sum())
     bound = (right + 1) / (labels.size + 2)
-    if mean_top(log_t) > bound:  # mean_top falls as T grows: bisect up to the bound
+    if right == labels.size and mean_top(log_t) > bound:  # falls as T grows: bisect
         lo, hi = log_t, 3.0
         for _ in range(60):
             mid = (lo + hi) / 2
