@@ -141,20 +141,28 @@ def calibrate_pattern_model(model, n_splits: int = DEFAULT_SPLITS,
 def calibrate_learned_model(model, n_splits: int = DEFAULT_SPLITS,
                             tolerance: float = DEFAULT_TOLERANCE) -> Confidence:
     """The `Confidence` of a fitted learned model (`mux_trainer.learned`): its head refitted
-    for the kept light on the training side of its first ``n_splits`` inner splits (held out
-    by physical sample where the capture has two or more per class), the held-out scores
+    for the kept light (`learned.head.fit_fixed_light_head`'s fit, its renders made once) on
+    the training side of its first ``n_splits`` inner splits (held out by physical sample
+    where the capture has two or more per class), the held-out scores
     fitting the temperature of its one image count; accepted at `ACCEPT_PROBABILITY`."""
-    from .learned import fit_fixed_light_head
+    from .learned.head import fit_head, fixed_light_draws
     _check_tolerance(tolerance)
     ev = model.evaluator_
-    labels = np.asarray(ev.data.labels, dtype=int)
+    data, P, offset, draws = fixed_light_draws(ev.data, model.patterns_, head=model.head,
+                                               cross_image=bool(model.ratio_stats),
+                                               seed=int(model.seed))
+    labels = np.asarray(data.labels, dtype=int)
     masks = _usable_masks(ev.test_masks[:max(1, int(n_splits))], labels)
-    parts = Parallel(n_jobs=model.execution.n_jobs)(
-        delayed(fit_fixed_light_head)(ev.data, model.patterns_, ~m, m, head=model.head,
-                                      cross_image=bool(model.ratio_stats), seed=int(model.seed))
-        for m in masks)
+
+    def held_out(test):
+        head = fit_head(np.vstack([d[~test] for d in draws]),
+                        np.tile(labels[~test], len(draws)), data.class_names, P, model.head,
+                        offset, int(model.seed))
+        return head.scores_from_features(draws[0][test])
+
+    parts = Parallel(n_jobs=model.execution.n_jobs)(delayed(held_out)(m) for m in masks)
     k = int(model.best_n_patterns_)
-    scores = {k: np.vstack([p[1] for p in parts])}
+    scores = {k: np.vstack(parts)}
     y = np.concatenate([labels[m] for m in masks])
     description = {**ev.inner_, 'calibration_splits': len(masks)}
     return confidence_from_scores(scores, y, description, tolerance)

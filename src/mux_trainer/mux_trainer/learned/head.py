@@ -22,7 +22,7 @@ from .params import Head
 from .streams import head_rng
 
 __all__ = ['FEATURES', 'learned_data', 'ratio_offset', 'stack_features', 'head_features',
-           'fit_head', 'fit_fixed_light_head']
+           'fit_head', 'fit_fixed_light_head', 'fixed_light_draws']
 
 # the statistics a learned model classifies with (the inner splits and the head score them)
 FEATURES = 'intensity_stats'
@@ -103,20 +103,29 @@ def fit_fixed_light_head(data: SearchData, patterns, train, test, *, head: Head 
     With `train` every row, the model is the estimator's `model_` for that light (same
     head, cross_image = its `ratio_stats` and seed). Returns (model, scores (len(test),
     classes))."""
+    data, P, offset, draws = fixed_light_draws(data, patterns, head=head,
+                                               cross_image=cross_image, seed=seed)
+    rows = np.arange(data.n_samples)
+    train, test = rows[np.asarray(train)], rows[np.asarray(test)]
+    if not train.size:
+        raise ValueError('no training rows: the head needs at least one')
+    X = np.vstack([d[train] for d in draws])
+    y = np.tile(np.asarray(data.labels)[train], len(draws))
+    model = fit_head(X, y, data.class_names, P, head, offset, seed)
+    return model, model.scores_from_features(draws[0][test])
+
+
+def fixed_light_draws(data: SearchData, patterns, *, head: Head = Head(),
+                      cross_image: bool = True, seed: int = 0):
+    """What `fit_fixed_light_head` fits on, rendered once for any number of row splits:
+    (the data scored with the head's statistics, the patterns (32, k) as float32, the
+    cross-image offset, `head_features`' draws of every row)."""
     data = learned_data(data)
     P = np.asarray(patterns, np.float32)
     L = data.n_sites * data.n_channels
     if P.ndim != 2 or P.shape[0] != L:
         raise ValueError(f'patterns must be ({L}, k) LED levels, got shape {P.shape}')
-    rows = np.arange(data.n_samples)
-    train, test = rows[np.asarray(train)], rows[np.asarray(test)]
-    if not train.size:
-        raise ValueError('no training rows: the head needs at least one')
     head.check()
     offset = ratio_offset(data, cross_image)
     first = CandidateEvaluator(data, mode='joint', n_repeats=1, seed=int(seed)).images(P)
-    draws = head_features(data, first, P, head, offset, seed)
-    X = np.vstack([d[train] for d in draws])
-    y = np.tile(np.asarray(data.labels)[train], len(draws))
-    model = fit_head(X, y, data.class_names, P, head, offset, seed)
-    return model, model.scores_from_features(draws[0][test])
+    return data, P, offset, head_features(data, first, P, head, offset, seed)
