@@ -501,6 +501,15 @@ def confidence_text(confidence: dict) -> str:
     """The calibration and the anytime rule a training fitted, in plain words."""
     e = confidence.get('estimate', {})
     target = 100 * float(confidence['stop_probability'])
+    counts = confidence.get('temperatures', {})
+    if len(counts) == 1:  # one image count: nothing to stop early, the target accepts
+        text = (f'calibrated probabilities; every exposure taken, the answer accepted at '
+                f'{target:.3g} % (else "not sure")')
+        if e:
+            text += (f'; on {e.get("answers", 0)} held-out answers ({e.get("held_out", "?")}) '
+                     f'{100 * e["full_accuracy"]:.1f} % right; calibration error '
+                     f'{e["calibration_error_full"]:.3f}')
+        return text
     text = (f'calibrated probabilities; anytime: stops after the first pattern column whose top '
             f'class reaches {target:.3g} %')
     if e:
