@@ -145,7 +145,7 @@ def calibrate_learned_model(model, n_splits: int = DEFAULT_SPLITS,
     the training side of its first ``n_splits`` inner splits (held out by physical sample
     where the capture has two or more per class), the held-out scores
     fitting the temperature of its one image count; accepted at `ACCEPT_PROBABILITY`."""
-    from .learned.head import fit_head, fixed_light_draws
+    from .learned.head import fit_head_on_rows, fixed_light_draws
     _check_tolerance(tolerance)
     ev = model.evaluator_
     data, P, offset, draws = fixed_light_draws(ev.data, model.patterns_, head=model.head,
@@ -155,9 +155,8 @@ def calibrate_learned_model(model, n_splits: int = DEFAULT_SPLITS,
     masks = _usable_masks(ev.test_masks[:max(1, int(n_splits))], labels)
 
     def held_out(test):
-        head = fit_head(np.vstack([d[~test] for d in draws]),
-                        np.tile(labels[~test], len(draws)), data.class_names, P, model.head,
-                        offset, int(model.seed))
+        head = fit_head_on_rows(data, P, offset, draws, ~test, head=model.head,
+                                seed=int(model.seed))
         return head.scores_from_features(draws[0][test])
 
     parts = Parallel(n_jobs=model.execution.n_jobs)(delayed(held_out)(m) for m in masks)

@@ -22,7 +22,7 @@ from .params import Head
 from .streams import head_rng
 
 __all__ = ['FEATURES', 'learned_data', 'ratio_offset', 'stack_features', 'head_features',
-           'fit_head', 'fit_fixed_light_head', 'fixed_light_draws']
+           'fit_head', 'fit_fixed_light_head', 'fit_head_on_rows', 'fixed_light_draws']
 
 # the statistics a learned model classifies with (the inner splits and the head score them)
 FEATURES = 'intensity_stats'
@@ -109,10 +109,17 @@ def fit_fixed_light_head(data: SearchData, patterns, train, test, *, head: Head 
     train, test = rows[np.asarray(train)], rows[np.asarray(test)]
     if not train.size:
         raise ValueError('no training rows: the head needs at least one')
-    X = np.vstack([d[train] for d in draws])
-    y = np.tile(np.asarray(data.labels)[train], len(draws))
-    model = fit_head(X, y, data.class_names, P, head, offset, seed)
+    model = fit_head_on_rows(data, P, offset, draws, train, head=head, seed=seed)
     return model, model.scores_from_features(draws[0][test])
+
+
+def fit_head_on_rows(data: SearchData, P: np.ndarray, offset: float, draws, rows, *,
+                     head: Head = Head(), seed: int = 0) -> LearnedModel:
+    """`fit_head` on the rows `rows` (indices or a boolean mask) of every draw of
+    `fixed_light_draws`' (data, P, offset, draws)."""
+    X = np.vstack([d[rows] for d in draws])
+    y = np.tile(np.asarray(data.labels)[rows], len(draws))
+    return fit_head(X, y, data.class_names, P, head, offset, seed)
 
 
 def fixed_light_draws(data: SearchData, patterns, *, head: Head = Head(),
