@@ -13,6 +13,7 @@ classifier per image count, prediction, a trained artifact):
     snr_optimal         SNR-optimal multiplexing matrices and Hadamard S-matrix codes
     pattern_model       what every trained method shares
     search_params       the settings a search or baseline is built from, grouped
+    selection_bias      the optimism of choosing the best candidate on the inner splits
 Inside the search:
     candidate_patterns  the candidate illumination patterns (site patterns, joint LED patterns)
     data                from a capture to the arrays the search works on
@@ -38,7 +39,7 @@ Importing the package imports none of them (`learned` is the one that loads JAX)
 """
 
 __all__ = ['greedy', 'learned', 'learned_method', 'learned_schedule', 'baselines', 'bow_baseline',
-           'snr_optimal', 'pattern_model', 'search_params', 'candidate_patterns', 'data',
+           'snr_optimal', 'pattern_model', 'search_params', 'selection_bias', 'candidate_patterns', 'data',
            'rendering', 'evaluation', 'split_scoring', 'splits', 'column_count', 'cluster',
            'reference', 'training', 'calibration', 'novelty_fit', 'holdout', 'report', 'evaluation_plots', 'cli',
            'trainer_node']

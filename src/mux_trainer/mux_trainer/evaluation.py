@@ -36,6 +36,7 @@ from .cluster import ArraySized, active_cluster
 from .rendering import (SearchData, add_noise, clean_led_images, clean_site_images,
                         image_features, scoring_features, standard_normal, standardise_columns)
 from .split_scoring import make_scorer
+from .selection_bias import split_groups
 from .splits import inner_splits
 
 MODES = ('per_colour', 'joint')
@@ -187,6 +188,7 @@ class CandidateEvaluator:
         self.test_masks, self.inner_ = inner_splits(
             data.labels, data.pose_index, data.instance, n_repeats, test_fraction,
             np.random.default_rng([self.seed, 2 ** 31]), inner_groups)
+        self.split_groups = split_groups(self.test_masks)
         self.n_classes = len(data.class_names)
 
     @property

@@ -40,6 +40,7 @@ from .candidate_patterns import site_pattern_candidates
 from .pattern_model import PatternModelMixin
 from .search_params import (REFINE_MAX, REFINE_SLACK, REFINE_TOP, Execution, FinalClassifier,
                             Refinement, Rendering, SplitScoring, check_group)
+from .selection_bias import selection_optimism
 from .split_scoring import SquaredHingeSplitScorer
 
 __all__ = ['GreedyPatternSelector', 'could_still_win', 'REFINE_TOP', 'REFINE_BATCH',
@@ -111,6 +112,11 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
     patterns_ : (8, m) site patterns or (32, m) LED patterns, the selected columns.
     accuracy_by_images_ : {column count: mean split accuracy of the search}.
     split_accuracy_by_images_ : {column count: the chosen column's split accuracies}.
+    optimism_by_images_ : {column count: how far choosing that column on the inner splits
+        raises its split accuracy above a choice made without the held-out group it is
+        scored on (`selection_bias.selection_optimism` over the refined candidates, or all
+        with an SVM split classifier)}; `estimate_by_images_`, the accuracy less it, is the
+        inner estimate reported.
     improved_ : bool (m,), whether each column improved on the best accuracy before it.
     best_n_patterns_ : the column count kept by `count_rule`.
     classifiers_ : {column count: fitted MuxClassifier on that many columns' images}.
@@ -161,6 +167,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         self.history_ = []
         self.accuracy_by_images_ = {}
         self.split_accuracy_by_images_ = {}
+        self.optimism_by_images_ = {}
         improved = []
         best_so_far = -np.inf
         bar = _progress(int(target), f'greedy {self.mode}', run.progress)
@@ -188,6 +195,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
                 best_so_far = max(best_so_far, acc)
                 columns = np.hstack([columns, record['pattern'][:, None]])
                 self.accuracy_by_images_[columns.shape[1]] = float(acc)
+                self.optimism_by_images_[columns.shape[1]] = float(record['optimism'])
                 self.split_accuracy_by_images_[columns.shape[1]] = record['split_accuracy']
                 if bar is not None:
                     bar.update(1)
@@ -230,7 +238,8 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
         race = self.refinement
         if self.split_classifier != 'ridge' or int(race.top) == 0:
             best = int(np.argmax(scores))
-            record.update(best=best, accuracy=float(scores[best]), split_accuracy=acc[best].copy())
+            record.update(best=best, accuracy=float(scores[best]), split_accuracy=acc[best].copy(),
+                          optimism=selection_optimism(acc, best, ev.split_groups))
         else:
             scorer = SquaredHingeSplitScorer(C=self.scoring.C)
             order = np.argsort(-scores, kind='stable')
@@ -253,6 +262,7 @@ class GreedyPatternSelector(PatternModelMixin, BaseEstimator):
             record.update(refined=order[:k], refined_scores=svm_scores,
                           refined_std=svm.std(axis=1), best=best,
                           accuracy=float(svm_scores[pick]), split_accuracy=svm[pick].copy(),
+                          optimism=selection_optimism(svm, pick, ev.split_groups),
                           refine_seconds=time.perf_counter() - t0)
         record['pattern'] = cands[:, best].copy()
         return record

@@ -101,8 +101,21 @@ class PatternModelMixin(GroupedParamsMixin):
         'n_images' (columns), plus `splits.inner_splits`' description (held out by physical
         sample or by pose, groups per class, repeats)}."""
         k = int(self.best_n_patterns_)
-        return {'accuracy': float(self.accuracy_by_images_[k]), 'n_images': k,
+        return {'accuracy': float(self.estimate_by_images_[k]), 'n_images': k,
+                'search_accuracy': float(self.accuracy_by_images_[k]),
+                'selection_optimism': float(self._optimism().get(k, 0.0)),
                 **self.evaluator_.inner_}
+
+    def _optimism(self) -> dict:
+        return getattr(self, 'optimism_by_images_', None) or {}
+
+    @property
+    def estimate_by_images_(self) -> dict:
+        """{column count: inner estimate}: the search's split accuracy less the optimism of
+        having chosen the columns on these same splits (`optimism_by_images_`, the greedy
+        search's, `selection_bias`; none for a fixed matrix)."""
+        optimism = self._optimism()
+        return {k: float(a - optimism.get(k, 0.0)) for k, a in self.accuracy_by_images_.items()}
 
     def predict_features(self, X: np.ndarray, n_patterns: int) -> np.ndarray:
         """Class indices from features of the first `n_patterns` columns' images."""

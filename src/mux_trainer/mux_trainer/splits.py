@@ -171,6 +171,11 @@ def describe_inner(description: dict | None, accuracy: float | None = None) -> s
     n, k, r = (description['groups_per_class'], description['held_out_per_class'],
                description['n_repeats'])
     most = description.get('groups_per_class_max', n)
+    optimism = description.get('selection_optimism')
+    if head and optimism:
+        head = (f'{head}the split accuracy {100 * float(description["search_accuracy"]):.1f} % '
+                f'less {100 * float(optimism):.1f} points for having chosen the light on these '
+                'splits; ')
     if description['held_out'] == 'physical samples':
         of = f'{n}' if most == n else f'{n} to {most}'
         return (f'{head}the mean over {r} inner split(s), each holding out {k} of the {of} '

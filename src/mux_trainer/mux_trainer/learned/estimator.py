@@ -79,7 +79,8 @@ class LearnedIlluminationClassifier(PatternModelMixin, BaseEstimator):
     After fit: patterns_ (32, k) site-major levels, model_ (a numpy `LearnedModel`: the
     head as one linear layer), classifiers_ {k: model_}, best_n_patterns_ = k,
     accuracy_by_images_ {k: the chosen candidate's inner split accuracy},
-    candidate_scores_ {name: inner split accuracy}, chosen_ (its name), best_step_ (0: a
+    candidate_scores_ {name: inner split accuracy}, candidates_ {name: (32, k) LED levels of
+    every scored candidate}, chosen_ (its name), best_step_ (0: a
     start was kept), inner_estimate_ (the chosen candidate's inner accuracy and how the
     splits were made, `splits.inner_splits`), evaluator_ (the first inner draw's
     evaluator), noise_, history_, train_seconds_.
@@ -275,6 +276,7 @@ class LearnedIlluminationClassifier(PatternModelMixin, BaseEstimator):
         self.best_n_patterns_ = k
         self.accuracy_by_images_ = {k: scores[chosen]}
         self.candidate_scores_ = scores
+        self.candidates_ = candidates
         self.evaluator_ = ev
         self.chosen_ = chosen
         self.best_step_ = int(steps[chosen])
