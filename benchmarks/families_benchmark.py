@@ -20,10 +20,10 @@ samples with `holdout.evaluate_heldout` / `learned.evaluate_learned_heldout` (fr
 - learned: `LearnedIlluminationClassifier(n_images=4)` and `(n_images=8)`, its defaults, with
   this fold's greedy columns as its greedy start (the same search, not run twice).
 The inner estimate of a method is its own figure for the kept light (`inner_estimate_` /
-`estimate_by_images_`: the baselines' split accuracy, greedy's less the optimism of having
-chosen its columns on those splits (`mux_trainer.selection_bias`), learned's chosen
-candidate's inner score) and says how its splits were made; greedy's split accuracy itself
-is kept in the results file as `search4` / `search8`.
+`estimate_by_images_`: the baselines' split accuracy; greedy's, and learned's chosen
+candidate's, less the optimism of having chosen it on those splits
+(`mux_trainer.selection_bias`)) and says how its splits were made; the split accuracy
+itself is kept in the results file as `search4` / `search8`.
 
 Prints per family (fold means) and per method: the mean and the worst family at 4 and 8
 exposures, the mean inner-minus-held-out gap, and the share of families where learned is
@@ -126,7 +126,8 @@ def run_fold(train, test, args) -> dict:
                                      inner_groups=args.inner_groups)).fit(train)
             res[str(e)] = evaluate_learned_heldout(model, test, args.n_renders,
                                                    args.seed)['accuracy']
-            res[f'inner{e}'] = float(model.accuracy_by_images_[e])
+            res[f'inner{e}'] = float(model.estimate_by_images_[e])
+            res[f'search{e}'] = float(model.accuracy_by_images_[e])
             res[f'chosen{e}'] = model.chosen_
             res['seconds'] += model.train_seconds_
             res['inner_held_out'] = model.inner_estimate_['held_out']

@@ -23,7 +23,9 @@ from mux_trainer.learned import (Descent, Head, LearnedIlluminationClassifier, S
                                  stack_ratio_stats, stack_stats)
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.rendering import SearchData, clean_led_images, clean_site_images
+from mux_trainer.learned.head import learned_data
 from mux_trainer.search_params import SplitScoring
+from mux_trainer.selection_bias import selection_optimism, split_groups
 
 
 def disk_data(n_classes=3, n_poses=8, size=24, seed=0):
@@ -152,6 +154,31 @@ def test_the_kept_patterns_score_best_on_the_inner_splits(fitted):
     assert scores[model.chosen_] >= scores['per_colour'] + 0.15, scores
     nir = model.patterns_.reshape(8, 4, 2)[:, 3]
     assert nir[:3].max(axis=0).min() > 0.5, nir  # each image lights a cue LED (sites 0-2)
+
+
+def test_the_inner_estimate_is_the_kept_score_less_the_optimism_of_the_choice(tiny_data):
+    """The learned method chooses among its scored candidates on the inner splits, as greedy
+    among its columns: its estimate is the kept one's split accuracy less the optimism of
+    that choice (`selection_bias`) over every candidate scored."""
+    model = LearnedIlluminationClassifier(
+        n_images=4, descent=Descent(fine_tune='none'), inner_draws=2,
+        scoring=SplitScoring(n_repeats=12), seed=0).fit(tiny_data)
+    names = list(model.candidate_scores_)
+    splits = model.candidate_split_scores_
+    assert set(splits) == set(names) and len(names) > 2
+    for name in names:
+        assert splits[name].shape == (2 * 12,)              # both draws' splits
+        assert splits[name].mean() == pytest.approx(model.candidate_scores_[name])
+    groups = split_groups([m for seed in inner_seeds(0, 2) for m in CandidateEvaluator(
+        learned_data(tiny_data), mode='joint', n_repeats=12, seed=seed).test_masks])
+    k = model.best_n_patterns_
+    optimism = selection_optimism(np.vstack([splits[n] for n in names]),
+                                  names.index(model.chosen_), groups)
+    assert model.optimism_by_images_[k] == pytest.approx(optimism)
+    inner = model.inner_estimate_
+    assert inner['search_accuracy'] == model.accuracy_by_images_[k]
+    assert inner['selection_optimism'] == pytest.approx(optimism)
+    assert inner['accuracy'] == pytest.approx(model.accuracy_by_images_[k] - optimism)
 
 
 def test_without_fine_tuning_a_start_is_kept(tiny_data):
@@ -334,9 +361,10 @@ def test_each_descent_draws_its_own_stream(tiny_data):
 def test_a_perfect_inner_score_ends_the_fit(tiny_data, monkeypatch):
     """Nothing after a perfect score could be kept (a tie keeps the earlier candidate), so
     neither greedy's search nor a descent runs after one."""
-    monkeypatch.setattr(CandidateEvaluator, 'score',
-                        lambda self, ctx, cols, parallel: np.ones(4))
-    monkeypatch.setattr(CandidateEvaluator, 'score_features', lambda self, X: np.ones(4))
+    monkeypatch.setattr(CandidateEvaluator, 'score', lambda self, ctx, cols, parallel: np.ones(
+        (cols.shape[1], len(self.test_masks))))
+    monkeypatch.setattr(CandidateEvaluator, 'score_features',
+                        lambda self, X: np.ones(len(self.test_masks)))
 
     def no_search(*args, **kwargs):
         raise AssertionError('greedy searched after a perfect score')

@@ -24,6 +24,7 @@ from ..greedy import GreedyPatternSelector
 from ..pattern_model import PatternModelMixin
 from ..rendering import SearchData
 from ..search_params import Execution, Rendering, SplitScoring, check_group
+from ..selection_bias import selection_optimism, split_groups
 from ..splits import resolve_inner_groups
 from .descent import descend
 from .head import FEATURES, fit_head, head_features, learned_data, ratio_offset, stack_features
@@ -79,8 +80,12 @@ class LearnedIlluminationClassifier(PatternModelMixin, BaseEstimator):
     After fit: patterns_ (32, k) site-major levels, model_ (a numpy `LearnedModel`: the
     head as one linear layer), classifiers_ {k: model_}, best_n_patterns_ = k,
     accuracy_by_images_ {k: the chosen candidate's inner split accuracy},
-    candidate_scores_ {name: inner split accuracy}, candidates_ {name: (32, k) LED levels of
-    every scored candidate}, chosen_ (its name), best_step_ (0: a
+    optimism_by_images_ {k: the optimism of having chosen it among the scored candidates on
+    these splits, `selection_bias.selection_optimism`; the inner estimate is the accuracy
+    less it},
+    candidate_scores_ {name: inner split accuracy}, candidate_split_scores_ {name: its
+    accuracy on every inner split, the inner draws' one after the other}, candidates_ {name:
+    (32, k) LED levels of every scored candidate}, chosen_ (its name), best_step_ (0: a
     start was kept), inner_estimate_ (the chosen candidate's inner accuracy and how the
     splits were made, `splits.inner_splits`), evaluator_ (the first inner draw's
     evaluator), noise_, history_, train_seconds_.
@@ -212,15 +217,19 @@ class LearnedIlluminationClassifier(PatternModelMixin, BaseEstimator):
         ev = evaluators[0]   # the head's first draw is the first inner draw's
         history = []
         with Parallel(n_jobs=self.execution.n_jobs) as parallel:
-            def inner(P):
-                # the mean split accuracy over the inner draws (each its splits and noise)
+            split_scores = {}
+
+            def inner(P, name):
+                # the mean split accuracy over the inner draws (each its splits and noise);
+                # every split's accuracy is kept for the optimism of the choice
                 if offset:   # cross-image statistics: the whole stack's features
-                    return float(np.mean([
-                        e.score_features(stack_features(data, e.images(P), offset)).mean()
-                        for e in evaluators]))
-                return float(np.mean([
-                    e.score(e.prepare_column(P[:, :k - 1] if k > 1 else None), P[:, k - 1:],
-                            parallel).mean() for e in evaluators]))
+                    per_draw = [e.score_features(stack_features(data, e.images(P), offset))
+                                for e in evaluators]
+                else:
+                    per_draw = [e.score(e.prepare_column(P[:, :k - 1] if k > 1 else None),
+                                        P[:, k - 1:], parallel)[0] for e in evaluators]
+                split_scores[name] = np.concatenate([np.ravel(a) for a in per_draw])
+                return float(np.mean([np.mean(a) for a in per_draw]))
 
             # a perfect inner score cannot be beaten (a tie keeps the earlier candidate),
             # so nothing is made or descended after one
@@ -238,7 +247,7 @@ class LearnedIlluminationClassifier(PatternModelMixin, BaseEstimator):
                 if self.binary:
                     P = (P >= 0.5).astype(np.float32)
                 if P.any():   # an all-dark start (e.g. greedy found nothing) is no start
-                    candidates[name], scores[name] = P, inner(P)
+                    candidates[name], scores[name] = P, inner(P, name)
                     self._notify(event='start_scored', start=name, index=i + 1, of=len(makers),
                                  accuracy=scores[name], best_accuracy=max(scores.values()))
             if not candidates:
@@ -255,7 +264,7 @@ class LearnedIlluminationClassifier(PatternModelMixin, BaseEstimator):
                         data, candidates[name], chain_rng, self.descent, binary=bool(self.binary),
                         ratio_offset=offset, inner_groups=self.scoring.inner_groups)):
                     tag = f'{name}+{step}'
-                    candidates[tag], steps[tag], scores[tag] = P, step, inner(P)
+                    candidates[tag], steps[tag], scores[tag] = P, step, inner(P, tag)
                     history.append({'start': name, 'step': step, 'loss': loss,
                                     'inner_accuracy': scores[tag]})
                     self._say(k, tag, {tag: scores[tag]}, loss)
@@ -275,8 +284,13 @@ class LearnedIlluminationClassifier(PatternModelMixin, BaseEstimator):
         self.classifiers_ = {k: self.model_}
         self.best_n_patterns_ = k
         self.accuracy_by_images_ = {k: scores[chosen]}
+        names = list(scores)
+        groups = split_groups([m for e in evaluators for m in e.test_masks])
+        self.optimism_by_images_ = {k: selection_optimism(
+            np.vstack([split_scores[n] for n in names]), names.index(chosen), groups)}
         self.candidate_scores_ = scores
         self.candidates_ = candidates
+        self.candidate_split_scores_ = split_scores
         self.evaluator_ = ev
         self.chosen_ = chosen
         self.best_step_ = int(steps[chosen])

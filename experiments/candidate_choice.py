@@ -1,0 +1,60 @@
+"""Does the learned method keep the candidate light that does best on new samples?
+
+Per family and fold (sample 0, then 1 held out): greedy and SNR-optimal scored on the
+held-out samples; the learned method at 4 and 8 exposures, and every candidate light it
+scored, each with its own head (`learned.fit_fixed_light_head`, one noise draw of the
+held-out samples) beside its inner score and its mean per held-out group of the inner
+splits. One JSON line per family; a selection rule is then any function of the candidates'
+inner figures, and its held-out accuracy is read off the lines.
+
+    PYTHONPATH=benchmarks:experiments .venv/bin/python experiments/candidate_choice.py SEEDS STRENGTH
+"""
+import sys
+from types import SimpleNamespace
+import json
+import numpy as np
+import families_benchmark as fb
+from lightstage_physics.capture_format import load_capture
+from lightstage_physics.rig import site_to_led_patterns
+from mux_classifier.hog import HogConfig
+from mux_trainer.data import search_data
+from mux_trainer.baselines import SnrOptimalClassifier
+from mux_trainer.greedy import GreedyPatternSelector
+from mux_trainer.holdout import evaluate_heldout
+from mux_trainer.learned import LearnedIlluminationClassifier, Starts, evaluate_learned_heldout
+from mux_trainer.learned.head import fit_fixed_light_head, stack_features, learned_data, ratio_offset
+from mux_trainer.search_params import SplitScoring
+args = SimpleNamespace(strength=float(sys.argv[2]), samples=4, poses=4, size=60, sample_spread=0.05)
+args.cache='out/families'
+for seed in fb.parse_seeds(sys.argv[1]):
+    ms = load_capture(fb.family_capture(args, seed))
+    data = search_data(ms, 'sigma3', features='intensity_stats', hog_config=HogConfig(image_size=60, cell_px=6, block_cells=10))
+    inst = np.asarray(ms.instance)
+    folds = []
+    for f in (0, 1):
+        te = np.flatnonzero(inst == f); tr = np.flatnonzero(inst != f)
+        train, test = data.subset(tr), data.subset(te)
+        sc = SplitScoring(n_repeats=60)
+        g = GreedyPatternSelector(mode='per_colour', n_patterns=2, scoring=sc).fit(train)
+        s = SnrOptimalClassifier(n_images=2, scoring=sc).fit(train)
+        gh = evaluate_heldout(g, test, 4, 0)['accuracy_by_images']; sh = evaluate_heldout(s, test, 4, 0)['accuracy_by_images']
+        fold = {'greedy': [gh[1], gh[2]], 'snr': [sh[1], sh[2]], 'learned': {}}
+        for e in (4, 8):
+            builtin = [n for n in Starts().names if n != 'greedy']
+            m = LearnedIlluminationClassifier(n_images=e, starts=Starts(names=tuple(builtin), patterns={'greedy': site_to_led_patterns(g.patterns_[:, :e // 4], train.n_channels)}), scoring=sc).fit(train)
+            held = evaluate_learned_heldout(m, test, 4, 0)['accuracy']
+            # per candidate: per-group inner accuracies and held-out with its head
+            ev = m.evaluator_
+            ld = learned_data(data)
+            off = ratio_offset(ev.data, m.ratio_stats)
+            cands = {}
+            for name, P in m.candidates_.items():
+                sa = ev.score_features(stack_features(ev.data, ev.images(P), off))
+                groups = ev.split_groups
+                gm = [float(sa[groups == k].mean()) for k in range(groups.max() + 1)]
+                model, scores = fit_fixed_light_head(data, P, tr, te)
+                cands[name] = {'inner': m.candidate_scores_[name], 'groups': gm,
+                               'held': float((scores.argmax(1) == data.labels[te]).mean())}
+            fold['learned'][e] = {'held': held, 'chosen': m.chosen_, 'cands': cands}
+        folds.append(fold)
+    print(seed, json.dumps(folds), flush=True)
