@@ -7,7 +7,8 @@ held-out samples) beside its inner score and its mean per held-out group of the 
 splits. One JSON line per family; a selection rule is then any function of the candidates'
 inner figures, and its held-out accuracy is read off the lines.
 
-    PYTHONPATH=benchmarks:experiments .venv/bin/python experiments/candidate_choice.py SEEDS STRENGTH
+    PYTHONPATH=benchmarks:experiments .venv/bin/python experiments/candidate_choice.py SEEDS STRENGTH > OUT
+    .venv/bin/python experiments/candidate_choice.py analyse OUT...   # the selection rules
 """
 import sys
 from types import SimpleNamespace
@@ -22,39 +23,76 @@ from mux_trainer.baselines import SnrOptimalClassifier
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import evaluate_heldout
 from mux_trainer.learned import LearnedIlluminationClassifier, Starts, evaluate_learned_heldout
-from mux_trainer.learned.head import fit_fixed_light_head, stack_features, learned_data, ratio_offset
+from mux_trainer.learned.head import fit_fixed_light_head, stack_features, ratio_offset
 from mux_trainer.search_params import SplitScoring
-args = SimpleNamespace(strength=float(sys.argv[2]), samples=4, poses=4, size=60, sample_spread=0.05)
-args.cache='out/families'
-for seed in fb.parse_seeds(sys.argv[1]):
-    ms = load_capture(fb.family_capture(args, seed))
-    data = search_data(ms, 'sigma3', features='intensity_stats', hog_config=HogConfig(image_size=60, cell_px=6, block_cells=10))
-    inst = np.asarray(ms.instance)
-    folds = []
-    for f in (0, 1):
-        te = np.flatnonzero(inst == f); tr = np.flatnonzero(inst != f)
-        train, test = data.subset(tr), data.subset(te)
-        sc = SplitScoring(n_repeats=60)
-        g = GreedyPatternSelector(mode='per_colour', n_patterns=2, scoring=sc).fit(train)
-        s = SnrOptimalClassifier(n_images=2, scoring=sc).fit(train)
-        gh = evaluate_heldout(g, test, 4, 0)['accuracy_by_images']; sh = evaluate_heldout(s, test, 4, 0)['accuracy_by_images']
-        fold = {'greedy': [gh[1], gh[2]], 'snr': [sh[1], sh[2]], 'learned': {}}
-        for e in (4, 8):
-            builtin = [n for n in Starts().names if n != 'greedy']
-            m = LearnedIlluminationClassifier(n_images=e, starts=Starts(names=tuple(builtin), patterns={'greedy': site_to_led_patterns(g.patterns_[:, :e // 4], train.n_channels)}), scoring=sc).fit(train)
-            held = evaluate_learned_heldout(m, test, 4, 0)['accuracy']
-            # per candidate: per-group inner accuracies and held-out with its head
-            ev = m.evaluator_
-            ld = learned_data(data)
-            off = ratio_offset(ev.data, m.ratio_stats)
-            cands = {}
-            for name, P in m.candidates_.items():
-                sa = ev.score_features(stack_features(ev.data, ev.images(P), off))
-                groups = ev.split_groups
-                gm = [float(sa[groups == k].mean()) for k in range(groups.max() + 1)]
-                model, scores = fit_fixed_light_head(data, P, tr, te)
-                cands[name] = {'inner': m.candidate_scores_[name], 'groups': gm,
-                               'held': float((scores.argmax(1) == data.labels[te]).mean())}
-            fold['learned'][e] = {'held': held, 'chosen': m.chosen_, 'cands': cands}
-        folds.append(fold)
-    print(seed, json.dumps(folds), flush=True)
+def analyse(paths):
+    rows = []
+    for f in paths:
+        for line in open(f):
+            if line[0].isdigit():
+                seed, js = line.split(' ', 1); rows.append((int(seed), json.loads(js)))
+    print(len(rows), 'families')
+    rules = {
+      'max_inner': lambda c: max(c, key=lambda n: c[n]['inner']),
+      'oracle': lambda c: max(c, key=lambda n: c[n]['held']),
+      'max_min_group': lambda c: max(c, key=lambda n: (min(c[n]['groups']), c[n]['inner'])),
+      'mean-std': lambda c: max(c, key=lambda n: np.mean(c[n]['groups']) - np.std(c[n]['groups'])),
+      'snr_optimal': lambda c: 'snr_optimal' if 'snr_optimal' in c else max(c, key=lambda n: c[n]['inner']),
+      'greedy': lambda c: 'greedy' if 'greedy' in c else max(c, key=lambda n: c[n]['inner']),
+      'per_colour': lambda c: 'per_colour' if 'per_colour' in c else max(c, key=lambda n: c[n]['inner']),
+      'raking': lambda c: 'raking_sides' if 'raking_sides' in c else max(c, key=lambda n: c[n]['inner']),
+    }
+    for e, col in (('4', 0), ('8', 1)):
+        g = np.array([np.mean([f['greedy'][col] for f in r]) for s, r in rows])
+        sn = np.array([np.mean([f['snr'][col] for f in r]) for s, r in rows])
+        lh = np.array([np.mean([f['learned'][e]['held'] for f in r]) for s, r in rows])
+        lc = np.array([np.mean([f['learned'][e]['cands'][f['learned'][e]['chosen']]['held'] for f in r]) for s, r in rows])
+        print(f'e={e}: greedy {100*g.mean():.1f} snr {100*sn.mean():.1f} learned(eval) {100*lh.mean():.1f} learned(cand-head) {100*lc.mean():.1f}')
+        for name, rule in rules.items():
+            v = np.array([np.mean([f['learned'][e]['cands'][rule(f['learned'][e]['cands'])]['held'] for f in r]) for s, r in rows])
+            best = np.maximum(g, sn)
+            print(f'   {name:14s} {100*v.mean():5.1f}  -greedy {100*(v-g).mean():+5.1f} -snr {100*(v-sn).mean():+5.1f} behind either {np.mean(v < best - 1e-9):.0%}')
+
+
+def measure():
+    args = SimpleNamespace(strength=float(sys.argv[2]), samples=4, poses=4, size=60, sample_spread=0.05)
+    args.cache='out/families'
+    for seed in fb.parse_seeds(sys.argv[1]):
+        ms = load_capture(fb.family_capture(args, seed))
+        data = search_data(ms, 'sigma3', features='intensity_stats', hog_config=HogConfig(image_size=60, cell_px=6, block_cells=10))
+        inst = np.asarray(ms.instance)
+        folds = []
+        for f in (0, 1):
+            te = np.flatnonzero(inst == f); tr = np.flatnonzero(inst != f)
+            train, test = data.subset(tr), data.subset(te)
+            sc = SplitScoring(n_repeats=60)
+            g = GreedyPatternSelector(mode='per_colour', n_patterns=2, scoring=sc).fit(train)
+            s = SnrOptimalClassifier(n_images=2, scoring=sc).fit(train)
+            gh = evaluate_heldout(g, test, 4, 0)['accuracy_by_images']; sh = evaluate_heldout(s, test, 4, 0)['accuracy_by_images']
+            fold = {'greedy': [gh[1], gh[2]], 'snr': [sh[1], sh[2]], 'learned': {}}
+            for e in (4, 8):
+                builtin = [n for n in Starts().names if n != 'greedy']
+                m = LearnedIlluminationClassifier(n_images=e, starts=Starts(names=tuple(builtin), patterns={'greedy': site_to_led_patterns(g.patterns_[:, :e // 4], train.n_channels)}), scoring=sc).fit(train)
+                held = evaluate_learned_heldout(m, test, 4, 0)['accuracy']
+                # per candidate: per-group inner accuracies and held-out with its head
+                ev = m.evaluator_
+
+                off = ratio_offset(ev.data, m.ratio_stats)
+                cands = {}
+                for name, P in m.candidates_.items():
+                    sa = ev.score_features(stack_features(ev.data, ev.images(P), off))
+                    groups = ev.split_groups
+                    gm = [float(sa[groups == k].mean()) for k in range(groups.max() + 1)]
+                    model, scores = fit_fixed_light_head(data, P, tr, te)
+                    cands[name] = {'inner': m.candidate_scores_[name], 'groups': gm,
+                                   'held': float((scores.argmax(1) == data.labels[te]).mean())}
+                fold['learned'][e] = {'held': held, 'chosen': m.chosen_, 'cands': cands}
+            folds.append(fold)
+        print(seed, json.dumps(folds), flush=True)
+
+
+if __name__ == '__main__':
+    if sys.argv[1] == 'analyse':
+        analyse(sys.argv[2:])
+    else:
+        measure()
