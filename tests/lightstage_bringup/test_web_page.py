@@ -110,11 +110,15 @@ def test_classify_in_the_page_shows_the_service_answer(stage):
         lit = await page.evaluate("document.querySelectorAll('#class-images svg [data-lit=\"1\"]').length")
         history = await page.evaluate("document.querySelectorAll('#history tbody tr').length")
         await page.wait_for("document.getElementById('live').naturalWidth > 0", 10, 'the live image')
+        # the classifier's /diagnostics: which classifier, and its inner estimate
+        model = await page.wait_for(
+            "(() => { const d = document.querySelector('.diag[data-name=\"classifier: model\"]');"
+            " return d ? d.textContent : ''; })()", 30, "the classifier's model")
         await asyncio.sleep(0.5)  # the images finish drawing
         png = await page.screenshot(stage['tmp'] / 'web_classify.png')
-        return label, n_thumbs, bars, lit, history, png
+        return label, n_thumbs, bars, lit, history, model, png
 
-    label, n_thumbs, bars, lit, history, png = _in_browser(stage, steps)
+    label, n_thumbs, bars, lit, history, model, png = _in_browser(stage, steps)
     _spin_until(stage, lambda: answers, 'the Classify service\'s answer on its event topic')
     (answer,) = answers
     assert answer.success, answer.message
@@ -123,6 +127,7 @@ def test_classify_in_the_page_shows_the_service_answer(stage):
     assert n_thumbs == answer.images_used
     assert lit > 0          # the LED pictures of its images show what was lit
     assert history == 1
+    assert model.startswith('OKclassifier: model: 4 classes') and 'inner estimate' in model, model
     _assert_not_blank(png)
     _keep(stage['tmp'] / 'web_classify.png')
 

@@ -90,3 +90,40 @@ def test_an_unforeseen_failure_loading_an_artifact_is_a_rejection(node, monkeypa
     assert result.reason == (f"{str(tmp_path / 'a.npz')!r} cannot be used as a classifier "
                              "(KeyError: 'surprise'); retrain to get a new file")
     assert node.artifact is loaded
+
+
+def test_diagnostics_say_which_classifier_is_loaded_and_its_inner_estimate(node):
+    """/diagnostics (and so the operator's page) carry the classifier and the estimate it
+    was trained with, and how its inner splits held out."""
+    from lightstage_graph.diagnostics import OK
+    artifact = node.artifact
+    inner = artifact.provenance['inner_estimate']
+    report = node._classifier_status()
+    assert node.diagnostics.name == 'classifier: model'
+    assert report.level == OK and report.message == artifact.describe()
+    assert f"inner estimate {100 * inner['accuracy']:.1f} %" in report.message
+    assert report.values['classes'] == ', '.join(artifact.class_names)
+    assert report.values['image_counts'] == '4, 8'
+    assert report.values['inner_estimate_percent'] == f"{100 * inner['accuracy']:.1f}"
+    assert report.values['inner_estimate_held_out'] == inner['held_out']
+    assert report.values['selection_optimism_points'] == '0.0'   # a fixed matrix chose nothing
+
+
+def test_diagnostics_say_why_no_classifier_is_loaded(tmp_path):
+    import rclpy
+    from lightstage_graph.diagnostics import ERROR
+    from mux_classifier.classifier_node import ClassifierNode
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+    context = Context()
+    rclpy.init(context=context, domain_id=fresh_domain_id())
+    node = ClassifierNode(context=context, parameter_overrides=[
+        Parameter('artifact_path', value=str(tmp_path / 'missing.npz'))])
+    try:
+        report = node._classifier_status()
+        assert report.level == ERROR
+        assert report.message.startswith('no classifier loaded:')
+        assert report.values == {'artifact_path': str(tmp_path / 'missing.npz')}
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)

@@ -21,7 +21,7 @@ IMAGE_TOPIC = 'camera/image_raw'       # sensor_msgs/Image mono16, stamp = trigg
 CAMERA_INFO_TOPIC = 'camera/camera_info'  # sensor_msgs/CameraInfo, same header as each image
 FRAME_LOST_TOPIC = 'camera/frame_lost'    # FrameLost: a trigger's image that will not come, and why
 RESULT_TOPIC = '/lightstage/result'    # ClassificationResult (classifier)
-DIAGNOSTICS_TOPIC = '/diagnostics'     # DiagnosticArray (driver, camera)
+DIAGNOSTICS_TOPIC = '/diagnostics'     # DiagnosticArray (driver, camera, classifier)
 
 # services
 APPLY_PATTERNS_SERVICE = '/lightstage/apply_patterns'  # ApplyPatterns (driver)

@@ -39,6 +39,7 @@ import traceback
 
 import numpy as np
 from lightstage_graph.awaitable import executor_future
+from lightstage_graph.diagnostics import ERROR, OK, DiagnosticsPublisher, Report
 from lightstage_graph.errors import StageError
 from lightstage_graph.links import ReaderMatch
 from lightstage_graph.names import (CAMERA_NODE, CLASSIFIER_NODE, CLASSIFY_SERVICE,
@@ -88,6 +89,9 @@ PARAMETERS = {
         'the camera node whose dimmer is checked against the classifier\'s before each '
         'classification (a sim camera at another dimmer would classify wrong silently)',
         read_only=True)),
+    'diagnostics_period_s': (1.0, floating('/diagnostics period [s] (the classifier loaded: '
+                                           'its classes, image counts and inner estimate)', 0.1,
+                                           60.0, read_only=True)),
     'classify_observed': (False, boolean(
         'also classify trigger sequences seen on /illumination that light the artifact\'s first '
         'k patterns (another client\'s, or a replayed bag\'s) and publish them on '
@@ -101,10 +105,13 @@ class ClassifierNode(Node):
         self.p = declare_parameters(self, PARAMETERS)
         self.artifact: TrainedArtifact | None = None
         self.artifact_error = ''
+        self.artifact_path = ''
         group = ReentrantCallbackGroup()
         self.stage = StageClient(self, image_buffer=self.p('image_buffer'), callback_group=group,
                                  start_hint=START_HINT, camera_node=self.p('camera_node'))
         self._load_artifact(self.p('artifact_path'))
+        self.diagnostics = DiagnosticsPublisher(self, 'model', self._classifier_status,
+                                                self.p('diagnostics_period_s'))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._busy = threading.Lock()  # held by the queue's worker while it uses the stage
         self.queue = StageQueue(name='classify-stage')
@@ -160,7 +167,32 @@ class ClassifierNode(Node):
         self.stage.matcher.set_capacity(max(int(self.p('image_buffer')),
                                             BUFFERED_SEQUENCES * max(artifact.n_images)))
         self.artifact, self.artifact_error = artifact, ''
+        self.artifact_path = str(path)
         self.get_logger().info(f'loaded {path}: {artifact.describe()}')
+        if getattr(self, 'diagnostics', None) is not None:
+            self.diagnostics.publish()
+
+    def _classifier_status(self) -> Report:
+        """The /diagnostics status: the classifier loaded (its description, the inner
+        estimate and what its inner splits held out: physical samples, an estimate for
+        objects never seen, or poses, one for the objects trained on), or why none is."""
+        artifact = self.artifact
+        if artifact is None:
+            return Report(ERROR, self.artifact_error or 'no classifier loaded',
+                          {'artifact_path': str(self.p('artifact_path'))})
+        values = {'artifact_path': self.artifact_path,
+                  'classes': ', '.join(artifact.class_names),
+                  'method': str(artifact.provenance.get('method', '')),
+                  'image_counts': ', '.join(str(n) for n in artifact.n_images),
+                  'calibrated': str(artifact.confidence is not None).lower()}
+        inner = artifact.provenance.get('inner_estimate')
+        if isinstance(inner, dict) and isinstance(inner.get('accuracy'), (int, float)):
+            values['inner_estimate_percent'] = f"{100 * inner['accuracy']:.1f}"
+            values['inner_estimate_held_out'] = str(inner.get('held_out', 'poses'))
+            if isinstance(inner.get('selection_optimism'), (int, float)):
+                values['inner_split_accuracy_percent'] = f"{100 * inner['search_accuracy']:.1f}"
+                values['selection_optimism_points'] = f"{100 * inner['selection_optimism']:.1f}"
+        return Report(OK, artifact.describe(), values)
 
     def _load_artifact(self, path: str) -> None:
         try:
