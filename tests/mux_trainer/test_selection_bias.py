@@ -67,4 +67,6 @@ def test_greedy_reports_its_split_accuracy_less_the_optimism_of_each_column_so_f
     words = describe_inner(inner, greedy.estimate_by_images_[k])
     assert (f'split accuracy {100 * greedy.accuracy_by_images_[k]:.1f} % less '
             f'{100 * greedy.optimism_by_images_[k]:.1f} points for having chosen') in words
+    better = describe_inner(inner | {'selection_optimism': -0.012}, 0.9)
+    assert 'plus 1.2 points for having chosen the light' in better
     assert 'objects never seen in training' in words

@@ -173,9 +173,10 @@ def describe_inner(description: dict | None, accuracy: float | None = None) -> s
     most = description.get('groups_per_class_max', n)
     optimism = description.get('selection_optimism')
     if head and optimism:
+        sign = 'less' if optimism > 0 else 'plus'
         head = (f'{head}the split accuracy {100 * float(description["search_accuracy"]):.1f} % '
-                f'less {100 * float(optimism):.1f} points for having chosen the light on these '
-                'splits; ')
+                f'{sign} {100 * abs(float(optimism)):.1f} points for having chosen the light on '
+                'these splits (a nested choice over them); ')
     if description['held_out'] == 'physical samples':
         of = f'{n}' if most == n else f'{n} to {most}'
         return (f'{head}the mean over {r} inner split(s), each holding out {k} of the {of} '
