@@ -137,22 +137,27 @@ def run_fold(train, test, args) -> dict:
     return out
 
 
+def family_data(path, features: str, size: int):
+    """A family's capture as the methods see it: Sigma3 noise, `features`, at its size."""
+    return search_data(load_capture(path), 'sigma3', features=features,
+                       hog_config=HogConfig(image_size=size, cell_px=max(1, size // 10),
+                                            block_cells=10))
+
+
+def sample_folds(data, folds):
+    """(train, test) per fold: fold f holds out physical sample f of every class."""
+    for f in folds:
+        held = data.instance == f
+        yield data.subset(np.flatnonzero(~held)), data.subset(np.flatnonzero(held))
+
+
 def run_family(seed: int, args) -> dict:
     t0 = time.perf_counter()
     path = family_capture(args, seed)
     render_s = time.perf_counter() - t0
-    ms = load_capture(path)
-    data = search_data(ms, 'sigma3', features=args.features,
-                       hog_config=HogConfig(image_size=args.size, cell_px=max(1, args.size // 10),
-                                            block_cells=10))
-    instance = np.asarray(ms.instance)
-    folds = sorted(np.unique(instance))[:args.folds]
-    per_fold = []
-    for f in folds:
-        te = np.flatnonzero(instance == f)
-        tr = np.flatnonzero(instance != f)
-        train, test = data.subset(tr), data.subset(te)
-        per_fold.append(run_fold(train, test, args))
+    data = family_data(path, args.features, args.size)
+    folds = sorted(np.unique(data.instance))[:args.folds]
+    per_fold = [run_fold(train, test, args) for train, test in sample_folds(data, folds)]
     family = draw_family(seed)
     row = {'seed': seed, 'kind': family.kind, 'cues': list(family.cues), 'folds': len(folds),
            'render_seconds': render_s, 'seconds': time.perf_counter() - t0, 'methods': {}}

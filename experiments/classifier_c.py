@@ -12,25 +12,17 @@ import json
 import sys
 from types import SimpleNamespace
 
-import numpy as np
 import families_benchmark as fb
-from lightstage_physics.capture_format import load_capture
-from mux_classifier.hog import HogConfig
 from mux_trainer.baselines import FixedPatternClassifier, SnrOptimalClassifier
-from mux_trainer.data import search_data
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.holdout import evaluate_heldout
 from mux_trainer.search_params import FinalClassifier, SplitScoring
 CS = (0.01, 0.1, 1.0, 10.0)
 args = SimpleNamespace(strength=float(sys.argv[2]), samples=4, poses=4, size=60, sample_spread=0.05, cache='out/families')
 for seed in fb.parse_seeds(sys.argv[1]):
-    ms = load_capture(fb.family_capture(args, seed))
-    data = search_data(ms, 'sigma3', features='intensity_stats', hog_config=HogConfig(image_size=60, cell_px=6, block_cells=10))
-    inst = np.asarray(ms.instance)
+    data = fb.family_data(fb.family_capture(args, seed), 'intensity_stats', 60)
     folds = []
-    for f in (0, 1):
-        te = np.flatnonzero(inst == f); tr = np.flatnonzero(inst != f)
-        train, test = data.subset(tr), data.subset(te)
+    for f, (train, test) in enumerate(fb.sample_folds(data, (0, 1))):
         g = GreedyPatternSelector(mode='per_colour', n_patterns=2, scoring=SplitScoring(n_repeats=60)).fit(train)
         snr = SnrOptimalClassifier(n_images=2, scoring=SplitScoring(n_repeats=60)).fit(train)
         fold = {}

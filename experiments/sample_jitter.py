@@ -16,9 +16,6 @@ import json
 import numpy as np
 from dataclasses import replace
 import families_benchmark as fb
-from lightstage_physics.capture_format import load_capture
-from mux_classifier.hog import HogConfig
-from mux_trainer.data import search_data
 
 def between_sample_spread(data):
     b = data.basis.sum(axis=(0, 3)).astype(np.float64)   # (channels, n)
@@ -48,13 +45,9 @@ if __name__ == '__main__':
     args.cache='out/families'; args.n_repeats=60; args.inner_groups='auto'; args.seed=0; args.n_renders=4
     args.methods = sys.argv[5].split(',')
     for seed in fb.parse_seeds(sys.argv[1]):
-        ms = load_capture(fb.family_capture(args, seed))
-        data = search_data(ms, 'sigma3', features='intensity_stats', hog_config=HogConfig(image_size=60, cell_px=6, block_cells=10))
-        inst = np.asarray(ms.instance)
+        data = fb.family_data(fb.family_capture(args, seed), 'intensity_stats', 60)
         folds = []
-        for f in (0, 1):
-            te = np.flatnonzero(inst == f); tr = np.flatnonzero(inst != f)
-            train, test = data.subset(tr), data.subset(te)
+        for f, (train, test) in enumerate(fb.sample_folds(data, (0, 1))):
             sig = between_sample_spread(train) * scale
             if copies:
                 train = jittered(train, copies, sig, seed=f)
