@@ -112,8 +112,8 @@ class PatternModelMixin(GroupedParamsMixin):
     @property
     def estimate_by_images_(self) -> dict:
         """{column count: inner estimate}: the search's split accuracy less the optimism of
-        having chosen the columns on these same splits (`optimism_by_images_`, the greedy
-        search's, `selection_bias`; none for a fixed matrix)."""
+        having chosen the columns (greedy) or the candidate light (learned) on these same
+        splits (`optimism_by_images_`, `selection_bias`; none for a fixed matrix)."""
         optimism = self._optimism()
         return {k: float(a - optimism.get(k, 0.0)) for k, a in self.accuracy_by_images_.items()}
 
