@@ -27,6 +27,8 @@ WANTED = {'/camera/image_raw': 'sensor_msgs/msg/Image',
           '/illumination': 'lightstage_interfaces/msg/IlluminationState',
           '/lightstage/result': 'lightstage_interfaces/msg/ClassificationResult',
           '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray'}
+# the statuses the three nodes publish on /diagnostics, each every second
+STATUSES = {'driver: light stage link', 'camera: camera', 'classifier: model'}
 
 
 def decoder(channel: dict):
@@ -95,9 +97,9 @@ def test_a_foxglove_client_sees_images_illumination_and_result_of_a_classify(
                 call = asyncio.create_task(asyncio.to_thread(
                     client.call, Classify, '/lightstage/classify',
                     Classify.Request(max_images=4, timeout_s=10.0), timeout_s=30.0))
-                statuses = set()   # the driver's and the camera's, each every second
+                statuses = set()   # the driver's, the camera's and the classifier's, each every second
                 read_diagnostics = decoder(channels['/diagnostics'])
-                while not (call.done() and received['/lightstage/result'] and len(statuses) >= 2
+                while not (call.done() and received['/lightstage/result'] and statuses >= STATUSES
                            and len(received['/camera/image_raw']) >= 4):
                     assert asyncio.get_running_loop().time() < deadline + 60, \
                         {'statuses': statuses, **{t: len(m) for t, m in received.items()}}
@@ -149,7 +151,7 @@ def test_a_foxglove_client_sees_images_illumination_and_result_of_a_classify(
     assert len(result.probabilities) == 0 and result.probabilities is not None
     assert sorted(result.sequences) == sorted(m.sequence for m in lit)
     diagnostics = [decode['/diagnostics'](data) for data in received['/diagnostics']]
-    assert {s.name for d in diagnostics for s in d.status} == {'driver: light stage link', 'camera: camera'}
+    assert {s.name for d in diagnostics for s in d.status} == STATUSES
 
     assert listening and all(s.loopback for s in listening), [str(s) for s in listening]
     layout = json.loads((REPO / 'src/lightstage_bringup/config/foxglove_layout.json').read_text())
