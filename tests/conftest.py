@@ -90,13 +90,22 @@ SLOW_TESTS = {
     'mux_trainer/test_trainer_bad_values.py::test_train_out_replaces_an_artifact_and_with_force_anything',
 }
 SLOW_FIXTURES = {'stage_capture'}
+# The longest modules (summed `--durations` of a full run, 40-90 s each) start first: pytest-xdist
+# (`--dist loadfile`) hands modules to the workers in collection order, and collected last
+# (tests/test_readme.py is) one of them would run alone at the end while the other worker idles.
+LONGEST_MODULES = (
+    'mux_trainer/test_learned.py', 'mux_trainer/test_dask_cluster.py', 'test_readme.py',
+    'lightstage_bringup/test_web_health.py', 'lightstage_recording/test_demo_bag.py',
+    'mux_classifier/test_inference_graph.py', 'lightstage_recording/test_record_replay_graph.py',
+    'mux_trainer/test_cli_trainer.py',
+)
 TESTS = Path(__file__).resolve().parent
 
 
 def _stale_slow_entries() -> list[str]:
     """Listed slow modules or tests that no longer exist: a moved or renamed test would
     otherwise fall back into `-m fast` without a word."""
-    stale = [m for m in SLOW_MODULES if not (TESTS / m).is_file()]
+    stale = [m for m in (*SLOW_MODULES, *LONGEST_MODULES) if not (TESTS / m).is_file()]
     for entry in SLOW_TESTS:
         module, name = entry.split('::')
         path = TESTS / module
@@ -141,7 +150,8 @@ def pytest_ignore_collect(collection_path, config):
 def pytest_collection_modifyitems(config, items):
     """Markers by what a test does, so that none is forgotten: `process` for the tests of
     the firmware fixtures and `slow` (above; a module's own `pytestmark` declares `process`), and `fast`
-    for every test that is neither `ros`, `process` nor `slow` (the inner loop: `-m fast`)."""
+    for every test that is neither `ros`, `process` nor `slow` (the inner loop: `-m fast`); the
+    longest modules first (`LONGEST_MODULES`)."""
     for item in items:
         if _starts_processes(item):
             item.add_marker('process')
@@ -149,6 +159,8 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker('slow')
         if not any(item.get_closest_marker(name) for name in NOT_FAST):
             item.add_marker('fast')
+    rank = {m: i for i, m in enumerate(LONGEST_MODULES)}
+    items.sort(key=lambda item: rank.get(item.path.relative_to(TESTS).as_posix(), len(rank)))
 
 
 @pytest.fixture(autouse=True)

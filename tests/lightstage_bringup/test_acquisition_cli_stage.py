@@ -85,9 +85,9 @@ def test_camera_params_are_checked_against_the_cameras_declared_type_and_range(s
     from rcl_interfaces.srv import GetParameters
     from rclpy.parameter import parameter_value_to_python
 
-    def calibrate(*params):
+    def calibrate(*params):   # a fresh process finds the camera in 1 s alone, not under load
         return subprocess.run(lightstage_command(
-            'calibrate', *[a for p in params for a in ('--camera-param', p)], '--wait-s', '1',
+            'calibrate', *[a for p in params for a in ('--camera-param', p)], '--wait-s', '5',
             '--domain-id', str(stage.domain_id)), capture_output=True, text=True, timeout=120)
 
     p = calibrate('dimmer=99')
