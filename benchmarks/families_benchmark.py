@@ -30,7 +30,7 @@ exposures, the mean inner-minus-held-out gap, and the share of families where le
 behind greedy or SNR-optimal. Per-family results are appended to --results (JSON lines) as
 they finish, and a rerun with the same file skips the families it holds.
 
-    .venv/bin/python benchmarks/families_benchmark.py --seeds 100-119 --strength 0.5
+    .venv/bin/python benchmarks/families_benchmark.py --seeds 100-159 --strength 0.5
     .venv/bin/python benchmarks/families_benchmark.py --quick
 """
 from __future__ import annotations
@@ -179,6 +179,13 @@ def settings(args) -> dict:
     return {k: getattr(args, k) for k in keys}
 
 
+def standard_error(x) -> float:
+    """The standard error of the mean over the families (nan for one family): what a mean
+    over this many families can tell apart."""
+    x = np.asarray(x, dtype=np.float64)
+    return float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else float('nan')
+
+
 def summarise(rows: list[dict], methods) -> str:
     lines = []
     head = f'{"seed":>5} {"kind":12s} {"cues":22s}' + ''.join(
@@ -191,14 +198,14 @@ def summarise(rows: list[dict], methods) -> str:
         lines.append(f'{r["seed"]:>5} {r["kind"]:12s} {",".join(r["cues"]):22s}{cells}')
     lines.append('')
     lines.append(f'over {len(rows)} families: held-out % (mean, worst family), inner estimate '
-                 '% and the gap inner - held-out (points: mean, and mean of its size per '
-                 'family)')
+                 '% and the gap inner - held-out (points: mean, its standard error over the '
+                 'families, and the mean of its size per family)')
     held = sorted({h for r in rows for m in methods
                    for h in r['methods'][m].get('inner_held_out', [])})
     lines.append(f'(the inner splits held out: {", ".join(held) or "?"})')
     lines.append(f'{"method":12s} {"mean 4":>7s} {"mean 8":>7s} {"worst 4":>8s} {"worst 8":>8s}'
                  f' {"inner 4":>8s} {"inner 8":>8s} {"gap 4":>6s} {"gap 8":>6s}'
-                 f' {"|gap| 4":>8s} {"|gap| 8":>8s}')
+                 f' {"se 4":>5s} {"se 8":>5s} {"|gap| 4":>8s} {"|gap| 8":>8s}')
     for m in methods:
         a4 = np.array([r['methods'][m]['4'] for r in rows]) * 100
         a8 = np.array([r['methods'][m]['8'] for r in rows]) * 100
@@ -206,7 +213,8 @@ def summarise(rows: list[dict], methods) -> str:
         i8 = np.array([r['methods'][m]['inner8'] for r in rows]) * 100
         lines.append(f'{m:12s} {a4.mean():7.1f} {a8.mean():7.1f} {a4.min():8.1f} {a8.min():8.1f}'
                      f' {i4.mean():8.1f} {i8.mean():8.1f} {(i4 - a4).mean():+6.1f}'
-                     f' {(i8 - a8).mean():+6.1f} {np.abs(i4 - a4).mean():8.1f}'
+                     f' {(i8 - a8).mean():+6.1f} {standard_error(i4 - a4):5.1f}'
+                     f' {standard_error(i8 - a8):5.1f} {np.abs(i4 - a4).mean():8.1f}'
                      f' {np.abs(i8 - a8).mean():8.1f}')
     if 'learned' in methods:
         lines.append('')
@@ -216,13 +224,16 @@ def summarise(rows: list[dict], methods) -> str:
                 if other not in methods:
                     continue
                 o = np.array([r['methods'][other][e] for r in rows])
-                lines.append(f'{e} exposures: learned - {other}: mean {100 * (learned - o).mean():+.1f}'
-                             f' points, behind in {np.mean(learned < o - 1e-9):.0%} of families')
+                d = 100 * (learned - o)
+                lines.append(f'{e} exposures: learned - {other}: mean {d.mean():+.1f} points '
+                             f'(standard error {standard_error(d):.1f}), behind in '
+                             f'{np.mean(learned < o - 1e-9):.0%} of families')
             rivals = [m for m in ('greedy', 'snr_optimal') if m in methods]
             if rivals:
                 best = np.max([[r['methods'][m][e] for m in rivals] for r in rows], axis=1)
                 lines.append(f'{e} exposures: learned behind greedy or SNR-optimal in '
-                             f'{np.mean(learned < best - 1e-9):.0%} of families')
+                             f'{np.mean(learned < best - 1e-9):.0%} of families, by more than '
+                             f'5 points in {np.mean(learned < best - 0.05):.0%}')
     multiplexed = [m for m in ('snr_optimal', 'greedy', 'learned') if m in methods]
     if 'naive' in methods and multiplexed:
         best_m = max(multiplexed, key=lambda m: np.mean([r['methods'][m]['4'] for r in rows]))
@@ -236,8 +247,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split('\n\n')[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog=__doc__.split('\n\n', 1)[1])
-    p.add_argument('--seeds', default='100-119', type=parse_seeds,
-                   help="family seeds: '100-119', '1,5,9' (default 100-119)")
+    p.add_argument('--seeds', default='100-159', type=parse_seeds,
+                   help="family seeds: '100-159', '1,5,9' (default 100-159, the report seeds)")
     p.add_argument('--strength', type=float, default=0.5,
                    help='scale of the difference between the classes (0 = the chance control)')
     p.add_argument('--samples', type=int, default=4, help='physical samples per class (default 4)')
