@@ -5,7 +5,7 @@ import pytest
 
 from mux_trainer.greedy import GreedyPatternSelector
 from mux_trainer.search_params import SplitScoring
-from mux_trainer.selection_bias import group_means, selection_optimism, split_groups
+from mux_trainer.selection_bias import NESTED_SCALE, group_means, selection_optimism, split_groups
 from mux_trainer.splits import describe_inner
 
 from test_inner_groups import memorisable_data
@@ -30,7 +30,10 @@ def test_optimism_is_the_chosen_mean_less_the_choice_made_without_each_group():
     # group 0 scores (0.9 + 0.6) / 2; without group 1: candidate 2 (0.95): 0.4;
     # without group 2: candidate 0 (0.85): 0.7
     nested = np.mean([(0.9 + 0.6) / 2, 0.4, 0.7])
-    assert selection_optimism(acc, 0, groups) == pytest.approx(0.8 - nested)
+    assert selection_optimism(acc, 0, groups, scale=1.0) == pytest.approx(0.8 - nested)
+    # by default scaled: the nested choice sees only part of the optimism
+    assert selection_optimism(acc, 0, groups) == pytest.approx(NESTED_SCALE * (0.8 - nested))
+    assert NESTED_SCALE > 1
 
 
 def test_no_optimism_where_nothing_was_chosen_between_or_nothing_to_measure_it_on():
