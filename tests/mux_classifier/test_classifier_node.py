@@ -109,6 +109,23 @@ def test_diagnostics_say_which_classifier_is_loaded_and_its_inner_estimate(node)
     assert report.values['selection_optimism_points'] == '0.0'   # a fixed matrix chose nothing
 
 
+def test_diagnostics_of_a_provenance_without_some_figures_leave_them_out(node):
+    """A provenance written by hand or by an older trainer: the status says what it has,
+    and the timer that publishes it never raises."""
+    from dataclasses import replace
+    loaded = node.artifact
+    try:
+        node.artifact = replace(loaded, provenance={**loaded.provenance, 'inner_estimate': {
+            'accuracy': 0.5, 'selection_optimism': 0.1}})
+        values = node._classifier_status().values
+        assert values['inner_estimate_percent'] == '50.0'
+        assert 'selection_optimism_points' not in values
+        node.artifact = replace(loaded, provenance={**loaded.provenance, 'inner_estimate': 'high'})
+        assert 'inner_estimate_percent' not in node._classifier_status().values
+    finally:
+        node.artifact = loaded
+
+
 def test_diagnostics_say_why_no_classifier_is_loaded(tmp_path):
     import rclpy
     from lightstage_graph.diagnostics import ERROR

@@ -109,9 +109,9 @@ class ClassifierNode(Node):
         group = ReentrantCallbackGroup()
         self.stage = StageClient(self, image_buffer=self.p('image_buffer'), callback_group=group,
                                  start_hint=START_HINT, camera_node=self.p('camera_node'))
-        self._load_artifact(self.p('artifact_path'))
         self.diagnostics = DiagnosticsPublisher(self, 'model', self._classifier_status,
                                                 self.p('diagnostics_period_s'))
+        self._load_artifact(self.p('artifact_path'))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._busy = threading.Lock()  # held by the queue's worker while it uses the stage
         self.queue = StageQueue(name='classify-stage')
@@ -169,8 +169,7 @@ class ClassifierNode(Node):
         self.artifact, self.artifact_error = artifact, ''
         self.artifact_path = str(path)
         self.get_logger().info(f'loaded {path}: {artifact.describe()}')
-        if getattr(self, 'diagnostics', None) is not None:
-            self.diagnostics.publish()
+        self.diagnostics.publish()
 
     def _classifier_status(self) -> Report:
         """The /diagnostics status: the classifier loaded (its description, the inner
@@ -186,12 +185,16 @@ class ClassifierNode(Node):
                   'image_counts': ', '.join(str(n) for n in artifact.n_images),
                   'calibrated': str(artifact.confidence is not None).lower()}
         inner = artifact.provenance.get('inner_estimate')
-        if isinstance(inner, dict) and isinstance(inner.get('accuracy'), (int, float)):
-            values['inner_estimate_percent'] = f"{100 * inner['accuracy']:.1f}"
+        if not isinstance(inner, dict):   # older files, or a provenance written by hand
+            inner = {}
+        number = {key: inner[key] for key in ('accuracy', 'search_accuracy', 'selection_optimism')
+                  if isinstance(inner.get(key), (int, float))}
+        if 'accuracy' in number:
+            values['inner_estimate_percent'] = f"{100 * number['accuracy']:.1f}"
             values['inner_estimate_held_out'] = str(inner.get('held_out', 'poses'))
-            if isinstance(inner.get('selection_optimism'), (int, float)):
-                values['inner_split_accuracy_percent'] = f"{100 * inner['search_accuracy']:.1f}"
-                values['selection_optimism_points'] = f"{100 * inner['selection_optimism']:.1f}"
+            if 'search_accuracy' in number and 'selection_optimism' in number:
+                values['inner_split_accuracy_percent'] = f"{100 * number['search_accuracy']:.1f}"
+                values['selection_optimism_points'] = f"{100 * number['selection_optimism']:.1f}"
         return Report(OK, artifact.describe(), values)
 
     def _load_artifact(self, path: str) -> None:

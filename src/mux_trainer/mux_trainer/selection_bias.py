@@ -26,7 +26,8 @@ Tibshirani's correction (the mean over groups of the group's best less the chose
 of Applied Statistics 3(2), 2009) and the columns' optimisms summed were tried on families
 0-7 and left more (docs/SEARCH.md).
 
-Pure numpy; `greedy.GreedyPatternSelector` records it per column.
+Pure numpy; `greedy.GreedyPatternSelector` records it per column, the learned method over
+its candidate lights.
 """
 from __future__ import annotations
 
