@@ -3,11 +3,12 @@
 Per family and fold (sample 0, then 1 held out): greedy and SNR-optimal scored on the
 held-out samples; the learned method at 4 and 8 exposures, and every candidate light it
 scored, each with its own head (`learned.fit_fixed_light_head`, one noise draw of the
-held-out samples) beside its inner score and its mean per held-out group of the inner
-splits. One JSON line per family; a selection rule is then any function of the candidates'
-inner figures, and its held-out accuracy is read off the lines.
+held-out samples) beside its inner score, its mean per held-out group of the inner splits,
+and two continuous forms of the inner score (`split_losses`: the test samples' mean
+squared hinge and mean margin). One JSON line per family; a selection rule is then any
+function of the candidates' inner figures, and its held-out accuracy is read off the lines.
 
-    PYTHONPATH=benchmarks:experiments .venv/bin/python experiments/candidate_choice.py SEEDS STRENGTH > OUT
+    PYTHONPATH=benchmarks:experiments .venv/bin/python experiments/candidate_choice.py SEEDS STRENGTH [CACHE] > OUT
     .venv/bin/python experiments/candidate_choice.py analyse OUT...   # the selection rules
 """
 import sys
@@ -22,6 +23,14 @@ from mux_trainer.holdout import evaluate_heldout
 from mux_trainer.learned import LearnedIlluminationClassifier, Starts, evaluate_learned_heldout
 from mux_trainer.learned.head import fit_fixed_light_head, stack_features, ratio_offset
 from mux_trainer.search_params import SplitScoring
+from mux_trainer.split_scoring import SquaredHingeSplitScorer
+from mux_trainer.rendering import standardise_columns
+def near_then_hinge(c, d):
+    """Among the candidates within d of the best inner accuracy, the lowest hinge."""
+    top = max(v['inner'] for v in c.values())
+    return min((n for n in c if c[n]['inner'] >= top - d), key=lambda n: c[n]['hinge'])
+
+
 def analyse(paths):
     rows = []
     for f in paths:
@@ -31,6 +40,12 @@ def analyse(paths):
     print(len(rows), 'families')
     rules = {
       'max_inner': lambda c: max(c, key=lambda n: c[n]['inner']),
+      'min_hinge': lambda c: min(c, key=lambda n: c[n]['hinge']),
+      'max_margin': lambda c: max(c, key=lambda n: c[n]['margin']),
+      'inner_then_hinge': lambda c: max(c, key=lambda n: (c[n]['inner'], -c[n]['hinge'])),
+      'near0.01_hinge': lambda c: near_then_hinge(c, 0.01),
+      'near0.02_hinge': lambda c: near_then_hinge(c, 0.02),
+      'near0.05_hinge': lambda c: near_then_hinge(c, 0.05),
       'oracle': lambda c: max(c, key=lambda n: c[n]['held']),
       'max_min_group': lambda c: max(c, key=lambda n: (min(c[n]['groups']), c[n]['inner'])),
       'mean-std': lambda c: max(c, key=lambda n: np.mean(c[n]['groups']) - np.std(c[n]['groups'])),
@@ -51,9 +66,25 @@ def analyse(paths):
             print(f'   {name:14s} {100*v.mean():5.1f}  -greedy {100*(v-g).mean():+5.1f} -snr {100*(v-sn).mean():+5.1f} behind either {np.mean(v < best - 1e-9):.0%}')
 
 
+def split_losses(ev, X):
+    """The inner splits' mean squared hinge (one-vs-rest) and mean margin (the true class's
+    score less the best other's) of the test samples, a continuous form of the split accuracy."""
+    labels = ev.data.labels
+    hinge, margin = [], []
+    for t, s in SquaredHingeSplitScorer().split_decisions(
+            labels, ev.test_masks, X=standardise_columns(X), n_classes=ev.n_classes):
+        y = -np.ones_like(s)
+        y[np.arange(len(t)), labels[t]] = 1
+        hinge.append(float(np.mean(np.sum(np.maximum(0, 1 - y * s) ** 2, axis=1))))
+        true = s[np.arange(len(t)), labels[t]]
+        other = np.where(y > 0, -np.inf, s).max(axis=1)
+        margin.append(float(np.mean(true - other)))
+    return float(np.mean(hinge)), float(np.mean(margin))
+
+
 def measure():
     args = SimpleNamespace(strength=float(sys.argv[2]), samples=4, poses=4, size=60, sample_spread=0.05)
-    args.cache='out/families'
+    args.cache = sys.argv[3] if len(sys.argv) > 3 else 'out/families'
     for seed in fb.parse_seeds(sys.argv[1]):
         data = fb.family_data(fb.family_capture(args, seed), 'intensity_stats', 60)
         folds = []
@@ -77,8 +108,10 @@ def measure():
                     sa = ev.score_features(stack_features(ev.data, ev.images(P), off))
                     groups = ev.split_groups
                     gm = [float(sa[groups == k].mean()) for k in range(groups.max() + 1)]
+                    hinge, margin = split_losses(ev, stack_features(ev.data, ev.images(P), off))
                     model, scores = fit_fixed_light_head(data, P, tr, te)
                     cands[name] = {'inner': m.candidate_scores_[name], 'groups': gm,
+                                   'hinge': hinge, 'margin': margin,
                                    'held': float((scores.argmax(1) == data.labels[te]).mean())}
                 fold['learned'][e] = {'held': held, 'chosen': m.chosen_, 'cands': cands}
             folds.append(fold)

@@ -93,6 +93,23 @@ def test_squared_hinge_handles_unequal_test_sizes_in_split_order():
         assert a == np.mean(clf.predict(X[m]) == y[m])
 
 
+def test_squared_hinge_decisions_are_linear_svcs_split_by_split_and_give_its_accuracies():
+    X, y, masks = _problem(8)
+    masks = list(masks[:6])
+    masks[2] = masks[2].copy()
+    masks[2][np.flatnonzero(~masks[2])[:3]] = True   # unequal test sizes, in split order
+    scorer = SquaredHingeSplitScorer()
+    decisions = scorer.split_decisions(y, masks, X=X)
+    assert len(decisions) == len(masks)
+    for (test, scores), m in zip(decisions, masks):
+        np.testing.assert_array_equal(test, np.flatnonzero(m))
+        clf = LinearSVC(C=1.0, tol=1e-10, max_iter=500000).fit(X[~m], y[~m])
+        np.testing.assert_allclose(scores, clf.decision_function(X[m]), atol=1e-4)
+    np.testing.assert_array_equal(
+        [np.mean(np.argmax(s, axis=1) == y[t]) for t, s in decisions],
+        scorer.split_accuracies(y, masks, X=X))
+
+
 def test_squared_hinge_terminates_on_an_ill_conditioned_kernel():
     """Few features (a rank-deficient kernel) and a large C: the finite termination (a full
     step that leaves the margin violators unchanged) or, where rounding leaves no descent

@@ -135,12 +135,32 @@ class SquaredHingeSplitScorer:
     def split_accuracies(self, labels: np.ndarray, test_masks: list[np.ndarray], *,
                          K: np.ndarray | None = None, X: np.ndarray | None = None,
                          n_classes: int | None = None) -> np.ndarray:
+        labels = np.asarray(labels)
+        acc = np.empty(len(test_masks))
+        for where, T, scores in self._split_scores(labels, test_masks, K, X, n_classes):
+            acc[where] = np.mean(np.argmax(scores, axis=2) == labels[T], axis=1)
+        return acc
+
+    def split_decisions(self, labels: np.ndarray, test_masks: list[np.ndarray], *,
+                        K: np.ndarray | None = None, X: np.ndarray | None = None,
+                        n_classes: int | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per split, (its test samples' indices (m,), their decision scores (m, n_classes)):
+        the SVM trained on the split's other samples, as `split_accuracies` scores it."""
+        labels = np.asarray(labels)
+        out: list = [None] * len(test_masks)
+        for where, T, scores in self._split_scores(labels, test_masks, K, X, n_classes):
+            for i, t, s in zip(where, T, scores):
+                out[i] = (t, s)
+        return out
+
+    def _split_scores(self, labels, test_masks, K, X, n_classes):
+        """Yields (split numbers, test indices (S, m), decision scores (S, m, c)) per test
+        size."""
         if K is None:
             if X is None:
                 raise ValueError('give the kernel K or the features X')
             X = np.asarray(X, dtype=np.float64)
             K = X @ X.T
-        labels = np.asarray(labels)
         n_classes = int(labels.max()) + 1 if n_classes is None else n_classes
         Y = _pm_one_targets(labels, n_classes)
         Kb = np.ascontiguousarray(np.asarray(K, dtype=np.float64) + 1.0)  # bias feature of value 1
@@ -151,7 +171,6 @@ class SquaredHingeSplitScorer:
                           np.zeros(Y.shape))[0]
         margin = Y * (Kb @ a_all)
         start = margin < 1
-        acc = np.empty(len(test_masks))
         sizes = np.array([int(np.sum(m)) for m in test_masks])
         for size in np.unique(sizes):
             where = np.flatnonzero(sizes == size)
@@ -159,9 +178,7 @@ class SquaredHingeSplitScorer:
             T = np.nonzero(masks)[1].reshape(where.size, size)
             train = np.nonzero(~masks)[1].reshape(where.size, n - size)
             a = self._fit(Kb, train, Y, start, margin)
-            scores = Kb[T[:, :, None], train[:, None, :]] @ a   # (splits, test, classes)
-            acc[where] = np.mean(np.argmax(scores, axis=2) == labels[T], axis=1)
-        return acc
+            yield where, T, Kb[T[:, :, None], train[:, None, :]] @ a   # (splits, test, classes)
 
     def fit_kernels(self, Kt: np.ndarray, Y: np.ndarray,
                     start: np.ndarray | None = None) -> np.ndarray:
