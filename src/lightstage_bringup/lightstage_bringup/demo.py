@@ -34,6 +34,7 @@ from lightstage_graph.names import (APPLY_PATTERNS_SERVICE, CAMERA_NODE, CLASSIF
                                     CLASSIFY_SERVICE, IMAGE_TOPIC, ILLUMINATION_TOPIC,
                                     RESULT_TOPIC, resolved, service_event_topic)
 from lightstage_graph.ros_env import apply_ros_environment, ros_environment
+from mux_classifier.confidence import UNKNOWN, UNSURE
 
 NOISE = 'sigma3'
 BAG = 'stage_session'  # the bag of the stage session, in OUT
@@ -367,21 +368,22 @@ def _report(results: dict, summary: dict) -> dict:
     print('anytime: each object stops at the first pattern column whose top class reaches the')
     print('trained target; "every exposure" takes the whole budget. Means per object:')
     print(f'  {"method":<24} {"accuracy":>9} {"exposures":>10} {"acquisition ms":>15} '
-          f'{"compute ms":>11} {"unsure":>7}')
+          f'{"compute ms":>11} {"unsure":>7} {"unknown":>8}')
     for method, rows in results.items():
         accuracy = float(np.mean([r['true'] == r['label'] for r in rows]))
         acq = float(np.mean([r['acquisition_ms'] for r in rows]))
         comp = float(np.mean([r['compute_ms'] for r in rows]))
         images = float(np.mean([r['images_used'] for r in rows]))
-        unsure = sum(r.get('decision') == 'unsure' for r in rows)
+        unsure = sum(r.get('decision') == UNSURE for r in rows)
+        unknown = sum(r.get('decision') == UNKNOWN for r in rows)
         budget = rows[0].get('images_budget') or rows[0]['images_used']
         base = method.split(',')[0]
         report[method] = {'accuracy': accuracy, 'images_used_mean': images,
                           'images_budget': budget, 'acquisition_ms_mean': acq,
-                          'compute_ms_mean': comp, 'unsure': unsure,
+                          'compute_ms_mean': comp, 'unsure': unsure, 'unknown': unknown,
                           'train_seconds': summary[base]['train_seconds'], 'calls': rows}
         print(f'  {method:<24} {100 * accuracy:8.1f} % {images:>5.1f} of {budget:<2d} {acq:>15.1f} '
-              f'{comp:>11.1f} {unsure:>7d}')
+              f'{comp:>11.1f} {unsure:>7d} {unknown:>8d}')
     print()
     return report
 
