@@ -23,7 +23,6 @@ from mux_trainer.holdout import evaluate_heldout
 from mux_trainer.learned import LearnedIlluminationClassifier, Starts, evaluate_learned_heldout
 from mux_trainer.learned.head import fit_fixed_light_head, stack_features, ratio_offset
 from mux_trainer.search_params import SplitScoring
-from mux_trainer.split_scoring import SquaredHingeSplitScorer
 from mux_trainer.rendering import standardise_columns
 def near_then_hinge(c, d):
     """Among the candidates within d of the best inner accuracy, the lowest hinge."""
@@ -71,7 +70,7 @@ def split_losses(ev, X):
     score less the best other's) of the test samples, a continuous form of the split accuracy."""
     labels = ev.data.labels
     hinge, margin = [], []
-    for t, s in SquaredHingeSplitScorer().split_decisions(
+    for t, s in ev.scorer.split_decisions(
             labels, ev.test_masks, X=standardise_columns(X), n_classes=ev.n_classes):
         y = -np.ones_like(s)
         y[np.arange(len(t)), labels[t]] = 1

@@ -128,9 +128,20 @@ def test_squared_hinge_terminates_on_an_ill_conditioned_kernel():
 def test_squared_hinge_warns_and_keeps_the_last_iterate_when_out_of_steps():
     from sklearn.exceptions import ConvergenceWarning
     X, y, masks = _problem(7)
-    with pytest.warns(ConvergenceWarning, match='not converged after 1 Newton steps'):
-        acc = SquaredHingeSplitScorer(max_iter=1).split_accuracies(y, masks[:4], X=X)
+    scorer = SquaredHingeSplitScorer(max_iter=1)
+    with pytest.warns(ConvergenceWarning, match='not converged after 1 Newton steps') as caught:
+        acc = scorer.split_accuracies(y, masks[:4], X=X)
     assert acc.shape == (4,)
+    with pytest.warns(ConvergenceWarning) as caught_decisions:
+        scorer.split_decisions(y, masks[:4], X=X)
+    m = masks[0]
+    train = np.flatnonzero(~m)
+    Y = -np.ones((1, train.size, 4))
+    Y[0, np.arange(train.size), y[train]] = 1
+    with pytest.warns(ConvergenceWarning) as caught_kernels:
+        scorer.fit_kernels((X[train] @ X[train].T + 1.0)[None], Y)
+    # the warning points at the caller's line, not inside the scorer
+    assert {w.filename for w in [*caught, *caught_decisions, *caught_kernels]} == {__file__}
 
 
 def _recorded_problem(seed):

@@ -11,7 +11,8 @@
    sample never seen in training, the paper's captured-imagery experiment -- on the stage,
    and classify it through `/lightstage/classify`, with the greedy patterns, the naive one
    and the learned ones (the simulated firmware has graded levels, pwm_bits 8).
-4. Print accuracy, images used and timings per method; write them to `OUT/demo_results.json`;
+4. Print accuracy, images used, timings and the "not sure" and "unknown" answers per
+   method; write them to `OUT/demo_results.json`;
    write `OUT/stage_params.yaml`, the demo's stage for `lightstage up`; print the commands
    that replay the bag into a classifier that only observes (`classify_observed`), which
    gives the greedy calls' labels again.

@@ -167,8 +167,10 @@ class SquaredHingeSplitScorer:
         n = labels.size
         # warm start and factor order: the SVM trained on all samples; each split starts at
         # its violators, and the samples enter the factor most violating first
+        # a warning names the caller of split_accuracies / split_decisions (this generator
+        # is one frame below them)
         a_all = self._fit(Kb, np.arange(n)[None], Y, np.ones(Y.shape, dtype=bool),
-                          np.zeros(Y.shape))[0]
+                          np.zeros(Y.shape), stacklevel=4)[0]
         margin = Y * (Kb @ a_all)
         start = margin < 1
         sizes = np.array([int(np.sum(m)) for m in test_masks])
@@ -177,7 +179,7 @@ class SquaredHingeSplitScorer:
             masks = np.stack([np.asarray(test_masks[i], dtype=bool) for i in where])
             T = np.nonzero(masks)[1].reshape(where.size, size)
             train = np.nonzero(~masks)[1].reshape(where.size, n - size)
-            a = self._fit(Kb, train, Y, start, margin)
+            a = self._fit(Kb, train, Y, start, margin, stacklevel=4)
             yield where, T, Kb[T[:, :, None], train[:, None, :]] @ a   # (splits, test, classes)
 
     def fit_kernels(self, Kt: np.ndarray, Y: np.ndarray,
@@ -188,15 +190,18 @@ class SquaredHingeSplitScorer:
         the same optimum; a good guess saves Newton steps)."""
         S, m, c = Y.shape
         start = np.ones(Y.shape, dtype=bool) if start is None else np.asarray(start, dtype=bool)
-        return np.concatenate([
-            self._fit(np.ascontiguousarray(Kt[s], dtype=np.float64), np.arange(m)[None],
-                      np.asarray(Y[s], dtype=np.float64), start[s], np.zeros((m, c)))
-            for s in range(S)])
+        coef = []
+        for s in range(S):   # a loop, not a comprehension: a warning names fit_kernels' caller
+            coef.append(self._fit(np.ascontiguousarray(Kt[s], dtype=np.float64),
+                                  np.arange(m)[None], np.asarray(Y[s], dtype=np.float64),
+                                  start[s], np.zeros((m, c))))
+        return np.concatenate(coef)
 
-    def _fit(self, K, train, Y, start, priority) -> np.ndarray:
+    def _fit(self, K, train, Y, start, priority, stacklevel: int = 3) -> np.ndarray:
         """Coefficients (S, m, c) of the problems on the training sets `train` (S, m) of the
         kernel K (n, n, bias included), targets Y (n, c), starting at the violators `start`
-        (n, c) and factoring samples in increasing `priority` (n, c)."""
+        (n, c) and factoring samples in increasing `priority` (n, c). An unconverged problem
+        warns at `stacklevel` (the public method's caller)."""
         coef = np.zeros(train.shape + (Y.shape[1],))
         unconverged = _newton_kernel(
             K, np.ascontiguousarray(train, dtype=np.int64), np.ascontiguousarray(Y, dtype=np.float64),
@@ -209,7 +214,7 @@ class SquaredHingeSplitScorer:
             warnings.warn(f'squared-hinge SVM: {unconverged} of {coef.shape[0] * coef.shape[2]} '
                           f'problems not converged after {self.max_iter} Newton steps; using '
                           'the last iterate (raise max_iter, or lower C)', ConvergenceWarning,
-                          stacklevel=3)
+                          stacklevel=stacklevel)
         return coef
 
 
