@@ -26,8 +26,9 @@ candidate's, less the optimism of having chosen it on those splits
 itself is kept in the results file as `search4` / `search8`.
 
 Prints per family (fold means) and per method: the mean and the worst family at 4 and 8
-exposures, the mean inner-minus-held-out gap, and the share of families where learned is
-behind greedy or SNR-optimal. Per-family results are appended to --results (JSON lines) as
+exposures, the mean inner-minus-held-out gap, the share of families where learned is
+behind greedy or SNR-optimal, and its lead over each family's better rival with how much of
+that lead's spread is the family's own samples (`lead_spread`). Per-family results are appended to --results (JSON lines) as
 they finish, and a rerun with the same file skips the families it holds.
 
     .venv/bin/python benchmarks/families_benchmark.py --seeds 100-159 --strength 0.5
@@ -186,6 +187,29 @@ def standard_error(x) -> float:
     return float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else float('nan')
 
 
+def lead_spread(rows: list[dict], rivals, e: str) -> str:
+    """Learned's lead over each family's better rival (by the family's fold mean): its mean
+    and spread over the families, and how much of that spread is the family's own samples:
+    the standard deviation of the per-fold leads between a family's folds (root mean square
+    over the families) and so the noise of a family's fold mean."""
+    folds = {len(r['methods']['learned']['by_fold']) for r in rows}
+    best = [max(rivals, key=lambda m: r['methods'][m][e]) for r in rows]
+    lead = 100 * np.array([r['methods']['learned'][e] - r['methods'][b][e]
+                           for r, b in zip(rows, best)])
+    text = (f'learned - the better rival of each family: mean {lead.mean():+.1f} points, '
+            f'standard deviation {np.std(lead, ddof=1) if lead.size > 1 else np.nan:.1f} over '
+            'the families')
+    if len(folds) != 1 or min(folds) < 2:
+        return text
+    n = folds.pop()
+    per_fold = 100 * np.array([[f[e] - g[e] for f, g in
+                                zip(r['methods']['learned']['by_fold'], r['methods'][b]['by_fold'])]
+                               for r, b in zip(rows, best)])
+    between = float(np.sqrt(np.mean(np.var(per_fold, axis=1, ddof=1))))
+    return (f'{text}; between a family\'s {n} folds {between:.1f} (root mean square), so about '
+            f'{between / np.sqrt(n):.1f} of noise in a family\'s fold mean')
+
+
 def summarise(rows: list[dict], methods) -> str:
     lines = []
     head = f'{"seed":>5} {"kind":12s} {"cues":22s}' + ''.join(
@@ -234,6 +258,7 @@ def summarise(rows: list[dict], methods) -> str:
                 lines.append(f'{e} exposures: learned behind greedy or SNR-optimal in '
                              f'{np.mean(learned < best - 1e-9):.0%} of families, by more than '
                              f'5 points in {np.mean(learned < best - 0.05):.0%}')
+                lines.append(f'{e} exposures: {lead_spread(rows, rivals, e)}')
     multiplexed = [m for m in ('snr_optimal', 'greedy', 'learned') if m in methods]
     if 'naive' in methods and multiplexed:
         best_m = max(multiplexed, key=lambda m: np.mean([r['methods'][m]['4'] for r in rows]))
