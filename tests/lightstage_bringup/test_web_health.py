@@ -25,6 +25,7 @@ import urllib.request
 
 import pytest
 from lightstage_bringup.supervisor import Supervisor
+from lightstage_graph.names import ACQUISITION_NODE, IMAGE_TOPIC, resolved
 
 from helpers.browser import Browser, screenshot_stats
 from helpers.suite import GraphClient, fresh_domain_id, stage_graph_params, start_nodes, write_params
@@ -313,11 +314,17 @@ def test_a_capture_whose_node_is_killed_fails_and_the_next_is_accepted(base, nod
 
 def test_a_page_server_started_during_a_capture_shows_it_and_cancels_it(base, nodes):
     nodes('driver', 'acquisition')
+    # the running camera matches the new acquisition node's image subscription a little after
+    # the graph shows it; images published before are lost, and a capture whose first images
+    # are all lost fails (after 10 s) before the second page can cancel it
+    base['client'].wait_for_subscriptions(ACQUISITION_NODE, [resolved(IMAGE_TOPIC)], 30.0,
+                                          settle_s=2.0)
     _wait('the capture action on the page', lambda: _state(base)['connected'].get('capture'))
     code, job = _request(base['url'] + '/api/capture', 'POST',
                          {'output_dir': str(base['tmp'] / 'restart'), 'target': 'banana-real/s0/p01',
                           'frames_averaged': 64})
     assert code == 202, job
+    _wait('the capture under way', lambda: next(j for j in _state(base)['jobs'] if j['id'] == job['id'])['progress'])
     with served('web', base['domain_id']) as (_, second):
         found = _wait('the capture on the second page', lambda: next(
             (j for j in _state(base, second)['jobs'] if not j['known'] and j['state'] == 'running'), None))
