@@ -28,8 +28,9 @@ itself is kept in the results file as `search4` / `search8`.
 Prints per family (fold means) and per method: the mean and the worst family at 4 and 8
 exposures, the mean inner-minus-held-out gap, the share of families where learned is
 behind greedy or SNR-optimal, and its lead over each family's better rival with how much of
-that lead's spread is the family's own samples (`lead_spread`). Per-family results are appended to --results (JSON lines) as
-they finish, and a rerun with the same file skips the families it holds.
+that lead's spread is the family's own samples (`lead_spread`). Per-family results are
+appended to --results (JSON lines) as they finish, and a rerun with the same file skips the
+families it holds.
 
     .venv/bin/python benchmarks/families_benchmark.py --seeds 100-159 --strength 0.5
     .venv/bin/python benchmarks/families_benchmark.py --quick

@@ -4,7 +4,7 @@ Per family and fold (sample 0, then 1 held out): greedy and SNR-optimal scored o
 held-out samples; the learned method at 4 and 8 exposures, and every candidate light it
 scored, each with its own head (`learned.fit_fixed_light_head`, one noise draw of the
 held-out samples) beside its inner score, its mean per held-out group of the inner splits,
-and two continuous forms of the inner score (`split_losses`: the test samples' mean
+and two continuous forms of the inner score (`split_scores`: the test samples' mean
 squared hinge and mean margin). One JSON line per family; a selection rule is then any
 function of the candidates' inner figures, and its held-out accuracy is read off the lines.
 
@@ -65,20 +65,22 @@ def analyse(paths):
             print(f'   {name:14s} {100*v.mean():5.1f}  -greedy {100*(v-g).mean():+5.1f} -snr {100*(v-sn).mean():+5.1f} behind either {np.mean(v < best - 1e-9):.0%}')
 
 
-def split_losses(ev, X):
-    """The inner splits' mean squared hinge (one-vs-rest) and mean margin (the true class's
-    score less the best other's) of the test samples, a continuous form of the split accuracy."""
+def split_scores(ev, X):
+    """The inner splits' accuracies of features X, and two continuous forms of them: the
+    test samples' mean squared hinge (one-vs-rest) and mean margin (the true class's score
+    less the best other's), from one fit per split."""
     labels = ev.data.labels
-    hinge, margin = [], []
-    for t, s in ev.scorer.split_decisions(
-            labels, ev.test_masks, X=standardise_columns(X), n_classes=ev.n_classes):
+    accuracy, hinge, margin = [], [], []
+    for t, s in ev.scorer.split_decisions(labels, ev.test_masks, X=standardise_columns(X),
+                                          n_classes=ev.n_classes):
         y = -np.ones_like(s)
         y[np.arange(len(t)), labels[t]] = 1
+        accuracy.append(np.mean(np.argmax(s, axis=1) == labels[t]))
         hinge.append(float(np.mean(np.sum(np.maximum(0, 1 - y * s) ** 2, axis=1))))
         true = s[np.arange(len(t)), labels[t]]
         other = np.where(y > 0, -np.inf, s).max(axis=1)
         margin.append(float(np.mean(true - other)))
-    return float(np.mean(hinge)), float(np.mean(margin))
+    return np.array(accuracy), float(np.mean(hinge)), float(np.mean(margin))
 
 
 def measure():
@@ -104,10 +106,9 @@ def measure():
                 off = ratio_offset(ev.data, m.ratio_stats)
                 cands = {}
                 for name, P in m.candidates_.items():
-                    sa = ev.score_features(stack_features(ev.data, ev.images(P), off))
+                    sa, hinge, margin = split_scores(ev, stack_features(ev.data, ev.images(P), off))
                     groups = ev.split_groups
                     gm = [float(sa[groups == k].mean()) for k in range(groups.max() + 1)]
-                    hinge, margin = split_losses(ev, stack_features(ev.data, ev.images(P), off))
                     model, scores = fit_fixed_light_head(data, P, tr, te)
                     cands[name] = {'inner': m.candidate_scores_[name], 'groups': gm,
                                    'hinge': hinge, 'margin': margin,

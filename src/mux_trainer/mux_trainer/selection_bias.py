@@ -16,16 +16,16 @@ on every group, and choosing without one group does not undo that. Measured on f
 (the tuning seeds; strength 0.5, 4 samples x 4 poses, 3 training samples per class,
 `benchmarks/families_benchmark.py`): greedy's estimate less its held-out accuracy, mean over
 the families at 4 / 8 exposures, is +6.7 / +7.1 points with the nested optimism as it is
-(the split accuracy alone: +17.3 / +15.4), the learned method's +1.9 / +3.6 (+6.6 / +8.0); scaled by 1.75,
-the factor in 1-2 that centres them best there, -1.3 / +0.9 and -1.7 / +0.4, at the cost of
-0.6 points more error per family (12.1 -> 12.7). On the report families 100-159, every
-sample held out in turn: +7.3 / +6.7 and +1.9 / +0.9 unscaled, +0.6 / +1.2 and -1.7 / -2.7
-scaled. With 5 training
-samples per class (families 200-219) it over-corrects: -0.4 / -2.3 and -4.8 / -4.3 scaled,
-+3.5 / +1.4 and -2.2 / -1.7 unscaled: there the estimate errs low. Tibshirani and
-Tibshirani's correction (the mean over groups of the group's best less the chosen; Annals
-of Applied Statistics 3(2), 2009) and the columns' optimisms summed were tried on families
-0-7 and left more (docs/SEARCH.md).
+(the split accuracy alone: +17.3 / +15.4), the learned method's +1.9 / +3.6 (+6.6 / +8.0);
+scaled by 1.75, the factor in 1-2 that centres them best there, -1.3 / +0.9 and -1.7 /
++0.4, at the cost of 0.6 points more error per family (12.1 -> 12.7). On the report
+families 100-159, every sample held out in turn: +7.3 / +6.7 and +1.9 / +0.9 unscaled,
++0.6 / +1.2 and -1.7 / -2.7 scaled. With 5 training samples per class (families 200-219)
+it over-corrects: -0.4 / -2.3 and -4.8 / -4.3 scaled, +3.5 / +1.4 and -2.2 / -1.7
+unscaled: there the estimate errs low. Tibshirani and Tibshirani's correction (the mean
+over groups of the group's best less the chosen; Annals of Applied Statistics 3(2), 2009)
+and the columns' optimisms summed were tried on families 0-7 and left more
+(docs/SEARCH.md).
 
 Pure numpy; `greedy.GreedyPatternSelector` records it per column, the learned method over
 its candidate lights.
