@@ -21,9 +21,10 @@ from mux_trainer.cli import train_main  # noqa: E402
 from mux_trainer.cluster import ClusterUnavailable, DaskCluster, dask_cluster  # noqa: E402
 
 LIGHTSTAGE = str(Path(sys.executable).parent / 'lightstage')
-# small search on the suite's stage capture (4 classes, 120 px): 2 columns, both kept
-SEARCH = ['--repeats', '4', '--max-images', '2', '--fixed-count', '--refine-top', '2',
-          '--seed', '3', '--json', '--quiet']
+# small search on the suite's stage capture (4 classes) loaded at 60 px (HOG cells of 6 px: the
+# cells of 120 px at 12), a quarter of the rendering: 2 columns, both kept
+SEARCH = ['--repeats', '4', '--max-images', '2', '--image-size', '60', '--cell-px', '6',
+          '--fixed-count', '--refine-top', '2', '--seed', '3', '--json', '--quiet']
 
 
 @pytest.fixture(scope='module')
@@ -149,6 +150,7 @@ def test_eval_on_a_cluster_gives_the_local_result(cluster, stage_capture, capsys
     from mux_trainer.cli import eval_main
     address, _ = cluster
     options = [str(stage_capture), '--methods', 'naive,greedy', '--repeats', '4',
+               '--image-size', '60', '--cell-px', '6',
                '--max-images', '2', '--renders', '1', '--seed', '3', '--json', '--quiet']
 
     def evaluate(extra):

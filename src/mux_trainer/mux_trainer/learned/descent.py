@@ -8,6 +8,8 @@ splits measure: separation that holds on poses (or physical samples) it was not 
 """
 from __future__ import annotations
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -113,6 +115,25 @@ def adam(lr: float) -> optax.GradientTransformation:
     return optax.adam(float(lr), b1=ADAM_B1, b2=ADAM_B2, eps=ADAM_EPS)
 
 
+@partial(jax.jit, static_argnames=('shape', 'binary', 'offset', 'lr'))
+def _step(theta, state, idx, eps, basis, onehot, held_out, a, b, top, ridge, *,
+          shape, binary, offset, lr):
+    """One Adam step on the LED logits. Module-level and given the data as arguments, so one
+    compilation (seconds) serves every descent of the same shapes and settings in the
+    process: the descents from several starts of one fit, and the fits that follow."""
+    def loss_fn(theta):
+        mean = relight(jnp.take(basis, idx, axis=1), levels(theta, binary))
+        images = add_noise(mean, eps, a, b, top)
+        F = stack_stats(images, shape)
+        if offset:
+            F = jnp.concatenate([F, stack_ratio_stats(images, shape, offset)], axis=1)
+        return cv_ridge_loss(F, onehot[idx], jnp.take(held_out, idx, axis=1), ridge)
+
+    loss, grad = jax.value_and_grad(loss_fn)(theta)
+    updates, state = adam(lr).update(grad, state, theta)
+    return optax.apply_updates(theta, updates), state, loss
+
+
 def descend(data: SearchData, P0: np.ndarray, rng: np.random.Generator, descent: Descent, *,
             binary: bool, ratio_offset: float, inner_groups: str = 'auto'):
     """Gradient steps on the LED logits from the levels P0 (32, k) on the training samples
@@ -125,28 +146,19 @@ def descend(data: SearchData, P0: np.ndarray, rng: np.random.Generator, descent:
     basis = jnp.asarray(data.basis.reshape(L, data.n_samples, -1))
     labels = jnp.asarray(data.labels, jnp.int32)
     onehot = jax.nn.one_hot(labels, len(data.class_names), dtype=jnp.float32)
-    shape, a, b, top = data.image_shape, data.noise_a, data.noise_b, data.max_level
-    ridge, offset = float(descent.ridge), float(ratio_offset)
     held_out = jnp.asarray(inner_folds(data, int(descent.n_folds), inner_groups))
-
-    def loss_fn(theta, idx, eps):
-        mean = relight(jnp.take(basis, idx, axis=1), levels(theta, binary))
-        images = add_noise(mean, eps, a, b, top)
-        F = stack_stats(images, shape)
-        if offset:
-            F = jnp.concatenate([F, stack_ratio_stats(images, shape, offset)], axis=1)
-        return cv_ridge_loss(F, onehot[idx], jnp.take(held_out, idx, axis=1), ridge)
-
-    optimiser = adam(descent.lr)
-
-    @jax.jit
+    # traced scalars (float32, as the constants they replace): other noise or ridge values
+    # reuse the compilation
+    a, b, top, ridge = (jnp.float32(v) for v in (data.noise_a, data.noise_b, data.max_level,
+                                                 descent.ridge))
+    static = dict(shape=tuple(int(n) for n in data.image_shape), binary=bool(binary),
+                  offset=float(ratio_offset), lr=float(descent.lr))
     def step(theta, state, idx, eps):
-        loss, grad = jax.value_and_grad(loss_fn)(theta, idx, eps)
-        updates, state = optimiser.update(grad, state, theta)
-        return optax.apply_updates(theta, updates), state, loss
+        return _step(theta, state, idx, eps, basis, onehot, held_out, a, b, top, ridge,
+                     **static)
 
     theta = jnp.asarray(logits_of(P0))
-    state = optimiser.init(theta)
+    state = adam(descent.lr).init(theta)
     B = min(int(descent.batch_size), data.n_samples)
     max_steps, every = int(descent.max_steps), int(descent.eval_every)
     for it in range(1, max_steps + 1):
