@@ -54,6 +54,7 @@ PROJECT_PACKAGES=(lightstage_graph lightstage_physics lightstage_camera lightsta
 
 step() { printf '[bootstrap] %s\n' "$*"; echo "=== $* ($(date -u +%H:%M:%S))" >> "$LOG"; }
 fail() {
+  [ -z "${numba_pid:-}" ] || kill "$numba_pid" 2>/dev/null || true
   printf '[bootstrap] FAILED: %s\n[bootstrap] last lines of %s:\n' "$1" "$LOG" >&2
   tail -n 25 "$LOG" >&2
   exit 1
@@ -115,30 +116,9 @@ with camera && pip_requirements requirements-camera requirements-camera.txt "cam
 with cluster && pip_requirements requirements-cluster requirements-cluster.txt "Dask (distributed)"
 with test && pip_requirements requirements-test requirements-test.txt "tests (pytest, hypothesis, rosbags, ...)"
 
-# 4. the interface package (rosidl, built with cmake against the wheels)
-if [ -f src/lightstage_interfaces/pyproject.toml ]; then
-  h=$(tree_hash src/lightstage_interfaces)
-  if ! stamp_ok interfaces "$h"; then
-    step "building lightstage_interfaces (rosidl; about a minute)"
-    "${PIP[@]}" install -q --no-build-isolation --no-deps --force-reinstall ./src/lightstage_interfaces >> "$LOG" 2>&1 \
-      || fail "building src/lightstage_interfaces"
-    stamp_set interfaces "$h"
-  fi
-fi
-
-# 5. the firmware (AVR) and its simavr harness: for the tests (the demo's stage runs the
-#    Python firmware simulator)
-if with test && [ -f src/lightstage_driver/firmware/Makefile ]; then
-  h=$(tree_hash src/lightstage_driver/firmware)
-  if ! stamp_ok firmware "$h" || [ ! -d src/lightstage_driver/firmware/build ]; then
-    step "building the AVR firmware and the simavr harness"
-    make -C src/lightstage_driver/firmware >> "$LOG" 2>&1 || fail "make -C src/lightstage_driver/firmware"
-    stamp_set firmware "$h"
-  fi
-fi
-
-# 6. the project's ament_python packages (regular installs: data files such as the
-#    ament index markers and the lib/<pkg>/ executables for `ros2 run` land in the venv)
+# 4. the project's ament_python packages (regular installs: data files such as the
+#    ament index markers and the lib/<pkg>/ executables for `ros2 run` land in the venv; they
+#    install without the interface package, which the nodes import only when they run)
 for pkg in "${PROJECT_PACKAGES[@]}"; do
   h=$(tree_hash "src/$pkg")
   if ! stamp_ok "$pkg" "$h"; then
@@ -150,12 +130,45 @@ for pkg in "${PROJECT_PACKAGES[@]}"; do
     reinstalled=1
   fi
 done
-# the numba kernels (HOG, noise, exact SVM) compile once here into the installed packages'
-# caches, so that no classify request or search pays the compile (seconds) later
+# the numba kernels (HOG, noise, exact SVM) compile once into the installed packages' caches,
+# so that no classify request or search pays the compile (seconds) later; on the second core
+# while the interface package builds (the two took 38 s and 79 s one after the other)
+numba_pid=""
 if [ -n "${reinstalled:-}" ]; then
-  step "compiling the numba kernels"
+  step "compiling the numba kernels (beside the next step)"
   "$VENV/bin/python" -c 'from mux_trainer.rendering import compile_kernels; compile_kernels()' \
-    >> "$LOG" 2>&1 || fail "compiling the numba kernels (mux_trainer.rendering.compile_kernels)"
+    > "$LOG.numba" 2>&1 &
+  numba_pid=$!
+fi
+
+# 5. the interface package (rosidl, built with cmake against the wheels)
+if [ -f src/lightstage_interfaces/pyproject.toml ]; then
+  h=$(tree_hash src/lightstage_interfaces)
+  if ! stamp_ok interfaces "$h"; then
+    step "building lightstage_interfaces (rosidl; about a minute)"
+    "${PIP[@]}" install -q --no-build-isolation --no-deps --force-reinstall ./src/lightstage_interfaces >> "$LOG" 2>&1 \
+      || fail "building src/lightstage_interfaces"
+    stamp_set interfaces "$h"
+  fi
+fi
+
+# 6. the firmware (AVR) and its simavr harness: for the tests (the demo's stage runs the
+#    Python firmware simulator)
+if with test && [ -f src/lightstage_driver/firmware/Makefile ]; then
+  h=$(tree_hash src/lightstage_driver/firmware)
+  if ! stamp_ok firmware "$h" || [ ! -d src/lightstage_driver/firmware/build ]; then
+    step "building the AVR firmware and the simavr harness"
+    make -C src/lightstage_driver/firmware >> "$LOG" 2>&1 || fail "make -C src/lightstage_driver/firmware"
+    stamp_set firmware "$h"
+  fi
+fi
+
+if [ -n "$numba_pid" ]; then
+  numba_ok=0
+  wait "$numba_pid" || numba_ok=$?
+  numba_pid=""
+  cat "$LOG.numba" >> "$LOG"; rm -f "$LOG.numba"
+  [ "$numba_ok" = 0 ] || fail "compiling the numba kernels (mux_trainer.rendering.compile_kernels)"
 fi
 
 # 7. the venv's ROS setup file, and a path fix in the interface package's own setup file
