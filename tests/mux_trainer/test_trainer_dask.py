@@ -14,7 +14,7 @@ TRAIN = '/lightstage/train'
 
 
 def test_train_goal_runs_on_the_cluster_then_aborts_when_it_is_gone(cluster, dask_scheduler,
-                                                                    tmp_path, stage_capture):
+                                                                    tmp_path, tiny_capture):
     from action_msgs.msg import GoalStatus
     from lightstage_interfaces.action import Train
     from rclpy.action import ActionClient
@@ -29,7 +29,7 @@ def test_train_goal_runs_on_the_cluster_then_aborts_when_it_is_gone(cluster, das
         client = ActionClient(c.node, Train, TRAIN)
         c.spin_until(client.server_is_ready, 30, 'the Train action server')
         feedback = []
-        goal = Train.Goal(capture_dir=str(stage_capture), output_path=str(tmp_path / 'a.npz'),
+        goal = Train.Goal(capture_dir=str(tiny_capture), output_path=str(tmp_path / 'a.npz'),
                           max_images=2, repeats=4, seed=3)
         with distributed.Client(address, set_as_default=False) as watcher:
             watcher.get_task_stream()  # starts the scheduler's record of the tasks
@@ -52,7 +52,7 @@ def test_train_goal_runs_on_the_cluster_then_aborts_when_it_is_gone(cluster, das
             proc.kill()
             proc.wait(timeout=30)
         handle = c.result(client.send_goal_async(
-            Train.Goal(capture_dir=str(stage_capture), output_path=str(tmp_path / 'b.npz'),
+            Train.Goal(capture_dir=str(tiny_capture), output_path=str(tmp_path / 'b.npz'),
                        max_images=2, repeats=4, seed=3)))
         outcome = c.result(handle.get_result_async(), 120, 'the aborted Train result')
         assert outcome.status == GoalStatus.STATUS_ABORTED
