@@ -17,10 +17,12 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
 export LIGHTSTAGE_FIRMWARE_DIR="$ROOT/src/lightstage_driver/firmware"
 export LIGHTSTAGE_REQUIRE_AVR=1
 
-# One pytest worker per core (pytest-xdist), a test file per worker at a time (its module
-# fixtures set up once); half of a graph test's time is waiting, so the cores share well.
-# LIGHTSTAGE_TEST_WORKERS=0 runs in one process; a later -n in the arguments wins.
-WORKERS="${LIGHTSTAGE_TEST_WORKERS:-auto}"
+# pytest-xdist workers, a test file per worker at a time (its module fixtures set up once):
+# one more than the cores, as a graph test spends much of its time waiting on other
+# processes (on 2 cores the suite used 1.65 cores with 2 workers; with 3 it took 602-620 s where
+# 2 took 697-718 s). LIGHTSTAGE_TEST_WORKERS=N sets the number (0: one process); a later -n
+# in the arguments wins.
+WORKERS="${LIGHTSTAGE_TEST_WORKERS:-$(( $(nproc) + 1 ))}"
 if [ "$WORKERS" = 0 ]; then
   PYTEST=(.venv/bin/python -m pytest "$@")
 else
