@@ -163,6 +163,7 @@ if with test && [ -f src/lightstage_driver/firmware/Makefile ]; then
   fi
 fi
 
+# the numba kernels started beside the interface build: wait for them, their log into LOG
 if [ -n "$numba_pid" ]; then
   numba_ok=0
   wait "$numba_pid" || numba_ok=$?

@@ -153,6 +153,7 @@ def descend(data: SearchData, P0: np.ndarray, rng: np.random.Generator, descent:
                                                  descent.ridge))
     static = dict(shape=tuple(int(n) for n in data.image_shape), binary=bool(binary),
                   offset=float(ratio_offset), lr=float(descent.lr))
+
     def step(theta, state, idx, eps):
         return _step(theta, state, idx, eps, basis, onehot, held_out, a, b, top, ridge,
                      **static)
